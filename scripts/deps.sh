@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages Pliant needs to build, test and run (root, or sudo).
+# Skips apt entirely when everything is already there.
+set -euo pipefail
+PKGS=(build-essential cmake ninja-build pkg-config
+      libeigen3-dev libspdlog-dev libfmt-dev
+      libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
+      libassimp-dev libgtest-dev libgmock-dev libbenchmark-dev
+      tetgen gnuplot-nox)
+missing=()
+for p in "${PKGS[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "deps: all ${#PKGS[@]} packages present"
+  exit 0
+fi
+echo "deps: installing ${missing[*]}"
+SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+echo "deps: done"

@@ -1,0 +1,35 @@
+// Linear-elastic material parameters (SI units) and the StVK stiffness they give the strain
+// constraint: the 6x6 matrix K with energy density psi = 1/2 c^T K c for the strain vector
+// c = (e_xx, e_yy, e_zz, g_yz, g_xz, g_xy) with engineering shears g_ij = 2 e_ij.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <string>
+
+namespace pliant {
+
+using Mat6 = Eigen::Matrix<double, 6, 6>;
+using Vec6 = Eigen::Matrix<double, 6, 1>;
+
+struct Material {
+  double young = 1e6;      // E, Pa (> 0)
+  double poisson = 0.4;    // nu, in (-1, 0.5)
+  double density = 1000;   // rho, kg/m^3 (> 0)
+};
+
+struct Lame {
+  double lambda;  // first Lame parameter, Pa
+  double mu;      // shear modulus, Pa
+};
+
+Lame lame_parameters(double young, double poisson);
+
+// K = [[l+2m, l, l], [l, l+2m, l], [l, l, l+2m]] (+) diag(m, m, m): the inverse of the
+// constraint's compliance alpha. With engineering shears this gives 1/2 c^T K c = psi_StVK.
+Mat6 stvk_stiffness(const Lame& lame);
+
+// Empty when valid, else a message naming the bad field and its value.
+std::string validate(const Material& material);
+
+}  // namespace pliant

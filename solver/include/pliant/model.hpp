@@ -1,0 +1,80 @@
+// The immutable part of a soft body: rest shape, per-tet rest data, lumped masses, material
+// and the constraint colouring. Built once from a mesh, shared read-only (shared_ptr<const>)
+// by the solver, snapshots and any number of readers. Mutable quantities live in BodyState.
+#pragma once
+
+#include "pliant/material.hpp"
+#include "pliant/mesh.hpp"
+
+#include <Eigen/Core>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace pliant {
+
+using Mat3 = Eigen::Matrix3d;
+
+// Rest data of one strain constraint, laid out flat for the projection loop.
+struct TetRest {
+  Tet v;               // vertex indices
+  Mat3 dm_inv;         // inverse of D_m = [X0-X3, X1-X3, X2-X3]
+  double volume;       // rest volume V0 (> 0)
+  double sqrt_volume;  // sqrt(V0): C = sqrt(V0) * strain
+};
+
+// Which vertices are held in place (inverse mass 0).
+struct FixedSelection {
+  std::vector<int32_t> indices;            // explicit vertex indices
+  struct Box { Vec3 min, max; };
+  std::vector<Box> boxes;                  // every vertex inside any box
+  struct HalfSpace { Vec3 point, normal; };
+  std::vector<HalfSpace> half_spaces;      // every vertex with (x - point).normal <= 0
+};
+
+struct BodyModel {
+  std::string name;
+  std::vector<Vec3> rest_positions;
+  std::vector<TetRest> tets;
+  std::vector<double> mass;       // lumped: each tet gives rho*V0/4 to each vertex
+  std::vector<double> inv_mass;   // 0 for fixed vertices
+  std::vector<uint8_t> fixed;     // 1 for fixed vertices
+  std::vector<Triangle> surface;  // boundary triangles, outward
+  std::vector<int32_t> vertex_tet_count;  // constraints touching each vertex (Jacobi averaging)
+  Material material;
+  Lame lame{};
+  Mat6 stiffness = Mat6::Zero();  // K (alpha = K^-1)
+  Mat6 compliance = Mat6::Zero(); // alpha = K^-1
+  // Tets grouped so that no two tets of a colour share a vertex: a colour can be projected
+  // in parallel with the same result as sequentially (Gauss-Seidel stays deterministic).
+  std::vector<std::vector<int32_t>> colours;
+
+  size_t vertex_count() const { return rest_positions.size(); }
+  size_t tet_count() const { return tets.size(); }
+  double total_mass() const;
+};
+
+struct ModelError {
+  std::string field;    // e.g. "material.poisson", "mesh.tets[12]"
+  std::string message;  // full sentence naming the value
+};
+
+// Builds the model; throws std::invalid_argument with a message naming field and value on a
+// bad material, an empty mesh, an out-of-range index, or a tet with non-positive volume.
+std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material& material,
+                                             const FixedSelection& fixed = {});
+
+// Same geometry, new material (live material edits): recomputes masses and compliance only.
+std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Material& material);
+
+// Same geometry and material, a new set of fixed vertices.
+std::shared_ptr<const BodyModel> with_fixed(const BodyModel& model, const FixedSelection& fixed);
+
+// Indices of vertices selected by the selection (sorted, unique).
+std::vector<int32_t> select_vertices(const std::vector<Vec3>& positions, const FixedSelection& sel);
+
+// Greedy colouring of tets by shared vertices.
+std::vector<std::vector<int32_t>> colour_tets(const std::vector<TetRest>& tets, size_t vertex_count);
+
+}  // namespace pliant

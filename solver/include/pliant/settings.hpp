@@ -1,0 +1,70 @@
+// Everything a step needs to know besides the model and the state: time step, substeps,
+// the sweep and accelerator choice with their parameters, stopping rules, damping, gravity.
+// Names and defaults here are the ones the CLI and the API expose.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <optional>
+#include <string>
+#include <string_view>
+
+namespace pliant {
+
+enum class Sweep { GaussSeidel, Jacobi };
+
+enum class Method {
+  Xpbd,                // plain projection, no acceleration
+  Sor,                 // over-relaxation of positions between sweeps
+  LambdaSor,           // over-relaxation of each multiplier increment (diverges for large omega)
+  Chebyshev,           // Chebyshev semi-iterative on positions (Wang 2015)
+  Anderson,            // Anderson on the multiplier increments, omega = 1
+  AndersonSor,         // Anderson on the multiplier increments, scaled by omega (the thesis)
+  Extrapolation,       // omega * last increment under the residual check (Anderson with theta = 0)
+};
+
+enum class Damping { None, Simple, RigidPreserving };
+
+struct ChebyshevParams {
+  double rho = 0.95;   // estimated spectral radius of the sweep
+  double gamma = 0.9;  // under-relaxation
+  int delay = 10;      // plain iterations before the acceleration starts
+};
+
+struct SolverSettings {
+  double dt = 1.0 / 60.0;   // tick length h, s
+  int substeps = 8;         // h is split into this many substeps
+  int iterations = 8;       // iterations per substep (upper bound when a stop rule is set)
+  Sweep sweep = Sweep::GaussSeidel;
+  Method method = Method::Xpbd;
+  int window = 5;           // Anderson window m
+  double omega = 1.0;       // SOR / lambda-SOR / Anderson-SOR factor (1 for plain methods)
+  double condition_limit = 1e3;  // Anderson: drop oldest columns while cond(dE^T dE) exceeds it
+  ChebyshevParams chebyshev;
+  double jacobi_relaxation = 1.0;  // scales the averaged Jacobi corrections
+  // Stop a substep's iterations early when ||r|| / ||r0|| < tolerance (0: off) ...
+  double tolerance = 0.0;
+  // ... or when the whole step has used this much wall time, ms (0: off). Every substep then
+  // gets an equal share of the budget.
+  double time_budget_ms = 0.0;
+  Damping damping = Damping::Simple;
+  double damping_coefficient = 0.5;  // Simple: v *= exp(-k h)  (1/s); Rigid: k in [0,1] per step
+  Eigen::Vector3d gravity{0.0, -9.81, 0.0};
+  // Inversion safety: tets whose volume ratio det(F) falls below this are pushed back by a
+  // unilateral volume constraint (0 disables it; see docs/solver.md).
+  double inversion_floor = 0.2;
+  int threads = 1;          // worker threads for the sweeps (1: all on the calling thread)
+  bool record_residuals = true;  // compute ||r|| after every iteration (needed by Anderson)
+};
+
+std::string_view to_string(Sweep s);
+std::string_view to_string(Method m);
+std::string_view to_string(Damping d);
+std::optional<Sweep> parse_sweep(std::string_view s);     // "gauss-seidel" | "jacobi"
+std::optional<Method> parse_method(std::string_view s);   // "xpbd" | "sor" | "lambda-sor" | ...
+std::optional<Damping> parse_damping(std::string_view s); // "none" | "simple" | "rigid"
+
+// Empty when valid, else a message naming the bad field and its value.
+std::string validate(const SolverSettings& settings);
+
+}  // namespace pliant

@@ -1,0 +1,30 @@
+// The mutable part of a soft body: positions, velocities and the Lagrange multipliers of the
+// last step. Plain vectors, cheap to copy for snapshots and rollback.
+#pragma once
+
+#include "pliant/material.hpp"
+#include "pliant/model.hpp"
+
+#include <cstdint>
+#include <vector>
+
+namespace pliant {
+
+struct BodyState {
+  std::vector<Vec3> x;       // positions, m
+  std::vector<Vec3> v;       // velocities, m/s
+  std::vector<Vec6> lambda;  // strain multipliers of the last substep (one 6-vector per tet)
+  double time = 0.0;         // simulated seconds
+  uint64_t steps = 0;        // steps taken
+};
+
+// Rest positions, zero velocity, zero multipliers.
+BodyState rest_state(const BodyModel& model);
+
+// True when every position and velocity is finite.
+bool is_finite(const BodyState& state);
+
+// Number of tets with det(F) <= 0.
+size_t count_inverted(const BodyModel& model, const std::vector<Vec3>& x);
+
+}  // namespace pliant

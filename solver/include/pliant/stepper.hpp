@@ -1,0 +1,85 @@
+// One time step of the XPBD solver: substeps, the projection sweep (Gauss-Seidel or Jacobi),
+// the chosen accelerator, contacts, damping, and a report of what the step did (iterations,
+// residual history, accelerations accepted/rejected, time split as in thesis figure 3.10).
+// A Stepper owns scratch buffers only; the model is shared and the state is the caller's.
+#pragma once
+
+#include "pliant/colliders.hpp"
+#include "pliant/model.hpp"
+#include "pliant/settings.hpp"
+#include "pliant/state.hpp"
+
+#include <functional>
+#include <memory>
+#include <vector>
+
+namespace pliant {
+
+// Wall time spent in each phase of the iterations, ms (thesis figure 3.10).
+struct PhaseTimes {
+  double projection_ms = 0;  // constraint projection sweeps
+  double anderson_ms = 0;    // the accelerator's own work (least squares, extrapolation)
+  double update_ms = 0;      // position updates from accelerated multipliers / relaxation
+  double residual_ms = 0;    // residual evaluation
+  double other_ms = 0;       // prediction, contacts, velocity update, damping
+};
+
+struct StepReport {
+  int substeps = 0;
+  int iterations = 0;                  // iterations run over all substeps
+  std::vector<double> residuals;       // ||r|| after each iteration of the LAST substep
+  double residual_initial = 0;         // ||r|| at lambda = 0 of the last substep
+  double residual_final = 0;           // last entry of residuals (or initial)
+  int accelerations_tried = 0;
+  int accelerations_accepted = 0;
+  int anderson_columns_dropped = 0;    // condition-number safeguard
+  bool diverged = false;               // residual exploded or state went non-finite
+  bool stopped_by_tolerance = false;
+  bool stopped_by_budget = false;
+  int contacts = 0;                    // active contacts at the end of the step
+  int volume_corrections = 0;          // inversion-floor projections in the last iteration
+  PhaseTimes times;
+  double wall_ms = 0;
+};
+
+// Per-step inputs that are not part of the body: external forces (N, per vertex; empty for none)
+// and static colliders.
+struct StepInputs {
+  std::vector<Vec3> external_forces;
+  std::vector<Collider> colliders;
+};
+
+class Stepper {
+ public:
+  Stepper();
+  ~Stepper();
+  Stepper(Stepper&&) noexcept;
+  Stepper& operator=(Stepper&&) noexcept;
+
+  // Advances `state` by settings.dt. The state must belong to `model`.
+  StepReport step(const BodyModel& model, BodyState& state, const SolverSettings& settings,
+                  const StepInputs& inputs = {});
+
+  // One substep of length h from a given predicted start, exposed for the convergence
+  // experiment: x = x_pred on entry, lambda = 0, runs up to settings.iterations; the report
+  // holds the full residual history. `x_prev` is the position at the start of the substep.
+  StepReport solve_substep(const BodyModel& model, const std::vector<Vec3>& x_prev,
+                           std::vector<Vec3>& x, std::vector<Vec6>& lambda, double h,
+                           const SolverSettings& settings, const StepInputs& inputs = {});
+
+  // Optional per-iteration hook for experiments (called after every iteration with the
+  // current positions); used by the convergence tool to track the true error.
+  using IterationHook =
+      std::function<void(int iteration, const std::vector<Vec3>& x, double residual)>;
+  void set_iteration_hook(IterationHook hook);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// ||r|| with r = C(x) + alpha~ lambda stacked over all tets (thesis eq. 2.18), alpha~ = alpha/h^2.
+double residual_norm(const BodyModel& model, const std::vector<Vec3>& x,
+                     const std::vector<Vec6>& lambda, double h);
+
+}  // namespace pliant

@@ -1,0 +1,31 @@
+#include "pliant/material.hpp"
+
+#include <cmath>
+#include <sstream>
+
+namespace pliant {
+
+Lame lame_parameters(double E, double nu) {
+  return {E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)), E / (2.0 * (1.0 + nu))};
+}
+
+Mat6 stvk_stiffness(const Lame& l) {
+  Mat6 K = Mat6::Zero();
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) K(i, j) = l.lambda + (i == j ? 2.0 * l.mu : 0.0);
+  for (int i = 3; i < 6; ++i) K(i, i) = l.mu;
+  return K;
+}
+
+std::string validate(const Material& m) {
+  std::ostringstream os;
+  if (!std::isfinite(m.young) || m.young <= 0)
+    os << "material.young must be a finite value > 0 Pa, got " << m.young;
+  else if (!std::isfinite(m.poisson) || m.poisson <= -1.0 || m.poisson >= 0.5)
+    os << "material.poisson must be in (-1, 0.5), got " << m.poisson;
+  else if (!std::isfinite(m.density) || m.density <= 0)
+    os << "material.density must be a finite value > 0 kg/m^3, got " << m.density;
+  return os.str();
+}
+
+}  // namespace pliant

@@ -1,0 +1,153 @@
+#include "pliant/model.hpp"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace pliant {
+
+double BodyModel::total_mass() const {
+  double m = 0;
+  for (double v : mass) m += v;
+  return m;
+}
+
+std::vector<int32_t> select_vertices(const std::vector<Vec3>& x, const FixedSelection& sel) {
+  std::vector<uint8_t> mark(x.size(), 0);
+  for (int32_t i : sel.indices) {
+    if (i < 0 || size_t(i) >= x.size()) {
+      std::ostringstream os;
+      os << "fixed.indices: vertex " << i << " is out of range [0, " << x.size() << ")";
+      throw std::invalid_argument(os.str());
+    }
+    mark[i] = 1;
+  }
+  for (size_t i = 0; i < x.size(); ++i) {
+    for (const auto& b : sel.boxes)
+      if ((x[i].array() >= b.min.array()).all() && (x[i].array() <= b.max.array()).all()) mark[i] = 1;
+    for (const auto& h : sel.half_spaces)
+      if ((x[i] - h.point).dot(h.normal) <= 0) mark[i] = 1;
+  }
+  std::vector<int32_t> out;
+  for (size_t i = 0; i < x.size(); ++i)
+    if (mark[i]) out.push_back(static_cast<int32_t>(i));
+  return out;
+}
+
+std::vector<std::vector<int32_t>> colour_tets(const std::vector<TetRest>& tets, size_t nv) {
+  // Greedy: each tet takes the lowest colour none of its vertices has used yet. Vertex colour
+  // sets are bitmasks (64 colours per word, more words if a mesh ever needs them).
+  std::vector<std::vector<uint64_t>> used(nv);
+  std::vector<std::vector<int32_t>> colours;
+  for (size_t t = 0; t < tets.size(); ++t) {
+    const Tet& v = tets[t].v;
+    int c = 0;
+    for (;; ++c) {
+      size_t w = size_t(c) / 64;
+      uint64_t bit = uint64_t(1) << (c % 64);
+      bool taken = false;
+      for (int k = 0; k < 4 && !taken; ++k) taken = w < used[v[k]].size() && (used[v[k]][w] & bit);
+      if (!taken) break;
+    }
+    size_t w = size_t(c) / 64;
+    uint64_t bit = uint64_t(1) << (c % 64);
+    for (int k = 0; k < 4; ++k) {
+      if (used[v[k]].size() <= w) used[v[k]].resize(w + 1, 0);
+      used[v[k]][w] |= bit;
+    }
+    if (colours.size() <= size_t(c)) colours.resize(c + 1);
+    colours[c].push_back(static_cast<int32_t>(t));
+  }
+  return colours;
+}
+
+namespace {
+
+void set_material(BodyModel& m, const Material& material) {
+  if (std::string err = validate(material); !err.empty()) throw std::invalid_argument(err);
+  m.material = material;
+  m.lame = lame_parameters(material.young, material.poisson);
+  m.stiffness = stvk_stiffness(m.lame);
+  m.compliance = m.stiffness.inverse();
+  m.mass.assign(m.rest_positions.size(), 0.0);
+  for (const TetRest& t : m.tets)
+    for (int k = 0; k < 4; ++k) m.mass[t.v[k]] += material.density * t.volume / 4.0;
+}
+
+void set_fixed(BodyModel& m, const FixedSelection& sel) {
+  m.fixed.assign(m.rest_positions.size(), 0);
+  for (int32_t i : select_vertices(m.rest_positions, sel)) m.fixed[i] = 1;
+  m.inv_mass.resize(m.mass.size());
+  for (size_t i = 0; i < m.mass.size(); ++i)
+    m.inv_mass[i] = (m.fixed[i] || m.mass[i] <= 0) ? 0.0 : 1.0 / m.mass[i];
+}
+
+}  // namespace
+
+std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material& material,
+                                             const FixedSelection& fixed) {
+  if (mesh.vertices.empty() || mesh.tets.empty())
+    throw std::invalid_argument("mesh: '" + mesh.name + "' has no vertices or no tetrahedra");
+  auto m = std::make_shared<BodyModel>();
+  m->name = mesh.name;
+  m->rest_positions = mesh.vertices;
+  const size_t nv = mesh.vertices.size();
+  for (size_t i = 0; i < nv; ++i)
+    if (!mesh.vertices[i].allFinite()) {
+      std::ostringstream os;
+      os << "mesh.vertices[" << i << "]: coordinate is not finite";
+      throw std::invalid_argument(os.str());
+    }
+  m->tets.reserve(mesh.tets.size());
+  m->vertex_tet_count.assign(nv, 0);
+  for (size_t t = 0; t < mesh.tets.size(); ++t) {
+    const Tet& v = mesh.tets[t];
+    for (int k = 0; k < 4; ++k)
+      if (v[k] < 0 || size_t(v[k]) >= nv) {
+        std::ostringstream os;
+        os << "mesh.tets[" << t << "]: vertex index " << v[k] << " out of range [0, " << nv << ")";
+        throw std::invalid_argument(os.str());
+      }
+    Mat3 dm;
+    for (int c = 0; c < 3; ++c) dm.col(c) = mesh.vertices[v[c]] - mesh.vertices[v[3]];
+    // det(D_m) = -6 V for the (0,1,2,3) orientation convention of signed_tet_volume.
+    double vol = signed_tet_volume(mesh.vertices[v[0]], mesh.vertices[v[1]], mesh.vertices[v[2]],
+                                   mesh.vertices[v[3]]);
+    if (!(vol > 0)) {
+      std::ostringstream os;
+      os << "mesh.tets[" << t << "]: volume " << vol << " m^3 is not positive (inverted or degenerate)";
+      throw std::invalid_argument(os.str());
+    }
+    TetRest r;
+    r.v = v;
+    r.dm_inv = dm.inverse();
+    r.volume = vol;
+    r.sqrt_volume = std::sqrt(vol);
+    m->tets.push_back(r);
+    for (int k = 0; k < 4; ++k) m->vertex_tet_count[v[k]]++;
+  }
+  m->surface = boundary_triangles(mesh.tets);
+  set_material(*m, material);
+  set_fixed(*m, fixed);
+  m->colours = colour_tets(m->tets, nv);
+  return m;
+}
+
+std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Material& material) {
+  auto m = std::make_shared<BodyModel>(model);
+  set_material(*m, material);
+  for (size_t i = 0; i < m->mass.size(); ++i)
+    m->inv_mass[i] = (m->fixed[i] || m->mass[i] <= 0) ? 0.0 : 1.0 / m->mass[i];
+  return m;
+}
+
+std::shared_ptr<const BodyModel> with_fixed(const BodyModel& model, const FixedSelection& fixed) {
+  auto m = std::make_shared<BodyModel>(model);
+  set_fixed(*m, fixed);
+  return m;
+}
+
+}  // namespace pliant

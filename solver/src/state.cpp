@@ -1,0 +1,30 @@
+#include "pliant/state.hpp"
+
+#include "pliant/strain_constraint.hpp"
+
+namespace pliant {
+
+BodyState rest_state(const BodyModel& model) {
+  BodyState s;
+  s.x = model.rest_positions;
+  s.v.assign(model.vertex_count(), Vec3::Zero());
+  s.lambda.assign(model.tet_count(), Vec6::Zero());
+  return s;
+}
+
+bool is_finite(const BodyState& s) {
+  for (const Vec3& p : s.x)
+    if (!p.allFinite()) return false;
+  for (const Vec3& p : s.v)
+    if (!p.allFinite()) return false;
+  return true;
+}
+
+size_t count_inverted(const BodyModel& model, const std::vector<Vec3>& x) {
+  size_t n = 0;
+  for (const TetRest& t : model.tets)
+    if (volume_ratio(t, gather(x, t.v)) <= 0) ++n;
+  return n;
+}
+
+}  // namespace pliant
