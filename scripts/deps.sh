@@ -1,12 +1,21 @@
 #!/usr/bin/env bash
 # Installs the Debian 12 packages Pliant needs to build, test and run (root, or sudo).
 # Skips apt entirely when everything is already there.
+#   deps.sh            everything: build, tests, benchmarks, tools
+#   deps.sh --no-dev   only what a Release build of the programs needs (the container's build stage)
 set -euo pipefail
 PKGS=(build-essential cmake ninja-build pkg-config
       libeigen3-dev libspdlog-dev libfmt-dev
       libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
       libassimp-dev libgtest-dev libgmock-dev libbenchmark-dev
-      tetgen gnuplot-nox)
+      tetgen gnuplot-nox python3-yaml)
+# Needed only by tests, benchmarks and tools, not to build the programs; left out by --no-dev.
+DEV_ONLY=(libgtest-dev libgmock-dev libbenchmark-dev tetgen gnuplot-nox python3-yaml)
+if [ "${1:-}" = --no-dev ]; then
+  keep=()
+  for p in "${PKGS[@]}"; do [[ " ${DEV_ONLY[*]} " == *" $p "* ]] || keep+=("$p"); done
+  PKGS=("${keep[@]}")
+fi
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
