@@ -1,0 +1,195 @@
+#!/usr/bin/env bash
+# docker/smoke-test.sh - build the Pliant server image from this checkout with podman and use it:
+# start the container, wait for its HEALTHCHECK, create a scene and stream frames from the host with
+# the `pliant` CLI, stop it (SIGTERM: the server snapshots its scenes to the volume), start it again
+# and check the scene and its state came back, then clean up. Needs root (or sudo), a Debian 12 host
+# and the Debian apt mirrors; no Docker engine and no registry (the base image is made with debootstrap).
+#
+#   bash docker/smoke-test.sh
+#
+# Exit status: 0 passed, 77 skipped (podman could not be installed; says why), anything else failed.
+# Env:
+#   PLIANT_PODMAN_CACHE=/var/cache/pliant-podman  podman storage + the debootstrap tarball, kept between
+#                        runs so that a rerun reuses the package layers (about 1.5 GB).
+#   FRESH=1              start from nothing: wipe that cache (and the ccache mount in /var/tmp) first.
+#   PORT=<free port>     host port the server listens on (host networking); default: a free one.
+#   IMAGE=localhost/pliant:smoke  tag of the image built.   CLEAN=1: also delete the image at the end.
+#
+# Facts these build machines need (see ../shared/tools/container-smoke.sh for the origin):
+#  * crun fails here ("cgroups in hybrid mode not supported"): we select runc.
+#  * root lacks CAP_SYS_RESOURCE and podman caps RLIMIT_NPROC at 32768, so podman's default rlimits
+#    (1048576) cannot be set: we pin default_ulimits to the current hard limits.
+#  * Debian 12 has podman 4.3.1 / buildah 1.28: no RUN heredocs, no COPY --link (the Dockerfile uses
+#    neither); --format docker is needed to keep HEALTHCHECK.
+#  * net.ipv4.ip_forward is 0 here, so published bridge ports are not dependable: the container runs
+#    with --network=host and listens on 127.0.0.1:$PORT (compose.yaml uses a normal bridge + ports).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+REPO=$PWD
+CACHE=${PLIANT_PODMAN_CACHE:-/var/cache/pliant-podman}
+IMAGE=${IMAGE:-localhost/pliant:smoke}
+NAME=pliant-smoke-$$
+VOL=pliant-smoke-data-$$
+TOKEN=smoke-$RANDOM$RANDOM
+T0=$(date +%s.%N)
+
+say()  { printf '[smoke %6.1fs] %s\n' "$(awk -v s="$T0" -v e="$(date +%s.%N)" 'BEGIN{print e-s}')" "$*" >&2; }
+die()  { say "FAIL: $*"; exit 1; }
+skip() { say "SKIPPED: $*"; exit 77; }
+timed() {  # timed LABEL CMD...: run CMD and report its duration
+  local label=$1 s rc=0; shift; s=$(date +%s.%N)
+  "$@" || rc=$?
+  say "$(awk -v l="$label" -v s="$s" -v e="$(date +%s.%N)" 'BEGIN{printf "%-22s took %6.1fs", l, e-s}')$([ $rc = 0 ] || echo " (exit $rc)")"
+  return $rc
+}
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+  command -v sudo >/dev/null && sudo -n true 2>/dev/null || skip "needs root or passwordless sudo to run podman rootful"
+  SUDO="sudo -n"
+fi
+
+# 1. podman (it builds with its embedded buildah), runc, debootstrap.
+if ! command -v podman >/dev/null || ! command -v runc >/dev/null || ! command -v debootstrap >/dev/null; then
+  command -v apt-get >/dev/null || skip "podman is not installed and there is no apt-get to install it"
+  say "installing podman runc debootstrap"
+  export DEBIAN_FRONTEND=noninteractive
+  { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq -o DPkg::Lock::Timeout=600 \
+      podman runc debootstrap >/dev/null; } || skip "podman could not be installed (apt-get failed, see above)"
+fi
+
+# 2. podman configuration and storage of our own (does not touch the host's default storage).
+[ "${FRESH:-0}" = 1 ] && { say "FRESH=1: wiping $CACHE"; $SUDO rm -rf "$CACHE" /var/tmp/buildah-cache/pliant-* /var/tmp/buildah-cache-0/pliant-* 2>/dev/null || true; }
+$SUDO mkdir -p "$CACHE"
+hn=$(ulimit -Hn); hu=$(ulimit -Hu)
+[ "$hn" = unlimited ] && hn=1048576
+{ [ "$hu" = unlimited ] || [ "$hu" -gt 32768 ]; } && hu=32768
+printf '[containers]\ndefault_ulimits = ["nofile=%s:%s", "nproc=%s:%s"]\n[engine]\nruntime = "runc"\n' \
+  "$hn" "$hn" "$hu" "$hu" | $SUDO tee "$CACHE/containers.conf" >/dev/null
+P=($SUDO env CONTAINERS_CONF="$CACHE/containers.conf" podman --root "$CACHE/storage" --runroot "$CACHE/run")
+
+cleanup() {
+  local rc=$?
+  if [ $rc != 0 ] && "${P[@]}" container exists "$NAME" 2>/dev/null; then
+    say "server log (last 40 lines):"; "${P[@]}" logs "$NAME" 2>&1 | tail -40 >&2 || true
+  fi
+  "${P[@]}" rm -f -t 5 "$NAME" "$NAME-cli" >/dev/null 2>&1 || true
+  "${P[@]}" volume rm -f "$VOL" >/dev/null 2>&1 || true
+  if [ "${CLEAN:-0}" = 1 ]; then "${P[@]}" rmi -f "$IMAGE" >/dev/null 2>&1 || true; fi
+  # Untagged layers are the build cache; drop only those unused for a week (bounds the disk use).
+  "${P[@]}" image prune -f --filter until=168h >/dev/null 2>&1 || true
+  rm -rf "$TMPD"
+  exit $rc
+}
+TMPD=$(mktemp -d)
+trap cleanup EXIT
+
+# 3. Base image debian:bookworm-slim, made with debootstrap from the mirror apt uses. The tarball is
+#    cached in $CACHE so that a wiped storage does not need debootstrap again (it is refreshed weekly).
+apt_mirror() {  # apt_mirror SUITE FALLBACK
+  local u
+  u=$(awk -v s="$1" '/^URIs:/{u=$2} /^Suites:/{for(i=2;i<=NF;i++) if($i==s){print u; exit}}' \
+        /etc/apt/sources.list.d/*.sources 2>/dev/null | head -1)
+  [ -n "$u" ] || u=$(sed -E 's/\[[^]]*\]//' /etc/apt/sources.list 2>/dev/null |
+                     awk -v s="$1" '$1=="deb" && $3==s {print $2; exit}')
+  echo "${u:-$2}"
+}
+BASE_TAR=$CACHE/debian-bookworm-minbase.tar
+if ! "${P[@]}" image exists docker.io/library/debian:bookworm-slim; then
+  if [ -z "$(find "$BASE_TAR" -mtime -7 2>/dev/null)" ]; then
+    MIRROR=$(apt_mirror bookworm http://deb.debian.org/debian)
+    SECURITY=$(apt_mirror bookworm-security http://deb.debian.org/debian-security)
+    ROOTFS=$CACHE/rootfs.tmp; $SUDO rm -rf "$ROOTFS"
+    timed debootstrap bash -c '"$@" >"$0" 2>&1' "$TMPD/debootstrap.log" \
+        $SUDO debootstrap --variant=minbase bookworm "$ROOTFS" "$MIRROR" \
+      || { tail -20 "$TMPD/debootstrap.log" >&2; die "debootstrap failed"; }
+    # Apt sources like the official image's; no host-specific files (podman provides them).
+    $SUDO rm -f "$ROOTFS/etc/apt/sources.list" "$ROOTFS/etc/resolv.conf" "$ROOTFS/etc/hostname"
+    printf 'Types: deb\nURIs: %s\nSuites: bookworm bookworm-updates\nComponents: main\nSigned-By: /usr/share/keyrings/debian-archive-keyring.gpg\n\nTypes: deb\nURIs: %s\nSuites: bookworm-security\nComponents: main\nSigned-By: /usr/share/keyrings/debian-archive-keyring.gpg\n' \
+      "$MIRROR" "$SECURITY" | $SUDO tee "$ROOTFS/etc/apt/sources.list.d/debian.sources" >/dev/null
+    $SUDO rm -rf "$ROOTFS"/var/cache/apt/archives/*.deb "$ROOTFS"/var/lib/apt/lists/* "$ROOTFS"/var/log/*.log
+    # Slim it like the official -slim image: no docs, man pages, locales (now or in later installs).
+    printf 'path-exclude /usr/share/doc/*\npath-include /usr/share/doc/*/copyright\npath-exclude /usr/share/man/*\npath-exclude /usr/share/info/*\npath-exclude /usr/share/locale/*\npath-include /usr/share/locale/locale.alias\npath-exclude /usr/share/lintian/*\n' \
+      | $SUDO tee "$ROOTFS/etc/dpkg/dpkg.cfg.d/docker" >/dev/null
+    $SUDO find "$ROOTFS/usr/share/doc" -mindepth 1 ! -name copyright ! -type d -delete
+    $SUDO find "$ROOTFS/usr/share/doc" -mindepth 1 -type d -empty -delete
+    $SUDO rm -rf "$ROOTFS"/usr/share/man/* "$ROOTFS"/usr/share/info/* "$ROOTFS"/usr/share/lintian/*
+    $SUDO find "$ROOTFS/usr/share/locale" -mindepth 1 -maxdepth 1 ! -name locale.alias -exec rm -rf {} +
+    $SUDO tar -C "$ROOTFS" -cf "$BASE_TAR.tmp" . && $SUDO mv "$BASE_TAR.tmp" "$BASE_TAR"
+    $SUDO rm -rf "$ROOTFS"
+  fi
+  timed import-base "${P[@]}" import -q "$BASE_TAR" localhost/debian:bookworm-slim >/dev/null
+  # So that the Dockerfile's unchanged `FROM debian:bookworm-slim` resolves locally (--pull=never).
+  "${P[@]}" tag localhost/debian:bookworm-slim docker.io/library/debian:bookworm-slim
+fi
+[ "${BASE_ONLY:-0}" = 1 ] && { say "base image ready"; exit 0; }
+
+# 4. Build the image. The package layers come before the sources are copied, so after a source change
+#    only the compile step (with its build-dir cache mount) and the final COPY run again.
+say "building $IMAGE from $REPO"
+if ! timed build "${P[@]}" build --pull=never --network=host --format docker --layers \
+       -f docker/Dockerfile -t "$IMAGE" . >"$TMPD/build.log" 2>&1; then
+  tail -60 "$TMPD/build.log" >&2; die "image build failed"
+fi
+grep -E '^\[[0-9]/[0-9]\] STEP [0-9]+/[0-9]+: (RUN|COPY)|Using cache|^image: ' "$TMPD/build.log" \
+  | sed -E 's/^(.{110}).*/\1.../' >&2 || true
+
+# 5. What is in the image: size, user, port, volume, health check, libraries, no compilers.
+inspect() { "${P[@]}" image inspect --format "$1" "$IMAGE"; }
+size=$(inspect '{{.Size}}')
+say "image $IMAGE: $(awk -v s="$size" 'BEGIN{printf "%.0f MB", s/1e6}') ($size bytes; base $(
+  "${P[@]}" image inspect --format '{{.Size}}' docker.io/library/debian:bookworm-slim | awk '{printf "%.0f MB", $1/1e6}'))"
+user=$(inspect '{{.Config.User}}'); [ -n "$user" ] && [ "${user%%:*}" != 0 ] && [ "${user%%:*}" != root ] \
+  || die "image runs as root (USER '$user')"
+inspect '{{json .Config.ExposedPorts}}' | grep -q '"50051/tcp"' || die "image does not expose 50051"
+inspect '{{json .Config.Volumes}}' | grep -q '"/var/lib/pliant"' || die "no VOLUME /var/lib/pliant"
+"${P[@]}" image inspect "$IMAGE" | grep -q '"pliant health' || die "no HEALTHCHECK with pliant health"
+"${P[@]}" run --rm --network=none --entrypoint /bin/sh "$IMAGE" -c '
+  set -e
+  ls /usr/local/bin
+  for f in /usr/local/bin/*; do
+    if ldd "$f" | grep "not found"; then echo "$f misses libraries"; exit 1; fi
+  done
+  for c in gcc g++ cc c++ cpp clang ld as make cmake ninja; do
+    if command -v "$c"; then echo "compiler/build tool in the runtime image: $c"; exit 1; fi
+  done
+  dev=$(dpkg-query -W -f "\${Package}\n" | grep -E -- "-dev$|^gcc|^g\+\+|^binutils" || true)
+  [ -z "$dev" ] || { echo "build packages in the runtime image: $dev"; exit 1; }
+  [ -d "$PLIANT_MODEL_PATH" ] && echo "meshes: $(ls "$PLIANT_MODEL_PATH" | wc -l) files in $PLIANT_MODEL_PATH"
+  echo "runs as $(id -un) ($(id -u)); ldd: all libraries found; no compilers"' >"$TMPD/inspect.log" 2>&1 \
+  || { cat "$TMPD/inspect.log" >&2; die "runtime image check failed"; }
+sed 's/^/  /' "$TMPD/inspect.log" >&2
+
+# 6. Run it: host networking (see the top), snapshots in a named volume, settings from the environment.
+PORT=${PORT:-$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')}
+ADDR=127.0.0.1:$PORT
+"${P[@]}" volume create "$VOL" >/dev/null
+start_server() {
+  # The image's HEALTHCHECK is run on demand below (`podman healthcheck run`): these hosts have no
+  # systemd for podman's health timers (podman logs an error about it; harmless).
+  "${P[@]}" run -d --name "$NAME" --network=host -v "$VOL:/var/lib/pliant" \
+    -e PLIANT_LISTEN="$ADDR" -e PLIANT_TOKEN="$TOKEN" -e PLIANT_LOG_LEVEL=info \
+    "$IMAGE" >>"$TMPD/podman.log" 2>&1 || { cat "$TMPD/podman.log" >&2; die "podman run failed"; }
+}
+wait_healthy() {  # the image's own HEALTHCHECK (pliant health), up to 60 s
+  local i state
+  for i in $(seq 1 120); do
+    state=$("${P[@]}" inspect --format '{{.State.Status}}' "$NAME" 2>/dev/null || echo gone)
+    [ "$state" = running ] || die "container is $state before it became healthy"
+    if "${P[@]}" healthcheck run "$NAME" >/dev/null 2>&1; then say "healthy (HEALTHCHECK passed)"; return 0; fi
+    sleep 0.5
+  done
+  die "no healthy HEALTHCHECK within 60 s"
+}
+
+# The host side uses the image's own `pliant` (the same Debian 12 libraries are on the host).
+"${P[@]}" create --name "$NAME-cli" "$IMAGE" >/dev/null
+"${P[@]}" cp "$NAME-cli:/usr/local/bin/pliant" "$TMPD/pliant" && "${P[@]}" rm "$NAME-cli" >/dev/null
+cli() { PLIANT_ADDRESS=$ADDR PLIANT_TOKEN=$TOKEN "$TMPD/pliant" "$@"; }
+json() {  # json EXPR < last JSON line of stdin: print EXPR of it (d = the parsed object)
+  python3 -c 'import json,sys; d=json.loads([l for l in sys.stdin if l.strip().startswith(("{","["))][-1]); print(eval(sys.argv[1]))' "$1"
+}
+
+timed start start_server
+wait_healthy
+cli health --address "$ADDR" >/dev/null || die "pliant health from the host failed"
