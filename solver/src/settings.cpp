@@ -35,6 +35,14 @@ std::string_view to_string(Damping d) {
   return "?";
 }
 
+std::string_view to_string(AndersonForm f) { return f == AndersonForm::Thesis ? "thesis" : "type2"; }
+
+std::optional<AndersonForm> parse_anderson_form(std::string_view s) {
+  for (AndersonForm v : {AndersonForm::Thesis, AndersonForm::TypeII})
+    if (to_string(v) == s) return v;
+  return std::nullopt;
+}
+
 std::optional<Sweep> parse_sweep(std::string_view s) {
   for (Sweep v : {Sweep::GaussSeidel, Sweep::Jacobi})
     if (to_string(v) == s) return v;

@@ -13,6 +13,8 @@ struct BeamCase {
   double length;
 };
 
+void PrintTo(const BeamCase& c, std::ostream* os) { *os << c.name; }
+
 class BeamTest : public ::testing::TestWithParam<BeamCase> {};
 
 TEST_P(BeamTest, CountsSizeAndConformity) {

@@ -25,6 +25,12 @@ enum class Method {
 
 enum class Damping { None, Simple, RigidPreserving };
 
+// Which Anderson formulation the anderson / anderson-sor methods use (see docs/solver.md).
+enum class AndersonForm {
+  Thesis,  // the thesis's eq. 2.11-2.15: Anderson on the increments, residual e = D_k - D_{k-1}
+  TypeII,  // textbook type-II Anderson on lambda -> lambda + D(lambda), mixing beta = omega
+};
+
 struct ChebyshevParams {
   double rho = 0.95;   // estimated spectral radius of the sweep
   double gamma = 0.9;  // under-relaxation
@@ -39,6 +45,7 @@ struct SolverSettings {
   Method method = Method::Xpbd;
   int window = 5;           // Anderson window m
   double omega = 1.0;       // SOR / lambda-SOR / Anderson-SOR factor (1 for plain methods)
+  AndersonForm anderson_form = AndersonForm::Thesis;
   double condition_limit = 1e3;  // Anderson: drop oldest columns while cond(dE^T dE) exceeds it
   ChebyshevParams chebyshev;
   double jacobi_relaxation = 1.0;  // scales the averaged Jacobi corrections
@@ -63,6 +70,8 @@ std::string_view to_string(Damping d);
 std::optional<Sweep> parse_sweep(std::string_view s);     // "gauss-seidel" | "jacobi"
 std::optional<Method> parse_method(std::string_view s);   // "xpbd" | "sor" | "lambda-sor" | ...
 std::optional<Damping> parse_damping(std::string_view s); // "none" | "simple" | "rigid"
+std::string_view to_string(AndersonForm f);
+std::optional<AndersonForm> parse_anderson_form(std::string_view s);  // "thesis" | "type2"
 
 // Empty when valid, else a message naming the bad field and its value.
 std::string validate(const SolverSettings& settings);

@@ -69,14 +69,22 @@ class Stepper {
 
   // Optional per-iteration hook for experiments (called after every iteration with the
   // current positions); used by the convergence tool to track the true error.
-  using IterationHook =
-      std::function<void(int iteration, const std::vector<Vec3>& x, double residual)>;
+  // elapsed_ms: solver time since the substep started, hook time excluded.
+  using IterationHook = std::function<void(int iteration, const std::vector<Vec3>& x,
+                                           double residual, double elapsed_ms)>;
   void set_iteration_hook(IterationHook hook);
 
  private:
+  StepReport solve_substep_budgeted(const BodyModel& model, const std::vector<Vec3>& x_prev,
+                                    std::vector<Vec3>& x, std::vector<Vec6>& lambda, double h,
+                                    const SolverSettings& settings, const StepInputs& inputs,
+                                    double budget_ms);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// Velocity damping of one substep of length h (settings.damping).
+void apply_damping(const BodyModel& model, BodyState& state, const SolverSettings& settings, double h);
 
 // ||r|| with r = C(x) + alpha~ lambda stacked over all tets (thesis eq. 2.18), alpha~ = alpha/h^2.
 double residual_norm(const BodyModel& model, const std::vector<Vec3>& x,

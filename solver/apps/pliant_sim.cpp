@@ -1,0 +1,342 @@
+// pliant-sim: offline experiments with the solver, no server.
+//   converge  the thesis's one-step convergence experiment (residual and true error per iteration)
+//   static    step a clamped body under gravity to rest and report the tip displacement
+//   run       simulate N steps and write VTK frames for ParaView
+#include "pliant/builtin_meshes.hpp"
+#include "pliant/cli.hpp"
+#include "pliant/experiments.hpp"
+#include "pliant/mesh_io.hpp"
+#include "pliant/reference_solver.hpp"
+#include "pliant/stepper.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+using namespace pliant;
+namespace cli = pliant::cli;
+
+namespace {
+
+const char* kUsage = R"(usage: pliant-sim COMMAND [options]
+
+commands:
+  converge  One step of length --dt from a bent cantilever at rest (tip 10 mm down along -y,
+            the linear tip-load shape; velocity zero; gravity off; no substeps). Records ||r||
+            every iteration (--csv) and the true error ||x - x*|| / ||x0 - x*|| against the
+            reference Newton solution x* of the same step. Last line: one JSON object.
+  static    Clamp the vertices with x <= --fix-x-max, apply gravity -y, step with damping until
+            at rest. Without solver flags it uses settings that converge to the model's
+            equilibrium; with them, what that real-time budget gives. Last line: JSON.
+  reference Static equilibrium of the same set-up by Newton's method (independent check).
+  run       Simulate --steps steps under gravity and write VTK frames to --out DIR.
+
+common options:
+  --mesh M            beam1 | beam2 | beam3 | a model name (armadillo, hippo, ...) | a mesh file
+  --young E           Young's modulus, Pa (default 1e6)
+  --poisson NU        Poisson's ratio (default 0.4)
+  --density RHO       kg/m^3 (default 1000)
+  --method X          xpbd | sor | lambda-sor | chebyshev | anderson | anderson-sor | extrapolation
+  --sweep S           gauss-seidel | jacobi
+  --anderson-form F   thesis | type2 (default thesis)
+  --iterations N      iterations (per substep)
+  --substeps N        substeps per step
+  --dt H              step length, s (fractions like 1/60 accepted)
+  --omega W           over-relaxation factor of sor / lambda-sor / anderson-sor / extrapolation
+  --window M          Anderson window (default 5)
+  --rho R --gamma G --delay D   Chebyshev parameters
+  --tolerance T       stop a substep when ||r||/||r0|| < T
+  --threads N         worker threads (default 1)
+  --log-level L       trace | debug | info | warn | error (default warn)
+
+converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
+static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)  --damping K (1/s)
+run:       --steps N  --out DIR  --every K
+)";
+
+const std::set<std::string> kValued = {
+    "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
+    "substeps", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
+    "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
+    "steps", "out", "every", "inversion-floor"};
+const std::set<std::string> kFlags = {"help", "progress"};
+
+// A JSON object written field by field, numbers in full precision, nan/inf as null.
+class JsonLine {
+ public:
+  JsonLine& add(const std::string& k, double v) {
+    sep();
+    os_ << '"' << k << "\":";
+    if (std::isfinite(v)) {
+      char buf[64];
+      std::snprintf(buf, sizeof buf, "%.10g", v);
+      os_ << buf;
+    } else {
+      os_ << "null";
+    }
+    return *this;
+  }
+  JsonLine& add(const std::string& k, long v) { sep(); os_ << '"' << k << "\":" << v; return *this; }
+  JsonLine& add(const std::string& k, int v) { return add(k, long(v)); }
+  JsonLine& add(const std::string& k, bool v) { sep(); os_ << '"' << k << "\":" << (v ? "true" : "false"); return *this; }
+  JsonLine& add(const std::string& k, const std::string& v) { sep(); os_ << '"' << k << "\":\"" << v << '"'; return *this; }
+  JsonLine& add(const std::string& k, const char* v) { return add(k, std::string(v)); }
+  JsonLine& null(const std::string& k) { sep(); os_ << '"' << k << "\":null"; return *this; }
+  JsonLine& add(const std::string& k, const Vec3& v) {
+    sep();
+    char buf[128];
+    std::snprintf(buf, sizeof buf, "[%.10g,%.10g,%.10g]", v.x(), v.y(), v.z());
+    os_ << '"' << k << "\":" << buf;
+    return *this;
+  }
+  std::string str() const { return os_.str() + "}"; }
+
+ private:
+  void sep() { os_ << (first_ ? "{" : ","); first_ = false; }
+  std::ostringstream os_;
+  bool first_ = true;
+};
+
+Material material_from(const cli::Args& a) {
+  Material m;
+  m.young = a.number("young", 1e6);
+  m.poisson = a.number("poisson", 0.4);
+  m.density = a.number("density", 1000);
+  if (std::string err = validate(m); !err.empty()) throw cli::UsageError(err);
+  return m;
+}
+
+// Solver settings from flags on top of `s`.
+SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
+  if (auto v = a.str("method")) {
+    auto m = parse_method(*v);
+    if (!m) throw cli::UsageError("--method: unknown method '" + *v + "' (xpbd, sor, lambda-sor, chebyshev, anderson, anderson-sor, extrapolation)");
+    s.method = *m;
+  }
+  if (auto v = a.str("sweep")) {
+    auto w = parse_sweep(*v);
+    if (!w) throw cli::UsageError("--sweep: unknown sweep '" + *v + "' (gauss-seidel, jacobi)");
+    s.sweep = *w;
+  }
+  if (auto v = a.str("anderson-form")) {
+    auto f = parse_anderson_form(*v);
+    if (!f) throw cli::UsageError("--anderson-form: unknown form '" + *v + "' (thesis, type2)");
+    s.anderson_form = *f;
+  }
+  s.iterations = int(a.integer("iterations", s.iterations, 0, 1000000));
+  s.substeps = int(a.integer("substeps", s.substeps, 1, 100000));
+  s.dt = a.number("dt", s.dt);
+  s.omega = a.number("omega", s.omega);
+  s.window = int(a.integer("window", s.window, 1, 50));
+  s.chebyshev.rho = a.number("rho", s.chebyshev.rho);
+  s.chebyshev.gamma = a.number("gamma", s.chebyshev.gamma);
+  s.chebyshev.delay = int(a.integer("delay", s.chebyshev.delay, 0, 1000000));
+  s.tolerance = a.number("tolerance", s.tolerance);
+  s.threads = int(a.integer("threads", s.threads, 1, 256));
+  s.inversion_floor = a.number("inversion-floor", s.inversion_floor);
+  if (std::string err = validate(s); !err.empty()) throw cli::UsageError(err);
+  return s;
+}
+
+// Omega when the user gives none: 1 for the plain methods, the ones we measured as robust
+// for the relaxed ones (docs/solver.md has the sweep that chose them).
+double default_omega(Method m) {
+  switch (m) {
+    case Method::Sor: return 1.5;
+    case Method::LambdaSor: return 1.5;
+    case Method::AndersonSor: return 2.0;
+    case Method::Extrapolation: return 2.0;
+    default: return 1.0;
+  }
+}
+
+std::shared_ptr<const BodyModel> load_model(const cli::Args& a, const Material& mat, std::optional<double> fix_x) {
+  const std::string spec = a.str("mesh", "");
+  if (spec.empty()) throw cli::UsageError("--mesh is required (beam1, beam2, beam3, a model name or a mesh file)");
+  TetMesh mesh;
+  try {
+    mesh = resolve_mesh(spec);
+  } catch (const std::exception& e) {
+    throw cli::UsageError(std::string("--mesh: ") + e.what());
+  }
+  const double clamp = fix_x ? *fix_x : default_clamp_x(mesh.vertices);
+  return build_model(mesh, mat, clamp_below_x(clamp));
+}
+
+int cmd_converge(const cli::Args& a) {
+  const Material mat = material_from(a);
+  auto model = load_model(a, mat, std::nullopt);
+  SolverSettings s;
+  s.iterations = 600;
+  s.gravity.setZero();
+  s = settings_from(a, s);
+  if (!a.has("omega")) s.omega = default_omega(s.method);
+  s.substeps = 1;
+  const double h = s.dt;
+  const double bend = a.number("bend-mm", 10.0) * 1e-3;
+  const auto x0 = cantilever_bend(*model, default_clamp_x(model->rest_positions), bend);
+
+  spdlog::info("reference solution of the step (Newton, sparse LDLT)...");
+  NewtonOptions nopt;
+  nopt.tolerance = 1e-10;
+  const NewtonResult ref = solve_implicit_step(*model, x0, x0, h, nopt);
+  if (!ref.converged) spdlog::warn("reference solver did not converge (|g| = {:.3e})", ref.gradient_norm);
+
+  const ConvergenceRun run = run_convergence(*model, x0, ref.x, h, s);
+  const double r0 = run.residual0;
+  auto iters_to = [&](double rel) -> long {
+    for (size_t i = 0; i < run.residual.size(); ++i)
+      if (run.residual[i] < rel * r0) return long(i + 1);
+    return -1;
+  };
+  auto ms_at = [&](long iters) { return iters > 0 ? run.elapsed_ms[iters - 1] : std::nan(""); };
+
+  if (auto csv = a.str("csv")) {
+    std::ofstream f(*csv);
+    if (!f) throw cli::UsageError("--csv: cannot write '" + *csv + "'");
+    f << "iteration,residual,relative_residual,error,time_ms\n";
+    f << 0 << ',' << r0 << ',' << 1.0 << ',' << 1.0 << ',' << 0.0 << '\n';
+    for (size_t i = 0; i < run.residual.size(); ++i)
+      f << i + 1 << ',' << run.residual[i] << ',' << run.residual[i] / r0 << ','
+        << (i < run.error.size() ? run.error[i] : std::nan("")) << ',' << run.elapsed_ms[i] << '\n';
+  }
+
+  JsonLine j;
+  j.add("method", std::string(to_string(s.method)))
+      .add("sweep", std::string(to_string(s.sweep)))
+      .add("mesh", model->name)
+      .add("tets", long(model->tet_count()))
+      .add("young", mat.young)
+      .add("dt", h)
+      .add("omega", s.omega)
+      .add("window", s.window)
+      .add("iterations", run.report.iterations)
+      .add("residual0", r0)
+      .add("residual_final", run.report.residual_final);
+  for (auto [key, rel] : {std::pair{"iters_to_1e-2", 1e-2}, std::pair{"iters_to_1e-3", 1e-3}}) {
+    long it = iters_to(rel);
+    if (it > 0) j.add(key, it); else j.null(key);
+  }
+  j.add("error_final", run.error.empty() ? std::nan("") : run.error.back())
+      .add("wall_ms", run.report.wall_ms);
+  if (long it = iters_to(1e-3); it > 0) j.add("ms_to_1e-3", ms_at(it)); else j.null("ms_to_1e-3");
+  j.add("accelerations_accepted", run.report.accelerations_accepted)
+      .add("accelerations_tried", run.report.accelerations_tried)
+      .add("anderson_columns_dropped", run.report.anderson_columns_dropped)
+      .add("diverged", run.report.diverged)
+      .add("projection_ms", run.report.times.projection_ms)
+      .add("anderson_ms", run.report.times.anderson_ms)
+      .add("update_ms", run.report.times.update_ms)
+      .add("residual_ms", run.report.times.residual_ms)
+      .add("reference_newton_iterations", ref.iterations);
+
+  if (auto match = a.str("match")) {
+    auto mm = parse_method(*match);
+    if (!mm) throw cli::UsageError("--match: unknown method '" + *match + "'");
+    SolverSettings base = s;
+    base.method = *mm;
+    base.omega = default_omega(*mm);
+    const ConvergenceRun b = run_convergence(*model, x0, ref.x, h, base);
+    const double target = b.report.residual_final;
+    long it_match = -1;
+    for (size_t i = 0; i < run.residual.size(); ++i)
+      if (run.residual[i] <= target) { it_match = long(i + 1); break; }
+    j.add("match_method", *match).add("match_iterations", b.report.iterations).add("match_residual", target)
+        .add("match_wall_ms", b.report.wall_ms)
+        .add("match_error_final", b.error.empty() ? std::nan("") : b.error.back());
+    if (it_match > 0) j.add("iters_to_match", it_match).add("ms_to_match", ms_at(it_match));
+    else j.null("iters_to_match").null("ms_to_match");
+  }
+  std::cout << j.str() << std::endl;
+  return run.report.diverged ? 3 : 0;
+}
+
+int cmd_static(const cli::Args& a) {
+  const Material mat = material_from(a);
+  auto model = load_model(a, mat, a.number("fix-x-max"));
+  const bool solver_flags = a.has("method") || a.has("substeps") || a.has("iterations") || a.has("dt") ||
+                            a.has("sweep") || a.has("tolerance");
+  SolverSettings s;
+  if (!solver_flags) {
+    // Converge to the model's equilibrium: every substep solved to a tight tolerance (a
+    // converged implicit-Euler step has the static equilibrium as its fixed point), with
+    // substeps small enough for Gauss-Seidel to converge quickly; strong damping to settle.
+    s.dt = 1.0 / 60.0;
+    s.substeps = 20;
+    s.iterations = 500;
+    s.tolerance = 1e-6;
+  }
+  s.damping = Damping::Simple;
+  s.damping_coefficient = 20.0;
+  s = settings_from(a, s);
+  if (!a.has("omega")) s.omega = default_omega(s.method);
+  s.damping_coefficient = a.number("damping", s.damping_coefficient);
+  const int max_steps = int(a.integer("max-steps", 2000, 1, 10000000));
+  const double speed_tol = a.number("speed-tol", 1e-4);
+  const bool progress = a.has("progress");
+  const RestResult r = run_to_rest(*model, s, max_steps, speed_tol, 5, [&](int k, double v) {
+    if (progress && k % 10 == 0) spdlog::info("step {}: max speed {:.3e} m/s", k, v);
+  });
+  JsonLine j;
+  j.add("mesh", model->name).add("young", mat.young).add("poisson", mat.poisson).add("density", mat.density)
+      .add("method", std::string(to_string(s.method))).add("substeps", s.substeps).add("iterations", s.iterations)
+      .add("dt", s.dt).add("tip_displacement", tip_displacement(*model, r.state.x)).add("steps", r.steps)
+      .add("max_speed", r.max_speed).add("at_rest", r.at_rest).add("diverged", r.diverged)
+      .add("inverted_tets", long(count_inverted(*model, r.state.x)));
+  std::cout << j.str() << std::endl;
+  return r.diverged ? 3 : (r.at_rest ? 0 : 4);
+}
+
+int cmd_reference(const cli::Args& a) {
+  const Material mat = material_from(a);
+  auto model = load_model(a, mat, a.number("fix-x-max"));
+  NewtonOptions opt;
+  opt.load_steps = int(a.integer("steps", 10, 1, 10000));
+  opt.max_iterations = 200;
+  const auto t0 = std::chrono::steady_clock::now();
+  const NewtonResult r = solve_static(*model, model->rest_positions, Vec3(0, -9.81, 0), {}, opt);
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  JsonLine j;
+  j.add("mesh", model->name).add("young", mat.young).add("poisson", mat.poisson).add("density", mat.density)
+      .add("tip_displacement", tip_displacement(*model, r.x)).add("newton_iterations", r.iterations)
+      .add("converged", r.converged).add("gradient_norm", r.gradient_norm).add("wall_ms", ms)
+      .add("inverted_tets", long(count_inverted(*model, r.x)));
+  std::cout << j.str() << std::endl;
+  return r.converged ? 0 : 4;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
+    std::cout << kUsage;
+    return argc < 2 ? 2 : 0;
+  }
+  const std::string cmd = argv[1];
+  try {
+    cli::Args a(argc, argv, 2, kValued, kFlags);
+    if (a.has("help")) {
+      std::cout << kUsage;
+      return 0;
+    }
+    auto level = spdlog::level::from_str(a.str("log-level", "warn"));
+    spdlog::set_level(level);
+    spdlog::set_default_logger(spdlog::default_logger());
+    if (!a.positional().empty()) throw cli::UsageError("unexpected argument '" + a.positional()[0] + "'");
+    if (cmd == "converge") return cmd_converge(a);
+    if (cmd == "static") return cmd_static(a);
+    if (cmd == "reference") return cmd_reference(a);
+    throw cli::UsageError("unknown command '" + cmd + "' (converge, static, reference, run)");
+  } catch (const cli::UsageError& e) {
+    std::cerr << "pliant-sim: " << e.what() << "\n";
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << "pliant-sim: " << e.what() << "\n";
+    return 1;
+  }
+}

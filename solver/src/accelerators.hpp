@@ -1,0 +1,79 @@
+// Accelerators: each one small class with one job, combined with any sweep by the solver loop
+// (stepper.cpp). After every projection sweep the loop calls after_sweep(); an accelerator may
+// change positions (SOR, Chebyshev) unconditionally, or propose an accelerated iterate that the
+// loop keeps only if the residual decreased (Anderson, extrapolation: thesis algorithm 2.4).
+#pragma once
+
+#include "pliant/settings.hpp"
+#include "pliant/stepper.hpp"
+
+#include <Eigen/Core>
+
+#include <functional>
+#include <memory>
+#include <vector>
+
+namespace pliant::detail {
+
+struct SweepResult {
+  std::vector<Vec3>& x;                 // positions after the sweep (may be changed)
+  std::vector<Vec6>& lambda;            // multipliers after the sweep (may be changed)
+  const std::vector<Vec6>& dlambda;     // the sweep's multiplier increment
+  const std::vector<Vec3>& x_before;    // positions before the sweep (when needs_previous())
+  int iteration;                        // 0-based within the substep
+};
+
+struct AcceleratorServices {
+  // x += M^-1 grad C(x)^T dl for all tets (colour-parallel); timed as "update".
+  std::function<void(const std::vector<Vec6>& dl)> apply_increment;
+  StepReport* report;
+};
+
+class Accelerator {
+ public:
+  virtual ~Accelerator() = default;
+  virtual void begin_substep(size_t vertices, size_t tets) {}
+  // Factor applied to each projection's increment inside the sweep (lambda-SOR).
+  virtual double increment_scale() const { return 1.0; }
+  // Whether x_before must be kept (position-space methods).
+  virtual bool needs_previous() const { return false; }
+  // Returns true when it made a proposal that must pass the residual check.
+  virtual bool after_sweep(SweepResult& it, AcceleratorServices& services) = 0;
+};
+
+std::unique_ptr<Accelerator> make_accelerator(const SolverSettings& settings);
+
+// Anderson mixing of a sequence of iterates y_k with residuals r_k (type II, Walker & Ni):
+// theta = argmin || r_k - dR theta ||, output = y_k - dY theta + beta (r_k - dR theta), where dR, dY
+// hold the last m differences r_{j} - r_{j-1}, y_{j} - y_{j-1} (newest first). The normal
+// equations dR^T dR theta = dR^T r_k are kept up to date incrementally (one new Gram row per
+// push) and solved by a complete orthogonal decomposition after dropping the oldest columns
+// while cond(dR^T dR) exceeds the limit (keeping at least 2), as in thesis algorithm 2.3.
+class AndersonMixer {
+ public:
+  AndersonMixer(int window, double condition_limit, double beta);
+  void reset(size_t size);
+  void push(const Eigen::Ref<const Eigen::VectorXd>& y, const Eigen::Ref<const Eigen::VectorXd>& r);
+  // m difference columns exist (m + 1 pushes).
+  bool ready() const { return count_ >= size_t(m_ + 1); }
+  // Writes the mixed iterate; returns the number of columns dropped by the safeguard.
+  int accelerate(Eigen::VectorXd& out);
+  const Eigen::VectorXd& last_theta() const { return theta_; }
+  int columns_used() const { return columns_used_; }
+
+ private:
+  int slot(int newest_first) const { return ((head_ - newest_first) % m_ + m_) % m_; }
+
+  int m_;
+  double condition_limit_;
+  double beta_;
+  size_t count_ = 0;
+  Eigen::VectorXd y_, r_;               // newest iterate and residual
+  std::vector<Eigen::VectorXd> dy_, dr_;  // rings of differences
+  Eigen::MatrixXd gram_;                // dr^T dr by ring slot
+  int head_ = -1;
+  Eigen::VectorXd theta_;
+  int columns_used_ = 0;
+};
+
+}  // namespace pliant::detail

@@ -1,0 +1,179 @@
+#include "projection.hpp"
+
+#include <cmath>
+
+namespace pliant::detail {
+
+namespace {
+
+inline void geometry(const TetRest& tet, const Vec3* const p[4], Vec3 f[3], Vec3 b[4]) {
+  const Vec3 d0 = *p[0] - *p[3], d1 = *p[1] - *p[3], d2 = *p[2] - *p[3];
+  const Mat3& B = tet.dm_inv;
+  for (int i = 0; i < 3; ++i) f[i] = d0 * B(0, i) + d1 * B(1, i) + d2 * B(2, i);
+  for (int k = 0; k < 3; ++k) b[k] = B.row(k).transpose();
+  b[3] = -(b[0] + b[1] + b[2]);
+}
+
+inline Vec6 strain_from_columns(const Vec3 f[3], double S[3][3]) {
+  for (int i = 0; i < 3; ++i)
+    for (int j = i; j < 3; ++j) S[i][j] = S[j][i] = f[i].dot(f[j]);
+  Vec6 c;
+  c << 0.5 * (S[0][0] - 1.0), 0.5 * (S[1][1] - 1.0), 0.5 * (S[2][2] - 1.0), S[1][2], S[0][2], S[0][1];
+  return c;
+}
+
+// Solves A y = rhs for symmetric positive definite 6x6 A (lower triangle used) by LDL^T with
+// reciprocal pivots (6 divisions, no square roots). False if a pivot is not positive.
+inline bool ldlt_solve6(const double A[6][6], const double rhs[6], double y[6]) {
+  double L[6][6], D[6], invD[6];
+  for (int j = 0; j < 6; ++j) {
+    double d = A[j][j];
+    for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k] * D[k];
+    if (!(d > 0)) return false;
+    D[j] = d;
+    invD[j] = 1.0 / d;
+    for (int i = j + 1; i < 6; ++i) {
+      double s = A[i][j];
+      for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k] * D[k];
+      L[i][j] = s * invD[j];
+    }
+  }
+  double z[6];
+  for (int i = 0; i < 6; ++i) {
+    double s = rhs[i];
+    for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
+    z[i] = s;
+  }
+  for (int i = 5; i >= 0; --i) {
+    double s = z[i] * invD[i];
+    for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
+    y[i] = s;
+  }
+  return true;
+}
+
+// dx_k = w_k sqrt(V0) (F P) b_k, P the symmetric 3x3 of the increment.
+inline void position_corrections(const TetRest& tet, const Vec3 f[3], const Vec3 b[4],
+                                 const double w[4], const Vec6& dl, Vec3 dx[4]) {
+  double P[3][3] = {{dl[0], dl[5], dl[4]}, {dl[5], dl[1], dl[3]}, {dl[4], dl[3], dl[2]}};
+  Vec3 M[3];  // columns of F P
+  for (int i = 0; i < 3; ++i) M[i] = f[0] * P[0][i] + f[1] * P[1][i] + f[2] * P[2][i];
+  for (int k = 0; k < 4; ++k) {
+    const double s = w[k] * tet.sqrt_volume;
+    dx[k] = s * (M[0] * b[k][0] + M[1] * b[k][1] + M[2] * b[k][2]);
+  }
+}
+
+}  // namespace
+
+void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w[4],
+                      const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda,
+                      Vec3 dx[4], double* det_f) {
+  Vec3 f[3], b[4];
+  geometry(tet, p, f, b);
+  if (det_f) *det_f = f[0].dot(f[1].cross(f[2]));
+  double S[3][3];
+  const Vec6 C = tet.sqrt_volume * strain_from_columns(f, S);
+
+  double Q[3][3] = {};
+  for (int k = 0; k < 4; ++k) {
+    if (w[k] == 0) continue;
+    for (int i = 0; i < 3; ++i)
+      for (int j = i; j < 3; ++j) Q[i][j] += w[k] * b[k][i] * b[k][j];
+  }
+
+  // A = V0 * sum over the row terms of S_ab Q_ij, + alpha~ (lower triangle; spelled out so the
+  // compiler keeps everything in registers).
+  const double S00 = S[0][0], S11 = S[1][1], S22 = S[2][2], S01 = S[0][1], S02 = S[0][2], S12 = S[1][2];
+  const double Q00 = Q[0][0], Q11 = Q[1][1], Q22 = Q[2][2], Q01 = Q[0][1], Q02 = Q[0][2], Q12 = Q[1][2];
+  const double V = tet.volume;
+  const Mat6& at = params.alpha_tilde;
+  double A[6][6];
+  A[0][0] = V * (S00 * Q00) + at(0, 0);
+  A[1][0] = V * (S01 * Q01) + at(1, 0);
+  A[1][1] = V * (S11 * Q11) + at(1, 1);
+  A[2][0] = V * (S02 * Q02) + at(2, 0);
+  A[2][1] = V * (S12 * Q12) + at(2, 1);
+  A[2][2] = V * (S22 * Q22) + at(2, 2);
+  A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
+  A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
+  A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
+  A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
+  A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
+  A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
+  A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
+  A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
+  A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
+  A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
+  A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
+  A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
+  A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
+  A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
+  A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
+  const Vec6 rhs_v = -C - params.alpha_tilde * lambda_t;
+  double rhs[6], y[6];
+  for (int i = 0; i < 6; ++i) rhs[i] = rhs_v[i];
+  if (!ldlt_solve6(A, rhs, y)) {
+    dlambda.setZero();
+    for (int k = 0; k < 4; ++k) dx[k].setZero();
+    return;
+  }
+  for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
+  position_corrections(tet, f, b, w, dlambda, dx);
+}
+
+bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
+                          double floor) {
+  const double w[4] = {inv_mass[tet.v[0]], inv_mass[tet.v[1]], inv_mass[tet.v[2]], inv_mass[tet.v[3]]};
+  const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+  Vec3 f[3], b[4];
+  geometry(tet, p, f, b);
+  const Vec3 cof[3] = {f[1].cross(f[2]), f[2].cross(f[0]), f[0].cross(f[1])};
+  const double J = f[0].dot(cof[0]);
+  if (J >= floor) return false;
+  Vec3 grad[4];
+  double denom = 0;
+  for (int k = 0; k < 4; ++k) {
+    grad[k] = cof[0] * b[k][0] + cof[1] * b[k][1] + cof[2] * b[k][2];
+    denom += w[k] * grad[k].squaredNorm();
+  }
+  if (!(denom > 1e-300)) return false;
+  const double dl = -(J - floor) / denom;
+  for (int k = 0; k < 4; ++k) x[tet.v[k]] += w[k] * dl * grad[k];
+  return true;
+}
+
+bool project_tet(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
+                 Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda_out) {
+  const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+  const double w[4] = {inv_mass[tet.v[0]], inv_mass[tet.v[1]], inv_mass[tet.v[2]], inv_mass[tet.v[3]]};
+  Vec3 dx[4];
+  double det_f;
+  strain_increment(tet, p, w, lambda_t, params, dlambda_out, dx, &det_f);
+  for (int k = 0; k < 4; ++k) x[tet.v[k]] += dx[k];
+  lambda_t += dlambda_out;
+  if (params.inversion_floor > 0 && det_f < params.inversion_floor) return enforce_volume_floor(tet, x, inv_mass, params.inversion_floor);
+  return false;
+}
+
+void apply_increment(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
+                     const Vec6& dlambda) {
+  const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+  const double w[4] = {inv_mass[tet.v[0]], inv_mass[tet.v[1]], inv_mass[tet.v[2]], inv_mass[tet.v[3]]};
+  Vec3 f[3], b[4], dx[4];
+  geometry(tet, p, f, b);
+  position_corrections(tet, f, b, w, dlambda, dx);
+  for (int k = 0; k < 4; ++k) x[tet.v[k]] += dx[k];
+}
+
+double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Vec6& lambda_t,
+                        const Mat6& alpha_tilde) {
+  const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+  Vec3 f[3], b[4];
+  geometry(tet, p, f, b);
+  double S[3][3];
+  const Vec6 r = tet.sqrt_volume * strain_from_columns(f, S) + alpha_tilde * lambda_t;
+  return r.squaredNorm();
+}
+
+}  // namespace pliant::detail

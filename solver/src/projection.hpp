@@ -1,0 +1,55 @@
+// The hot loop of the solver: the fused strain-constraint projection of one tet, the position
+// update from a given multiplier increment, and the constraint residual. Algebraically equal to
+// the readable forms in strain_constraint.cpp (tests compare them), but written on the
+// deformation gradient's columns: with S = F^T F and Q = sum_k w_k b_k b_k^T, the 6x6 system
+// matrix is V0 * (bilinear terms in S and Q) + alpha~, and the position update is
+// dx_k = w_k sqrt(V0) F P b_k with P the symmetric 3x3 built from the increment.
+#pragma once
+
+#include "pliant/model.hpp"
+
+#include <Eigen/Core>
+
+#include <vector>
+
+namespace pliant::detail {
+
+struct ProjectionParams {
+  Mat6 alpha_tilde;          // compliance / h^2
+  double lambda_scale = 1;   // over-relaxation of the increment (lambda-SOR), 1 otherwise
+  double inversion_floor = 0;
+};
+
+struct TetGeometry {
+  Vec3 f[3];          // columns of F
+  Eigen::Vector3d b[4];  // rows of D_m^-1 and b3 = -(b0 + b1 + b2)
+};
+
+// Computes the multiplier increment of one tet at positions x (does not move anything).
+// Returns the increment in dlambda and the per-vertex corrections in dx (already scaled by
+// inverse masses); lambda_t is read, not written.
+void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w[4],
+                      const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda,
+                      Vec3 dx[4], double* det_f = nullptr);
+
+// Gauss-Seidel projection of one tet in place: x and lambda updated. When det(F) was below
+// the inversion floor before the projection, the volume floor is enforced after it; returns
+// true then. (A tet the projection itself pushes below the floor is caught by the next sweep
+// or by the end-of-substep volume pass.)
+bool project_tet(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
+                 Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda_out);
+
+// Unilateral volume constraint det(F) >= floor for one tet, solved as a hard constraint.
+// Returns true if it acted.
+bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
+                          double floor);
+
+// x += M^-1 grad C(x)^T dlambda for one tet (gradient at the current x).
+void apply_increment(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
+                     const Vec6& dlambda);
+
+// r_t = C_t(x) + alpha~ lambda_t, squared norm.
+double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Vec6& lambda_t,
+                        const Mat6& alpha_tilde);
+
+}  // namespace pliant::detail

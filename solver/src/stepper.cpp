@@ -1,0 +1,435 @@
+#include "pliant/stepper.hpp"
+
+#include "accelerators.hpp"
+#include "projection.hpp"
+#include "thread_pool.hpp"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+namespace pliant {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// Adds the elapsed time of a scope to a counter.
+struct PhaseTimer {
+  double& sink;
+  Clock::time_point t0 = Clock::now();
+  ~PhaseTimer() { sink += ms_since(t0); }
+};
+
+// Friction and non-penetration against static colliders for one vertex, at position level
+// (Macklin et al. 2019): the normal push-out is exact; the tangential motion since the start
+// of the substep is cancelled while it is within the static cone (mu_s * depth), else reduced
+// by mu_k * depth.
+bool resolve_contact(const Collider& c, Vec3& x, const Vec3& x_start) {
+  ContactPoint cp;
+  if (!find_contact(c, x, cp)) return false;
+  x += cp.depth * cp.normal;
+  Vec3 dx = x - x_start;
+  Vec3 tangential = dx - dx.dot(cp.normal) * cp.normal;
+  const double t = tangential.norm();
+  if (t < c.static_friction * cp.depth) x -= tangential;
+  else if (t > 0) x -= tangential * std::min(c.dynamic_friction * cp.depth / t, 1.0);
+  return true;
+}
+
+}  // namespace
+
+struct Stepper::Impl {
+  std::unique_ptr<ThreadPool> pool;
+  int pool_threads = 0;
+  IterationHook hook;
+
+  // Vertex -> (tet, corner) adjacency for the Jacobi gather, rebuilt when the model changes.
+  const void* adjacency_key = nullptr;
+  size_t adjacency_tets = 0;
+  std::vector<int32_t> adj_start, adj_entry;
+
+  // Scratch.
+  std::vector<Vec6> dlambda;
+  std::vector<Vec3> x_before, x_saved, v_prev;
+  std::vector<Vec6> lambda_saved;
+  std::vector<Vec3> jacobi_dx;  // 4 per tet
+  std::vector<double> partial;  // per-thread sums
+
+  ThreadPool& threads(int n) {
+    if (!pool || pool_threads != n) {
+      pool = std::make_unique<ThreadPool>(n);
+      pool_threads = n;
+    }
+    return *pool;
+  }
+
+  void ensure_adjacency(const BodyModel& m) {
+    if (adjacency_key == m.tets.data() && adjacency_tets == m.tets.size() &&
+        adj_start.size() == m.vertex_count() + 1)
+      return;
+    adjacency_key = m.tets.data();
+    adjacency_tets = m.tets.size();
+    adj_start.assign(m.vertex_count() + 1, 0);
+    for (const TetRest& t : m.tets)
+      for (int k = 0; k < 4; ++k) adj_start[t.v[k] + 1]++;
+    for (size_t i = 0; i < m.vertex_count(); ++i) adj_start[i + 1] += adj_start[i];
+    adj_entry.assign(adj_start.back(), 0);
+    std::vector<int32_t> fill(adj_start.begin(), adj_start.end() - 1);
+    for (size_t t = 0; t < m.tets.size(); ++t)
+      for (int k = 0; k < 4; ++k) adj_entry[fill[m.tets[t].v[k]]++] = int32_t(4 * t + k);
+  }
+
+  double residual(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
+                  const Mat6& alpha_tilde, ThreadPool& tp) {
+    partial.assign(tp.size(), 0.0);
+    tp.parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
+      double s = 0;
+      for (size_t t = b; t < e; ++t) s += detail::residual_squared(m.tets[t], x, lambda[t], alpha_tilde);
+      partial[chunk] = s;
+    });
+    double sum = 0;
+    for (double s : partial) sum += s;
+    return std::sqrt(sum);
+  }
+
+  // One Gauss-Seidel sweep in colour order; colours run in parallel inside.
+  int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
+                         const detail::ProjectionParams& params, ThreadPool& tp) {
+    std::vector<int> floor_hits(tp.size(), 0);
+    for (const auto& colour : m.colours) {
+      tp.parallel_for(colour.size(), [&](int chunk, size_t b, size_t e) {
+        int hits = 0;
+        for (size_t i = b; i < e; ++i) {
+          const int32_t t = colour[i];
+          hits += detail::project_tet(m.tets[t], x, m.inv_mass, lambda[t], params, dlambda[t]);
+        }
+        floor_hits[chunk] += hits;
+      });
+    }
+    int total = 0;
+    for (int h : floor_hits) total += h;
+    return total;
+  }
+
+  // One Jacobi sweep: every tet computes its increment from the same positions, scaled by
+  // relaxation / (largest number of tets at one of its corners), so that no vertex moves more
+  // than the average of its tets' corrections. Scaling each tet's increment (instead of
+  // averaging per vertex) keeps every correction a proper constraint impulse: momentum is
+  // conserved and lambda stays consistent with the positions.
+  int sweep_jacobi(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
+                   const detail::ProjectionParams& params, double relaxation, ThreadPool& tp) {
+    ensure_adjacency(m);
+    jacobi_dx.resize(4 * m.tets.size());
+    tp.parallel_for(m.tets.size(), [&](int, size_t b, size_t e) {
+      for (size_t t = b; t < e; ++t) {
+        const TetRest& tet = m.tets[t];
+        const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+        const double w[4] = {m.inv_mass[tet.v[0]], m.inv_mass[tet.v[1]], m.inv_mass[tet.v[2]],
+                             m.inv_mass[tet.v[3]]};
+        detail::strain_increment(tet, p, w, lambda[t], params, dlambda[t], &jacobi_dx[4 * t]);
+        int most = 1;
+        for (int k = 0; k < 4; ++k) most = std::max(most, int(m.vertex_tet_count[tet.v[k]]));
+        const double scale = relaxation / most;
+        dlambda[t] *= scale;
+        lambda[t] += dlambda[t];
+        for (int k = 0; k < 4; ++k) jacobi_dx[4 * t + k] *= scale;
+      }
+    });
+    tp.parallel_for(m.vertex_count(), [&](int, size_t b, size_t e) {
+      for (size_t v = b; v < e; ++v) {
+        Vec3 sum = Vec3::Zero();
+        for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) sum += jacobi_dx[adj_entry[a]];
+        x[v] += sum;
+      }
+    });
+    return params.inversion_floor > 0 ? volume_pass(m, x, params.inversion_floor, tp) : 0;
+  }
+
+  int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp) {
+    std::vector<int> hits(tp.size(), 0);
+    for (const auto& colour : m.colours)
+      tp.parallel_for(colour.size(), [&](int chunk, size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i)
+          hits[chunk] += detail::enforce_volume_floor(m.tets[colour[i]], x, m.inv_mass, floor);
+      });
+    int total = 0;
+    for (int h : hits) total += h;
+    return total;
+  }
+
+  void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
+    for (const auto& colour : m.colours)
+      tp.parallel_for(colour.size(), [&](int, size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) detail::apply_increment(m.tets[colour[i]], x, m.inv_mass, dl[colour[i]]);
+      });
+  }
+
+  int contacts(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec3>& x_start,
+               const std::vector<Collider>& colliders) {
+    if (colliders.empty()) return 0;
+    int n = 0;
+    for (size_t i = 0; i < x.size(); ++i) {
+      if (m.inv_mass[i] == 0) continue;
+      for (const Collider& c : colliders) n += resolve_contact(c, x[i], x_start[i]);
+    }
+    return n;
+  }
+};
+
+Stepper::Stepper() : impl_(std::make_unique<Impl>()) {}
+Stepper::~Stepper() = default;
+Stepper::Stepper(Stepper&&) noexcept = default;
+Stepper& Stepper::operator=(Stepper&&) noexcept = default;
+
+void Stepper::set_iteration_hook(IterationHook hook) { impl_->hook = std::move(hook); }
+
+StepReport Stepper::solve_substep(const BodyModel& m, const std::vector<Vec3>& x_prev,
+                                  std::vector<Vec3>& x, std::vector<Vec6>& lambda, double h,
+                                  const SolverSettings& s, const StepInputs& inputs) {
+  return solve_substep_budgeted(m, x_prev, x, lambda, h, s, inputs, 0.0);
+}
+
+StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector<Vec3>& x_prev,
+                                           std::vector<Vec3>& x, std::vector<Vec6>& lambda,
+                                           double h, const SolverSettings& s,
+                                           const StepInputs& inputs, double budget_ms) {
+  Impl& I = *impl_;
+  const auto t_start = Clock::now();
+  StepReport rep;
+  rep.substeps = 1;
+  ThreadPool& tp = I.threads(s.threads);
+  auto accel = detail::make_accelerator(s);
+  accel->begin_substep(m.vertex_count(), m.tet_count());
+  detail::ProjectionParams params;
+  params.alpha_tilde = m.compliance / (h * h);
+  params.lambda_scale = accel->increment_scale();
+  params.inversion_floor = s.inversion_floor;
+  I.dlambda.resize(m.tet_count());
+  lambda.resize(m.tet_count(), Vec6::Zero());
+
+  detail::AcceleratorServices services;
+  services.report = &rep;
+  services.apply_increment = [&](const std::vector<Vec6>& dl) {
+    PhaseTimer t{rep.times.update_ms};
+    I.apply_increment(m, x, dl, tp);
+  };
+
+  double r0 = 0;
+  if (s.record_residuals) {
+    PhaseTimer t{rep.times.residual_ms};
+    r0 = I.residual(m, x, lambda, params.alpha_tilde, tp);
+  }
+  rep.residual_initial = rep.residual_final = r0;
+  rep.residuals.reserve(s.iterations);
+  double hook_ms = 0;  // time spent in the experiment hook, excluded from the report
+
+  for (int it = 0; it < s.iterations; ++it) {
+    if (accel->needs_previous()) I.x_before = x;
+    {
+      PhaseTimer t{rep.times.projection_ms};
+      rep.volume_corrections = s.sweep == Sweep::GaussSeidel
+                                   ? I.sweep_gauss_seidel(m, x, lambda, params, tp)
+                                   : I.sweep_jacobi(m, x, lambda, params, s.jacobi_relaxation, tp);
+    }
+    if (!inputs.colliders.empty()) {
+      PhaseTimer t{rep.times.other_ms};
+      rep.contacts = I.contacts(m, x, x_prev, inputs.colliders);
+    }
+    double r = 0;
+    const bool proposes = s.method == Method::Anderson || s.method == Method::AndersonSor ||
+                          s.method == Method::Extrapolation;
+    if (s.record_residuals) {
+      PhaseTimer t{rep.times.residual_ms};
+      r = I.residual(m, x, lambda, params.alpha_tilde, tp);
+    }
+    if (proposes) {
+      detail::SweepResult sr{x, lambda, I.dlambda, I.x_before, it};
+      I.x_saved = x;
+      I.lambda_saved = lambda;
+      bool proposed;
+      {
+        PhaseTimer t{rep.times.anderson_ms};
+        // apply_increment inside is timed as update; subtract it back out below.
+        const double update_before = rep.times.update_ms;
+        proposed = accel->after_sweep(sr, services);
+        rep.times.anderson_ms -= (rep.times.update_ms - update_before);
+      }
+      if (proposed) {
+        rep.accelerations_tried++;
+        double r_acc;
+        {
+          PhaseTimer t{rep.times.residual_ms};
+          r_acc = I.residual(m, x, lambda, params.alpha_tilde, tp);
+        }
+        if (std::isfinite(r_acc) && r_acc < r) {
+          rep.accelerations_accepted++;
+          r = r_acc;
+        } else {
+          x.swap(I.x_saved);
+          lambda.swap(I.lambda_saved);
+        }
+      }
+    } else {
+      detail::SweepResult sr{x, lambda, I.dlambda, I.x_before, it};
+      PhaseTimer t{rep.times.update_ms};
+      accel->after_sweep(sr, services);
+      if (accel->needs_previous() && s.record_residuals) {
+        PhaseTimer tr{rep.times.residual_ms};
+        r = I.residual(m, x, lambda, params.alpha_tilde, tp);
+      }
+    }
+    rep.iterations++;
+    if (s.record_residuals) {
+      rep.residuals.push_back(r);
+      rep.residual_final = r;
+    }
+    if (I.hook) {
+      const auto th = Clock::now();
+      I.hook(it, x, r, ms_since(t_start) - hook_ms);
+      hook_ms += ms_since(th);
+    }
+    if (s.record_residuals) {
+      if (!std::isfinite(r) || r > 1e8 * std::max(r0, 1e-300)) {
+        rep.diverged = true;
+        break;
+      }
+      if (s.tolerance > 0 && r <= s.tolerance * r0) {
+        rep.stopped_by_tolerance = true;
+        break;
+      }
+    }
+    if (budget_ms > 0 && ms_since(t_start) - hook_ms >= budget_ms) {
+      rep.stopped_by_budget = it + 1 < s.iterations;
+      break;
+    }
+  }
+  if (s.inversion_floor > 0) {
+    PhaseTimer t{rep.times.other_ms};
+    rep.volume_corrections += I.volume_pass(m, x, s.inversion_floor, tp);
+  }
+  rep.wall_ms = ms_since(t_start) - hook_ms;
+  return rep;
+}
+
+StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSettings& s,
+                         const StepInputs& inputs) {
+  Impl& I = *impl_;
+  const auto t_start = Clock::now();
+  const int n = s.substeps;
+  const double h = s.dt / n;
+  const size_t nv = m.vertex_count();
+  if (state.v.size() != nv) state.v.assign(nv, Vec3::Zero());
+  const bool forces = inputs.external_forces.size() == nv;
+  StepReport total;
+  for (int sub = 0; sub < n; ++sub) {
+    const auto t_other = Clock::now();
+    I.v_prev = state.x;  // positions at the start of the substep
+    for (size_t i = 0; i < nv; ++i) {
+      if (m.inv_mass[i] == 0) {
+        state.v[i].setZero();
+        continue;
+      }
+      Vec3 a = s.gravity;
+      if (forces) a += inputs.external_forces[i] * m.inv_mass[i];
+      state.v[i] += h * a;
+      state.x[i] += h * state.v[i];
+    }
+    std::fill(state.lambda.begin(), state.lambda.end(), Vec6::Zero());
+    total.times.other_ms += ms_since(t_other);
+
+    double budget = 0;
+    if (s.time_budget_ms > 0) budget = std::max(0.0, (s.time_budget_ms - ms_since(t_start)) / (n - sub));
+    StepReport r = solve_substep_budgeted(m, I.v_prev, state.x, state.lambda, h, s, inputs,
+                                          s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
+
+    const auto t_vel = Clock::now();
+    for (size_t i = 0; i < nv; ++i) state.v[i] = (state.x[i] - I.v_prev[i]) / h;
+    apply_damping(m, state, s, h);
+    total.times.other_ms += ms_since(t_vel);
+
+    total.iterations += r.iterations;
+    total.accelerations_tried += r.accelerations_tried;
+    total.accelerations_accepted += r.accelerations_accepted;
+    total.anderson_columns_dropped += r.anderson_columns_dropped;
+    total.diverged |= r.diverged;
+    total.stopped_by_tolerance |= r.stopped_by_tolerance;
+    total.stopped_by_budget |= r.stopped_by_budget;
+    total.contacts = r.contacts;
+    total.volume_corrections = r.volume_corrections;
+    total.times.projection_ms += r.times.projection_ms;
+    total.times.anderson_ms += r.times.anderson_ms;
+    total.times.update_ms += r.times.update_ms;
+    total.times.residual_ms += r.times.residual_ms;
+    total.times.other_ms += r.times.other_ms;
+    total.residuals = std::move(r.residuals);
+    total.residual_initial = r.residual_initial;
+    total.residual_final = r.residual_final;
+  }
+  total.substeps = n;
+  state.time += s.dt;
+  state.steps++;
+  if (!is_finite(state)) total.diverged = true;
+  total.wall_ms = ms_since(t_start);
+  return total;
+}
+
+void apply_damping(const BodyModel& m, BodyState& state, const SolverSettings& s, double h) {
+  const size_t nv = m.vertex_count();
+  switch (s.damping) {
+    case Damping::None: return;
+    case Damping::Simple: {
+      const double f = std::exp(-s.damping_coefficient * h);
+      for (size_t i = 0; i < nv; ++i) state.v[i] *= f;
+      return;
+    }
+    case Damping::RigidPreserving: {
+      // Mueller et al. 2007: damp only the deviation from the body's rigid motion. k is per
+      // step; per substep we use k_s with (1 - k_s)^substeps = 1 - k.
+      const double k = 1.0 - std::pow(1.0 - s.damping_coefficient, h / s.dt);
+      double mass = 0;
+      Vec3 xc = Vec3::Zero(), vc = Vec3::Zero();
+      for (size_t i = 0; i < nv; ++i) {
+        if (m.inv_mass[i] == 0) continue;
+        mass += m.mass[i];
+        xc += m.mass[i] * state.x[i];
+        vc += m.mass[i] * state.v[i];
+      }
+      if (mass <= 0) return;
+      xc /= mass;
+      vc /= mass;
+      Vec3 L = Vec3::Zero();
+      Mat3 I = Mat3::Zero();
+      for (size_t i = 0; i < nv; ++i) {
+        if (m.inv_mass[i] == 0) continue;
+        const Vec3 r = state.x[i] - xc;
+        L += r.cross(m.mass[i] * state.v[i]);
+        I += m.mass[i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+      }
+      const Eigen::FullPivLU<Mat3> lu(I);
+      const Vec3 omega = lu.isInvertible() ? Vec3(lu.solve(L)) : Vec3::Zero();
+      for (size_t i = 0; i < nv; ++i) {
+        if (m.inv_mass[i] == 0) continue;
+        const Vec3 dv = vc + omega.cross(state.x[i] - xc) - state.v[i];
+        state.v[i] += k * dv;
+      }
+      return;
+    }
+  }
+}
+
+double residual_norm(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
+                     double h) {
+  const Mat6 at = m.compliance / (h * h);
+  double sum = 0;
+  for (size_t t = 0; t < m.tets.size(); ++t) sum += detail::residual_squared(m.tets[t], x, lambda[t], at);
+  return std::sqrt(sum);
+}
+
+}  // namespace pliant

@@ -1,0 +1,171 @@
+// The strain constraint as physics: derivatives against finite differences, invariance under
+// rigid motions, the energy identity 1/2 C^T K C = V psi_StVK, and the fused solver kernel
+// against the readable definition.
+#include "pliant/material.hpp"
+#include "pliant/model.hpp"
+#include "pliant/strain_constraint.hpp"
+#include "../../solver/src/projection.hpp"
+
+#include <Eigen/Dense>
+#include <Eigen/Geometry>
+#include <gtest/gtest.h>
+
+#include <random>
+
+using namespace pliant;
+
+namespace {
+
+TetRest make_rest(const std::array<Vec3, 4>& X) {
+  TetMesh mesh;
+  mesh.vertices.assign(X.begin(), X.end());
+  mesh.tets = {{0, 1, 2, 3}};
+  auto model = build_model(mesh, Material{});
+  return model->tets[0];
+}
+
+std::array<Vec3, 4> random_tet(std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  std::array<Vec3, 4> X = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1)};
+  for (auto& p : X) p += Vec3(u(rng), u(rng), u(rng)) * 0.5;
+  if (signed_tet_volume(X[0], X[1], X[2], X[3]) < 0) std::swap(X[2], X[3]);
+  return X;
+}
+
+std::array<Vec3, 4> deform(const std::array<Vec3, 4>& X, std::mt19937& rng, double amount) {
+  std::uniform_real_distribution<double> u(-amount, amount);
+  auto x = X;
+  for (auto& p : x) p += Vec3(u(rng), u(rng), u(rng));
+  return x;
+}
+
+// psi_StVK from the Green strain tensor, written independently of the 6-vector form.
+double stvk_density(const Mat3& F, const Lame& l) {
+  const Mat3 E = 0.5 * (F.transpose() * F - Mat3::Identity());
+  return l.mu * (E.array() * E.array()).sum() + 0.5 * l.lambda * E.trace() * E.trace();
+}
+
+}  // namespace
+
+TEST(Material, LameParametersForKnownValues) {
+  const Lame l = lame_parameters(1e6, 0.4);
+  EXPECT_NEAR(l.lambda, 0.4e6 / (1.4 * 0.2), 1e-6);
+  EXPECT_NEAR(l.mu, 1e6 / 2.8, 1e-6);
+  const Mat6 K = stvk_stiffness(l);
+  EXPECT_DOUBLE_EQ(K(0, 0), l.lambda + 2 * l.mu);
+  EXPECT_DOUBLE_EQ(K(0, 1), l.lambda);
+  EXPECT_DOUBLE_EQ(K(3, 3), l.mu);
+  EXPECT_DOUBLE_EQ(K(0, 3), 0.0);
+  // Compliance is the inverse: uniaxial stress sigma along x gives strain sigma / E along x and
+  // -nu sigma / E across (linear elasticity), a check independent of how K was written.
+  const Mat6 alpha = K.inverse();
+  EXPECT_NEAR(alpha(0, 0) * 1e6, 1.0, 1e-9);
+  EXPECT_NEAR(alpha(1, 0) * 1e6, -0.4, 1e-9);
+  EXPECT_NEAR(alpha(3, 3) * l.mu, 1.0, 1e-9);  // engineering shear: gamma = tau / mu
+}
+
+TEST(Material, ValidationNamesFieldAndValue) {
+  EXPECT_NE(validate(Material{-1, 0.3, 1000}).find("material.young"), std::string::npos);
+  EXPECT_NE(validate(Material{1e6, 0.5, 1000}).find("0.5"), std::string::npos);
+  EXPECT_NE(validate(Material{1e6, 0.3, 0}).find("material.density"), std::string::npos);
+  EXPECT_TRUE(validate(Material{1e6, 0.3, 1000}).empty());
+}
+
+TEST(StrainConstraint, JacobianMatchesFiniteDifferences) {
+  std::mt19937 rng(1);
+  for (int trial = 0; trial < 20; ++trial) {
+    const TetRest tet = make_rest(random_tet(rng));
+    const auto x = deform(random_tet(rng), rng, 0.2);
+    const Mat6x12 J = strain_jacobian(tet, x);
+    const double eps = 1e-6;
+    for (int c = 0; c < 12; ++c) {
+      auto xp = x, xm = x;
+      xp[c / 3][c % 3] += eps;
+      xm[c / 3][c % 3] -= eps;
+      const Vec6 fd = (strain_constraint(tet, xp) - strain_constraint(tet, xm)) / (2 * eps);
+      for (int r = 0; r < 6; ++r) EXPECT_NEAR(J(r, c), fd[r], 1e-7 * (1 + std::abs(fd[r]))) << r << "," << c;
+    }
+  }
+}
+
+TEST(StrainConstraint, EnergyHessianMatchesFiniteDifferencesOfGradient) {
+  std::mt19937 rng(2);
+  const Mat6 K = stvk_stiffness(lame_parameters(1.0, 0.3));
+  for (int trial = 0; trial < 10; ++trial) {
+    const TetRest tet = make_rest(random_tet(rng));
+    const auto x = deform(random_tet(rng), rng, 0.2);
+    Vec12 g;
+    Mat12 H;
+    strain_energy_derivatives(tet, K, x, &g, &H, false);
+    const double eps = 1e-6;
+    for (int c = 0; c < 12; ++c) {
+      auto xp = x, xm = x;
+      xp[c / 3][c % 3] += eps;
+      xm[c / 3][c % 3] -= eps;
+      EXPECT_NEAR(g[c], (strain_energy(tet, K, xp) - strain_energy(tet, K, xm)) / (2 * eps), 1e-6);
+      Vec12 gp, gm;
+      strain_energy_derivatives(tet, K, xp, &gp, nullptr, false);
+      strain_energy_derivatives(tet, K, xm, &gm, nullptr, false);
+      const Vec12 col = (gp - gm) / (2 * eps);
+      for (int r = 0; r < 12; ++r) EXPECT_NEAR(H(r, c), col[r], 1e-5 * (1 + std::abs(col[r])));
+    }
+  }
+}
+
+TEST(StrainConstraint, RigidMotionGivesZeroStrainAndZeroResidual) {
+  std::mt19937 rng(3);
+  for (int trial = 0; trial < 20; ++trial) {
+    const auto X = random_tet(rng);
+    const TetRest tet = make_rest(X);
+    const Eigen::Quaterniond q = Eigen::Quaterniond::UnitRandom();
+    const Vec3 t(rng() % 7 - 3.0, 0.25, -1.5);
+    std::array<Vec3, 4> x;
+    for (int k = 0; k < 4; ++k) x[k] = q * X[k] + t;
+    EXPECT_LT(strain_constraint(tet, x).norm(), 1e-13);
+    // Residual C + alpha~ lambda with lambda = 0, through the solver's own kernel.
+    std::vector<Vec3> xs(x.begin(), x.end());
+    EXPECT_LT(detail::residual_squared(tet, xs, Vec6::Zero(), Mat6::Identity()), 1e-26);
+  }
+}
+
+TEST(StrainConstraint, EnergyEqualsVolumeTimesStvkDensity) {
+  std::mt19937 rng(4);
+  const Lame l = lame_parameters(2.5e5, 0.42);
+  const Mat6 K = stvk_stiffness(l);
+  for (int trial = 0; trial < 50; ++trial) {
+    const auto X = random_tet(rng);
+    const TetRest tet = make_rest(X);
+    const auto x = deform(X, rng, 0.3);
+    const double expected = tet.volume * stvk_density(deformation_gradient(tet, x), l);
+    EXPECT_NEAR(strain_energy(tet, K, x), expected, 1e-10 * std::abs(expected) + 1e-12);
+  }
+}
+
+TEST(StrainConstraint, FusedKernelMatchesDefinition) {
+  // The solver's projection must solve [J W J^T + alpha~] dl = -C - alpha~ lambda and move the
+  // vertices by W J^T dl.
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 20; ++trial) {
+    const TetRest tet = make_rest(random_tet(rng));
+    const auto x = deform(random_tet(rng), rng, 0.2);
+    const double w[4] = {1.3, 0.0, 2.1, 0.7};
+    const Mat6 at = stvk_stiffness(lame_parameters(3.0, 0.35)).inverse() * 0.8;
+    Vec6 lambda;
+    lambda << 0.1, -0.2, 0.05, 0.3, -0.1, 0.02;
+    detail::ProjectionParams params;
+    params.alpha_tilde = at;
+    const Vec3* p[4] = {&x[0], &x[1], &x[2], &x[3]};
+    Vec6 dl;
+    Vec3 dx[4];
+    detail::strain_increment(tet, p, w, lambda, params, dl, dx);
+
+    const Mat6x12 J = strain_jacobian(tet, x);
+    Eigen::Matrix<double, 12, 12> W = Eigen::Matrix<double, 12, 12>::Zero();
+    for (int k = 0; k < 4; ++k) W.block<3, 3>(3 * k, 3 * k) = w[k] * Mat3::Identity();
+    const Mat6 A = J * W * J.transpose() + at;
+    const Vec6 expected = A.ldlt().solve(-strain_constraint(tet, x) - at * lambda);
+    EXPECT_LT((dl - expected).norm(), 1e-10 * (1 + expected.norm()));
+    const Vec12 move = W * J.transpose() * expected;
+    for (int k = 0; k < 4; ++k) EXPECT_LT((dx[k] - move.segment<3>(3 * k)).norm(), 1e-10 * (1 + move.norm()));
+  }
+}
