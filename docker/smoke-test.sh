@@ -49,13 +49,17 @@ if [ "$(id -u)" -ne 0 ]; then
   SUDO="sudo -n"
 fi
 
-# 1. podman (it builds with its embedded buildah), runc, debootstrap.
+# 1. podman (it builds with its embedded buildah), runc, debootstrap; podman-compose for compose.yaml.
 if ! command -v podman >/dev/null || ! command -v runc >/dev/null || ! command -v debootstrap >/dev/null; then
   command -v apt-get >/dev/null || skip "podman is not installed and there is no apt-get to install it"
   say "installing podman runc debootstrap"
   export DEBIAN_FRONTEND=noninteractive
   { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq -o DPkg::Lock::Timeout=600 \
       podman runc debootstrap >/dev/null; } || skip "podman could not be installed (apt-get failed, see above)"
+fi
+if ! command -v podman-compose >/dev/null && command -v apt-get >/dev/null; then
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq -o DPkg::Lock::Timeout=600 \
+    --no-install-recommends podman-compose >/dev/null 2>&1 || say "podman-compose could not be installed"
 fi
 
 # 2. podman configuration and storage of our own (does not touch the host's default storage).
@@ -73,7 +77,7 @@ cleanup() {
   if [ $rc != 0 ] && "${P[@]}" container exists "$NAME" 2>/dev/null; then
     say "server log (last 40 lines):"; "${P[@]}" logs "$NAME" 2>&1 | tail -40 >&2 || true
   fi
-  "${P[@]}" rm -f -t 5 "$NAME" "$NAME-cli" >/dev/null 2>&1 || true
+  "${P[@]}" rm -f -v -t 5 "$NAME" "$NAME-cli" >/dev/null 2>&1 || true
   "${P[@]}" volume rm -f "$VOL" >/dev/null 2>&1 || true
   if [ "${CLEAN:-0}" = 1 ]; then "${P[@]}" rmi -f "$IMAGE" >/dev/null 2>&1 || true; fi
   # Untagged layers are the build cache; drop only those unused for a week (bounds the disk use).
@@ -185,7 +189,7 @@ wait_healthy() {  # the image's own HEALTHCHECK (pliant health), up to 60 s
 
 # The host side uses the image's own `pliant` (the same Debian 12 libraries are on the host).
 "${P[@]}" create --name "$NAME-cli" "$IMAGE" >/dev/null
-"${P[@]}" cp "$NAME-cli:/usr/local/bin/pliant" "$TMPD/pliant" && "${P[@]}" rm "$NAME-cli" >/dev/null
+"${P[@]}" cp "$NAME-cli:/usr/local/bin/pliant" "$TMPD/pliant" && "${P[@]}" rm -v "$NAME-cli" >/dev/null
 cli() { PLIANT_ADDRESS=$ADDR PLIANT_TOKEN=$TOKEN "$TMPD/pliant" "$@"; }
 json() {  # json EXPR < last JSON line of stdin: print EXPR of it (d = the parsed object)
   python3 -c 'import json,sys; d=json.loads([l for l in sys.stdin if l.strip().startswith(("{","["))][-1]); print(eval(sys.argv[1]))' "$1"
@@ -261,5 +265,45 @@ say "restored from the volume: smoke-ls at tick 25 with identical state, smoke-r
 cli --json watch smoke-rt --duration 2 >"$TMPD/watch2.json" || die "watch after restart failed"
 [ "$(json "d['ticks']" <"$TMPD/watch2.json")" -gt 0 ] || die "smoke-rt does not tick after the restart"
 say "streamed after restart: $(tail -n 1 "$TMPD/watch2.json")"
+
+# 9. compose.yaml as users run it (podman-compose; `docker compose` reads the same file): bridge
+#    network, published port, named volume; the demo service creates a scene and watches it.
+if command -v podman-compose >/dev/null; then
+  stop_server() { "${P[@]}" rm -f -v -t 10 "$NAME" >/dev/null 2>&1 || true; }
+  stop_server   # frees nothing here (host networking, free port), but halves the CPU load
+  printf '[storage]\ndriver = "overlay"\ngraphroot = "%s"\nrunroot = "%s"\n' "$CACHE/storage" "$CACHE/run" \
+    > "$TMPD/storage.conf"
+  PROJ=pliant-smoke-$$
+  compose() {
+    $SUDO env CONTAINERS_CONF="$CACHE/containers.conf" CONTAINERS_STORAGE_CONF="$TMPD/storage.conf" \
+      PLIANT_PORT="$PORT" PLIANT_DEMO_SECONDS=3 PLIANT_TOKEN="$TOKEN" \
+      podman-compose -p "$PROJ" -f compose.yaml "$@"
+  }
+  compose_cleanup() {  # like `compose down`, plus the anonymous volume the demo's VOLUME got
+    local ids
+    ids=$("${P[@]}" ps -aq --filter "label=io.podman.compose.project=$PROJ" 2>/dev/null || true)
+    [ -z "$ids" ] || "${P[@]}" rm -f -v -t 10 $ids >/dev/null 2>&1 || true
+    "${P[@]}" volume rm -f "${PROJ}_pliant-data" >/dev/null 2>&1 || true
+    "${P[@]}" network rm -f "${PROJ}_default" >/dev/null 2>&1 || true
+    "${P[@]}" untag localhost/pliant:latest localhost/pliant:latest >/dev/null 2>&1 || true
+  }
+  trap 'compose_cleanup; cleanup' EXIT
+  "${P[@]}" tag "$IMAGE" localhost/pliant:latest   # compose.yaml's image: pliant:latest, no rebuild
+  timed compose-up compose up -d >"$TMPD/compose.log" 2>&1 || { cat "$TMPD/compose.log" >&2; die "compose up failed"; }
+  for i in $(seq 1 60); do
+    st=$("${P[@]}" inspect --format '{{.State.Status}} {{.State.ExitCode}}' "${PROJ}_demo_1" 2>/dev/null || echo missing)
+    case $st in exited*|stopped*) break ;; esac; sleep 1   # podman 4.3 says "stopped" at times
+  done
+  "${P[@]}" logs "${PROJ}_demo_1" >"$TMPD/demo.log" 2>&1 || true
+  sed 's/^/  demo: /' "$TMPD/demo.log" | grep -E 'created|running|ticks in' >&2 || true
+  [ "${st#* }" = 0 ] && [ "${st% *}" != running ] && grep -q 'created scene demo' "$TMPD/demo.log" && grep -qE '[1-9][0-9]* ticks in' "$TMPD/demo.log" \
+    || { cat "$TMPD/demo.log" >&2; die "compose demo client: $st"; }
+  PLIANT_ADDRESS=127.0.0.1:$PORT PLIANT_TOKEN=$TOKEN "$TMPD/pliant" scenes get demo >/dev/null \
+    || die "the compose server's published port 127.0.0.1:$PORT does not answer"
+  say "compose.yaml: server healthy, demo created and watched a scene, published port answers"
+  compose_cleanup; trap cleanup EXIT
+else
+  say "NOTE: podman-compose not installed: compose.yaml not exercised (apt-get install podman-compose)"
+fi
 
 say "PASSED: container smoke test ($(awk -v s="$T0" -v e="$(date +%s.%N)" 'BEGIN{printf "%.0f", e-s}') s; image $(awk -v s="$size" 'BEGIN{printf "%.0f MB", s/1e6}'))"
