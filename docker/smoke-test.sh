@@ -133,8 +133,10 @@ fi
 say "building $IMAGE from $REPO"
 if ! timed build "${P[@]}" build --pull=never --network=host --format docker --layers \
        -f docker/Dockerfile -t "$IMAGE" . >"$TMPD/build.log" 2>&1; then
-  tail -60 "$TMPD/build.log" >&2; die "image build failed"
+  tail -60 "$TMPD/build.log" >&2; cp "$TMPD/build.log" "$CACHE/last-build.log" 2>/dev/null || true
+  die "image build failed (whole log: $CACHE/last-build.log)"
 fi
+cp "$TMPD/build.log" "$CACHE/last-build.log" 2>/dev/null || true
 grep -E '^\[[0-9]/[0-9]\] STEP [0-9]+/[0-9]+: (RUN|COPY)|Using cache|^image: ' "$TMPD/build.log" \
   | sed -E 's/^(.{110}).*/\1.../' >&2 || true
 
@@ -163,7 +165,7 @@ inspect '{{json .Config.Volumes}}' | grep -q '"/var/lib/pliant"' || die "no VOLU
   [ -d "$PLIANT_MODEL_PATH" ] && echo "meshes: $(ls "$PLIANT_MODEL_PATH" | wc -l) files in $PLIANT_MODEL_PATH"
   echo "runs as $(id -un) ($(id -u)); ldd: all libraries found; no compilers"' >"$TMPD/inspect.log" 2>&1 \
   || { cat "$TMPD/inspect.log" >&2; die "runtime image check failed"; }
-sed 's/^/  /' "$TMPD/inspect.log" >&2
+grep -v 'systemd' "$TMPD/inspect.log" | sed 's/^/  /' >&2   # (podman: no systemd for health timers)
 
 # 6. Run it: host networking (see the top), snapshots in a named volume, settings from the environment.
 PORT=${PORT:-$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')}
