@@ -139,6 +139,7 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   s.tolerance = a.number("tolerance", s.tolerance);
   s.threads = int(a.integer("threads", s.threads, 1, 256));
   s.inversion_floor = a.number("inversion-floor", s.inversion_floor);
+
   if (std::string err = validate(s); !err.empty()) throw cli::UsageError(err);
   return s;
 }
