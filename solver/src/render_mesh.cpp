@@ -138,6 +138,9 @@ SurfaceBinding embed_surface(const TetMesh& mesh, const SurfaceMesh& surface) {
   std::vector<int32_t> stamp(mesh.tets.size(), -1);
   // A point is inside when its smallest weight is above -kInside (round-off on shared faces).
   constexpr double kInside = 1e-10;
+  // Vertices this close to the tet mesh count as on its boundary, not outside (a surface stored in
+  // single precision, like most PLY/OBJ files, sits ~1e-8 of the size off the tets' faces).
+  const double on_boundary = 1e-6 * bounding_box(mesh.vertices).extent().norm();
 
   for (size_t v = 0; v < surface.vertices.size(); ++v) {
     const Vec3& p = surface.vertices[v];
@@ -184,7 +187,7 @@ SurfaceBinding embed_surface(const TetMesh& mesh, const SurfaceMesh& surface) {
     if (best_tet < 0) throw MeshError("embed: no tet found for surface vertex " + std::to_string(v));
     out.tet[v] = best_tet;
     out.weights[v] = best_w;
-    if (best_dist > 0) {
+    if (best_dist > on_boundary) {
       ++out.outside;
       out.max_outside_distance = std::max(out.max_outside_distance, best_dist);
     }

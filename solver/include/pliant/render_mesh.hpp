@@ -40,7 +40,7 @@ struct SurfaceBinding {
   std::vector<Triangle> triangles;          // the surface's triangles (for normals)
   int64_t tet_vertex_count = 0;             // the tet mesh it was made for (checked on use)
   int64_t tet_count = 0;
-  int64_t outside = 0;                      // vertices bound to the nearest tet, not a containing one
+  int64_t outside = 0;                      // vertices farther than 1e-6 x the mesh diagonal from every tet
   double max_outside_distance = 0;          // largest distance of those to their tet (m)
 };
 
