@@ -38,6 +38,7 @@ with a render surface (armadillo-tetgen).
 
 options:
   --scale <s>            multiply coordinates (file units -> metres; models: times their own scale)
+  --unit <mm|cm|m|in>    file unit (multiplies --scale; default m)
   --fit-size <m>         scale so the longest bounding-box side is <m> metres
   --density <kg/m^3>     info: report the mass
   --json                 info/validate: print one JSON object
@@ -69,7 +70,7 @@ struct Args {
 }
 
 Args parse_args(int argc, char** argv) {
-  static const std::set<std::string> kValued = {"--scale", "--fit-size", "--density", "--gmsh-version", "--index-base",
+  static const std::set<std::string> kValued = {"--scale", "--unit", "--fit-size", "--density", "--gmsh-version", "--index-base",
                                                 "--ratio", "--switches", "--keep", "--surface-scale", "--model-path"};
   static const std::set<std::string> kFlags = {"--json", "--drop-degenerate", "--no-reorient", "--strict", "--binary",
                                                "--quiet", "-q"};
@@ -142,9 +143,18 @@ std::vector<std::string> search_path(const Args& a) {
   return p;
 }
 
+double unit_arg(const Args& a) {
+  auto it = a.values.find("--unit");
+  if (it == a.values.end()) return 1.0;
+  static const std::map<std::string, double> kUnits = {{"m", 1.0}, {"cm", 0.01}, {"mm", 0.001}, {"in", 0.0254}, {"dm", 0.1}};
+  auto u = kUnits.find(it->second);
+  if (u == kUnits.end()) bad_argument("--unit must be m, dm, cm, mm or in, got '" + it->second + "'");
+  return u->second;
+}
+
 MeshLoadOptions load_options(const Args& a) {
   MeshLoadOptions o;
-  o.scale = number_arg(a, "--scale", 1.0, 0.0);
+  o.scale = number_arg(a, "--scale", 1.0, 0.0) * unit_arg(a);
   o.fit_size = number_arg(a, "--fit-size", 0.0, -1.0);
   if (a.values.count("--fit-size") && !(o.fit_size > 0)) bad_argument("--fit-size needs a positive size in metres");
   o.validation.drop_degenerate = a.flags.count("--drop-degenerate") > 0;
@@ -308,7 +318,7 @@ SurfaceMesh load_surface_spec(const Args& a, const std::string& spec) {
 int cmd_tetrahedralize(const Args& a) {
   need_positional(a, 2, "a closed surface file and an output mesh file");
   SurfaceLoadOptions so;
-  so.scale = number_arg(a, "--scale", 1.0, 0.0);
+  so.scale = number_arg(a, "--scale", 1.0, 0.0) * unit_arg(a);
   const SurfaceMesh surface = load_surface(a.positional[0], so);
   TetrahedralizeOptions to;
   to.quality_ratio = number_arg(a, "--ratio", 1.5, 0.0);

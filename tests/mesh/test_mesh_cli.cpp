@@ -95,6 +95,7 @@ TEST(MeshCli, BadArgumentsExitNonZeroWithOneLineNamingThem) {
       {"info beam1 extra", "extra"},
       {"convert beam1 out.vtk --gmsh-version 3", "--gmsh-version"},
       {"info --density", "--density"},
+      {"info --unit furlong beam1", "--unit"},
       {"info no-such-mesh", "no-such-mesh"},
   };
   for (const Case& c : cases) {

@@ -68,8 +68,10 @@ TEST(MeshFormats, TetGenIndexBaseIsDetectedFromTheFirstNode) {
 TEST(MeshFormats, SameCubeInEveryHandWrittenFormat) {
   // tests/mesh/data: the unit cube split in 5 tets, written by hand in each format with the
   // extras real files carry (attributes, markers, comments, physical names, entities, point and
-  // line elements, triangle cells, field data, point data, two node blocks, base64 blocks).
-  for (const char* f : {"cube.node", "cube_v1.msh", "cube_v22.msh", "cube_v41.msh", "cube.vtk", "cube.vtu", "cube_b64.vtu"}) {
+  // line elements, triangle cells, field data, point data, two node blocks, base64 blocks, the
+  // VTK 5.1 OFFSETS/CONNECTIVITY layout, raw appended VTU data).
+  for (const char* f : {"cube.node", "cube_v1.msh", "cube_v22.msh", "cube_v41.msh", "cube.vtk", "cube_v51.vtk", "cube.vtu", "cube_b64.vtu",
+                        "cube_appended.vtu"}) {
     SCOPED_TRACE(f);
     const MeshLoadResult r = load_mesh_with_report(data_file(f), quiet());
     EXPECT_EQ(r.mesh.vertices.size(), 8u);

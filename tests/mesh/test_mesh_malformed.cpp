@@ -108,6 +108,8 @@ std::vector<BadCase> bad_cases() {
   };
 }
 
+void PrintTo(const BadCase& c, std::ostream* os) { *os << c.name; }
+
 class Malformed : public ::testing::TestWithParam<BadCase> {};
 
 }  // namespace
