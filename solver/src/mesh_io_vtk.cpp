@@ -176,7 +176,8 @@ RawTetMesh read_vtk_legacy(const std::string& path) {
         const int64_t comps = c.integer("the number of components");
         const int64_t tuples = c.integer("the number of tuples");
         const LegacyType t = legacy_type(c.token("the array type"), c);
-        if (comps < 0 || tuples < 0) c.fail("negative array size");
+        if (comps < 0 || tuples < 0 || comps > 1000000 || tuples > static_cast<int64_t>(c.size()))
+          c.fail("bad field array size " + std::to_string(comps) + " x " + std::to_string(tuples));
         const size_t total = c.checked_count(comps * tuples, binary ? static_cast<size_t>(t.bytes) : 1, "field array size");
         begin_binary_block(c, binary);
         if (binary) c.skip_bytes(total * static_cast<size_t>(t.bytes), "field data");

@@ -182,7 +182,9 @@ SurfaceBinding embed_surface(const TetMesh& mesh, const SurfaceMesh& surface) {
           }
         }
       // Tets not seen yet lie in cells at least r*h away.
-      if (best_tet >= 0 && best_dist <= r * grid.h) break;
+      // Within the on-boundary tolerance counts as found (saves searching the next ring for every
+      // vertex of a surface that is the tet mesh's own boundary).
+      if (best_tet >= 0 && (best_dist <= r * grid.h || best_dist <= on_boundary)) break;
     }
     if (best_tet < 0) throw MeshError("embed: no tet found for surface vertex " + std::to_string(v));
     out.tet[v] = best_tet;
