@@ -211,7 +211,8 @@ std::string report_json(const MeshLoadResult& r, const std::optional<double>& de
   for (size_t i = 0; i < m.worst.size(); ++i) {
     const WorstTet& w = m.worst[i];
     if (i) o += ", ";
-    o += "{\"tet\": " + std::to_string(w.tet) + ", \"origin\": " + std::to_string(w.origin) + ", \"min_dihedral_deg\": " +
+    o += "{\"tet\": " + std::to_string(w.tet) + ", \"origin\": " + std::to_string(w.origin) + ", \"origin_kind\": " +
+         jstr(m.origin_kind) + ", \"min_dihedral_deg\": " +
          jnum(w.min_dihedral_deg) + ", \"aspect_ratio\": " + jnum(w.aspect_ratio) + ", \"volume\": " + jnum(w.volume) + "}";
   }
   o += "], \"surface_triangles\": " + std::to_string(m.surface.triangles);
@@ -251,8 +252,9 @@ void print_text(const MeshLoadResult& r, const std::optional<double>& density, d
   }
   std::printf("worst tets:\n");
   for (const WorstTet& w : m.worst)
-    std::printf("  tet %lld (file %lld): min dihedral %.4g deg, aspect %.4g, volume %.3g\n", static_cast<long long>(w.tet),
-                static_cast<long long>(w.origin), w.min_dihedral_deg, w.aspect_ratio, w.volume);
+    std::printf("  tet %lld (%s %lld in the file): min dihedral %.4g deg, aspect %.4g, volume %.3g\n",
+                static_cast<long long>(w.tet), m.origin_kind.c_str(), static_cast<long long>(w.origin), w.min_dihedral_deg,
+                w.aspect_ratio, w.volume);
   const SurfaceStats& s = m.surface;
   std::printf("surface     %lld triangles, %lld vertices, %lld edges, area %.6g m^2, Euler %d, %d component(s), %s\n",
               static_cast<long long>(s.triangles), static_cast<long long>(s.vertices), static_cast<long long>(s.edges), s.area,

@@ -354,6 +354,7 @@ MeshReport validate_mesh(TetMesh& mesh, const MeshValidationOptions& o) {
                         " open edges, " + std::to_string(report.surface.nonmanifold_edges) + " non-manifold edges, " +
                         std::to_string(overfull) + " faces shared by more than two tets)");
 
+  report.origin_kind = have_origin ? o.origin_kind : std::string("tet");
   report.vertices = static_cast<int64_t>(mesh.vertices.size());
   report.tets = static_cast<int64_t>(nt);
   report.reoriented = reoriented;

@@ -63,6 +63,7 @@ struct SurfaceStats {
 
 struct MeshReport {
   std::string source;
+  std::string origin_kind = "tet";         // what WorstTet::origin counts: "line", "element", "cell", "tet"
   int64_t vertices = 0, tets = 0;          // after repair
   int64_t reoriented = 0;                  // inverted tets flipped
   int64_t dropped_degenerate = 0;
