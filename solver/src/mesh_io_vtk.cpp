@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <charconv>
 #include <cstring>
+#include <limits>
 #include <optional>
 #include <cmath>
 #include <map>
@@ -60,7 +61,18 @@ double legacy_value(Cursor& c, bool binary, const LegacyType& t, const char* wha
 
 int64_t legacy_index(Cursor& c, bool binary, const LegacyType& t, const char* what) {
   if (t.is_float) c.fail(std::string(what) + " must have an integer type");
-  return static_cast<int64_t>(legacy_value(c, binary, t, what));
+  if (!binary) return c.integer(what);
+  switch (t.bytes) {
+    case 1: return t.is_signed ? int64_t(c.raw<int8_t>(what)) : int64_t(c.raw<uint8_t>(what));
+    case 2: return t.is_signed ? int64_t(c.raw<int16_t>(what, true)) : int64_t(c.raw<uint16_t>(what, true));
+    case 4: return t.is_signed ? int64_t(c.raw<int32_t>(what, true)) : int64_t(c.raw<uint32_t>(what, true));
+    default: {
+      if (t.is_signed) return c.raw<int64_t>(what, true);
+      const uint64_t v = c.raw<uint64_t>(what, true);
+      if (v > uint64_t(std::numeric_limits<int64_t>::max())) c.fail(std::string(what) + " out of range: " + std::to_string(v));
+      return static_cast<int64_t>(v);
+    }
+  }
 }
 
 void begin_binary_block(Cursor& c, bool binary) {
@@ -463,7 +475,8 @@ class VtuReader {
     for (size_t i = 0; i < n_cells; ++i) {
       const double end = offsets[i];
       if (end < begin || end > conn_size) fail_at(off_tag->begin, "cell " + std::to_string(i) + ": bad offset " + std::to_string(end));
-      const auto type = static_cast<int64_t>(types[i]);
+      // Cell types are small integers; anything else (garbage) is just an unknown type.
+      const int64_t type = (types[i] >= 0 && types[i] < 1e6) ? static_cast<int64_t>(types[i]) : -1;
       const auto b = static_cast<size_t>(begin);
       const auto count = static_cast<int64_t>(end - begin);
       begin = end;
@@ -479,7 +492,7 @@ class VtuReader {
       for (int k = 0; k < 4; ++k) {
         const double v = conn[b + k];
         if (!(v >= 0 && v < double(n_points)))
-          fail_at(conn_tag->begin, "cell " + std::to_string(i) + ": point index " + std::to_string(static_cast<int64_t>(v)) +
+          fail_at(conn_tag->begin, "cell " + std::to_string(i) + ": point index " + std::to_string(v) +
                                        " out of range [0, " + std::to_string(int64_t(n_points) - 1) + "]");
         t[k] = static_cast<int32_t>(v);
       }

@@ -122,7 +122,7 @@ TEST(MeshCli, ValidateConvertAndEmbed) {
   r = run_tool("embed " + data_file("cube.node") + " " + data_file("octahedron.obj") + " " + dir.file("b.txt"), dir);
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(read_binding(dir.file("b.txt")).tet.size(), 6u);
-  dir.write("garbage.msh", std::string("$MeshFormat\n\x01\x02\xff garbage", 25));
+  dir.write("garbage.msh", std::string("$MeshFormat\n\x01\x02\xff garbage"));
   r = run_tool("info " + dir.file("garbage.msh"), dir);
   EXPECT_EQ(r.status, 1);
   EXPECT_NE(r.err.find("garbage.msh:2: unsupported Gmsh format version"), std::string::npos) << r.err;
