@@ -220,6 +220,7 @@ std::string report_json(const MeshLoadResult& r, const std::optional<double>& de
        ", \"area\": " + jnum(m.surface.area) + ", \"euler_characteristic\": " + std::to_string(m.surface.euler_characteristic) +
        ", \"components\": " + std::to_string(m.surface.components) + ", \"open_edges\": " + std::to_string(m.surface.boundary_edges) +
        ", \"nonmanifold_edges\": " + std::to_string(m.surface.nonmanifold_edges) +
+       ", \"nonmanifold_vertices\": " + std::to_string(m.surface.nonmanifold_vertices) +
        ", \"closed_manifold\": " + (m.surface.closed_manifold ? "true" : "false") + "}";
   o += ", \"repairs\": {\"reoriented\": " + std::to_string(m.reoriented) + ", \"dropped_degenerate\": " +
        std::to_string(m.dropped_degenerate) + ", \"dropped_duplicates\": " + std::to_string(m.dropped_duplicates) +

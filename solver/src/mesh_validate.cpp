@@ -156,8 +156,45 @@ SurfaceStats surface_stats(const std::vector<Vec3>& vertices, const std::vector<
       ++s.vertices;
       if (find(static_cast<int32_t>(v)) == static_cast<int32_t>(v)) ++s.components;
     }
+  // Pinched vertices: the triangles around a vertex must form one fan, i.e. the edges opposite
+  // the vertex (its link) must be connected. Two tets touching at a single vertex fail this.
+  {
+    std::vector<int32_t> start(vertices.size() + 1, 0);
+    for (const Triangle& t : triangles)
+      for (int32_t v : t) start[v + 1]++;
+    for (size_t v = 0; v < vertices.size(); ++v) start[v + 1] += start[v];
+    std::vector<int32_t> fill(start.begin(), start.end() - 1), around(static_cast<size_t>(start.back()));
+    for (size_t t = 0; t < triangles.size(); ++t)
+      for (int32_t v : triangles[t]) around[fill[v]++] = static_cast<int32_t>(t);
+    std::vector<int32_t> link, link_parent;
+    for (size_t v = 0; v < vertices.size(); ++v) {
+      if (start[v + 1] - start[v] < 2) continue;
+      link.clear();
+      auto local = [&](int32_t x) {
+        for (size_t i = 0; i < link.size(); ++i)
+          if (link[i] == x) return static_cast<int32_t>(i);
+        link.push_back(x);
+        link_parent.resize(link.size());
+        link_parent.back() = static_cast<int32_t>(link.size() - 1);
+        return static_cast<int32_t>(link.size() - 1);
+      };
+      auto root = [&](int32_t x) {
+        while (link_parent[x] != x) x = link_parent[x] = link_parent[link_parent[x]];
+        return x;
+      };
+      for (int32_t i = start[v]; i < start[v + 1]; ++i) {
+        const Triangle& t = triangles[around[i]];
+        const int k = t[0] == static_cast<int32_t>(v) ? 0 : t[1] == static_cast<int32_t>(v) ? 1 : 2;
+        const int32_t a = local(t[(k + 1) % 3]), b = local(t[(k + 2) % 3]);
+        link_parent[root(a)] = root(b);
+      }
+      int fans = 0;
+      for (size_t i = 0; i < link.size(); ++i) fans += root(static_cast<int32_t>(i)) == static_cast<int32_t>(i);
+      if (fans > 1) ++s.nonmanifold_vertices;
+    }
+  }
   s.euler_characteristic = static_cast<int>(s.vertices - s.edges + s.triangles);
-  s.closed_manifold = s.triangles > 0 && s.boundary_edges == 0 && s.nonmanifold_edges == 0;
+  s.closed_manifold = s.triangles > 0 && s.boundary_edges == 0 && s.nonmanifold_edges == 0 && s.nonmanifold_vertices == 0;
   return s;
 }
 
@@ -352,6 +389,7 @@ MeshReport validate_mesh(TetMesh& mesh, const MeshValidationOptions& o) {
   if (!report.surface.closed_manifold)
     warn(report, o, src + ": the boundary is not a closed manifold (" + std::to_string(report.surface.boundary_edges) +
                         " open edges, " + std::to_string(report.surface.nonmanifold_edges) + " non-manifold edges, " +
+                        std::to_string(report.surface.nonmanifold_vertices) + " pinched vertices, " +
                         std::to_string(overfull) + " faces shared by more than two tets)");
 
   report.origin_kind = have_origin ? o.origin_kind : std::string("tet");

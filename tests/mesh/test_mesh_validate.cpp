@@ -79,6 +79,23 @@ TEST(MeshValidate, NonManifoldBoundaryIsAWarning) {
   EXPECT_NE(r.warnings.back().find("not a closed manifold"), std::string::npos);
 }
 
+TEST(MeshValidate, TetsTouchingAtOneVertexArePinched) {
+  // Every edge is fine, but the shared vertex's triangles form two fans.
+  TetMesh m;
+  m.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {-1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
+  m.tets = {{0, 1, 2, 3}, {0, 4, 5, 6}};
+  for (size_t t = 0; t < m.tets.size(); ++t)
+    if (tet_volume(m, t) < 0) std::swap(m.tets[t][2], m.tets[t][3]);
+  const MeshReport r = validate_mesh(m, quiet());
+  EXPECT_EQ(r.surface.nonmanifold_edges, 0);
+  EXPECT_EQ(r.surface.boundary_edges, 0);
+  EXPECT_EQ(r.surface.nonmanifold_vertices, 1);
+  EXPECT_FALSE(r.surface.closed_manifold);
+  // A single tet and the beam are fine.
+  TetMesh beam = make_beam(4, 3, 3, 0.1);
+  EXPECT_EQ(validate_mesh(beam, quiet()).surface.nonmanifold_vertices, 0);
+}
+
 TEST(MeshValidate, NonFiniteAndEmptyMeshesAreRejected) {
   TetMesh m = regular_tet();
   m.vertices[2].y() = std::nan("");

@@ -54,6 +54,7 @@ struct SurfaceStats {
   int64_t edges = 0;
   int64_t boundary_edges = 0;      // edges with one triangle (holes)
   int64_t nonmanifold_edges = 0;   // edges with more than two triangles, or inconsistent winding
+  int64_t nonmanifold_vertices = 0; // vertices whose triangles form more than one fan (pinches)
   int64_t overfull_faces = 0;      // faces shared by more than two tets
   int euler_characteristic = 0;     // V - E + F; 2 per closed genus-0 component
   int components = 0;               // connected components (by shared vertices)
