@@ -105,6 +105,16 @@ std::vector<BadCase> bad_cases() {
        "<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n0 0 0 1 0",
        nullptr, "t.vtu:4: <Points> is not closed (truncated file?)"},
       {"UnknownFormat", "t.xyz", "1 2 3\n", nullptr, "unknown tet-mesh format"},
+      {"BinaryGarbageNode", "t.node", std::string("\x89PNG\r\n\x1a\n\0\0\0\rIHDR", 16), nullptr,
+       "t.node:1: expected an integer for the number of points, got '\\x89PNG'"},
+      {"BinaryGarbageVtk", "t.vtk", std::string("\x7f" "ELF\x02\x01\x01\0\0\0", 10), nullptr,
+       "t.vtk:1: not a VTK legacy file"},
+      {"BinaryGmshGarbageTags", "t.msh",
+       std::string("$MeshFormat\n2.2 1 8\n\x01\0\0\0\n$EndMeshFormat\n$Nodes\n1\n", 49) +
+           std::string("\x07\0\0\0", 4) + std::string(24, '\0') + "\n$EndNodes\n$Elements\n1\n" +
+           std::string("\x04\0\0\0\x01\0\0\0\0\0\0\0\x05\0\0\0\xff\xff\xff\x7f\x07\0\0\0\x07\0\0\0\x07\0\0\0", 32) +
+           "\n$EndElements\n",
+       nullptr, "element 5: node 2147483647 is not defined"},
   };
 }
 
