@@ -49,7 +49,7 @@ options:
   --gmsh-version <22|41> convert: Gmsh version (default 41)
   --index-base <0|1>     convert: TetGen index base (default 0)
   --ratio <q>            tetrahedralize: TetGen -q radius-edge ratio (default 1.5)
-  --switches <s>         tetrahedralize: extra TetGen switches appended (e.g. a1e-7)
+  --switches <s>         tetrahedralize: extra TetGen switches appended (e.g. a1e-7, in file units)
   --keep <dir>           tetrahedralize: keep TetGen's files in <dir>
   --surface-scale <s>    embed: scale of the surface file (default 1, or the model's scale)
   --model-path <dir>     search this directory for model names first (repeatable)
@@ -320,17 +320,16 @@ SurfaceMesh load_surface_spec(const Args& a, const std::string& spec) {
 
 int cmd_tetrahedralize(const Args& a) {
   need_positional(a, 2, "a closed surface file and an output mesh file");
-  SurfaceLoadOptions so;
-  so.scale = number_arg(a, "--scale", 1.0, 0.0) * unit_arg(a);
-  const SurfaceMesh surface = load_surface(a.positional[0], so);
+  // TetGen meshes the file's own coordinates (its -q bound is scale-free); the result is scaled.
+  const SurfaceMesh surface = load_surface(a.positional[0]);
   TetrahedralizeOptions to;
   to.quality_ratio = number_arg(a, "--ratio", 1.5, 0.0);
   if (to.quality_ratio < 1.0) bad_argument("--ratio must be >= 1 (TetGen's radius-edge bound)");
   if (a.values.count("--switches")) to.extra_switches = a.values.at("--switches");
   if (a.values.count("--keep")) to.work_dir = a.values.at("--keep");
+  to.source_file = a.positional[0];
   const TetrahedralizeResult t = tetrahedralize_surface(surface, to);
-  MeshLoadOptions lo = load_options(a);
-  lo.scale = 1.0;  // the surface was scaled already
+  const MeshLoadOptions lo = load_options(a);
   MeshLoadResult r = load_mesh_with_report(t.node_path, lo);
   MeshWriteOptions w;
   w.binary = a.flags.count("--binary") > 0;

@@ -8,6 +8,7 @@
 #include <assimp/scene.h>
 #include <spdlog/spdlog.h>
 
+#include <charconv>
 #include <cmath>
 #include <filesystem>
 #include <functional>
@@ -35,7 +36,7 @@ SurfaceMesh load_surface(const std::string& path, const SurfaceLoadOptions& opti
   importer.SetPropertyInteger(AI_CONFIG_PP_RVC_FLAGS, aiComponent_NORMALS | aiComponent_TEXCOORDS | aiComponent_COLORS |
                                                           aiComponent_TANGENTS_AND_BITANGENTS);
   const aiScene* scene = importer.ReadFile(
-      path, aiProcess_Triangulate | aiProcess_RemoveComponent | aiProcess_JoinIdenticalVertices |
+      path, aiProcess_Triangulate | aiProcess_RemoveComponent |
                 aiProcess_PreTransformVertices | aiProcess_SortByPType);
   if (!scene) throw MeshError(path + ": cannot read surface: " + importer.GetErrorString());
   SurfaceMesh out;
@@ -94,6 +95,22 @@ SurfaceMesh load_surface(const std::string& path, const SurfaceLoadOptions& opti
   return out;
 }
 
+namespace {
+// Surfaces usually come in single precision: print a float-representable coordinate as the
+// shortest float text ("0.3336761", not "0.3336760997772217"), so TetGen sees exactly the numbers
+// of the original file and meshes it as it would have meshed that file.
+void append_coordinate(std::string& out, double v) {
+  const auto f = static_cast<float>(v);
+  if (static_cast<double>(f) == v) {
+    char buf[32];
+    auto [p, ec] = std::to_chars(buf, buf + sizeof buf, f);
+    out.append(buf, p);
+  } else {
+    detail::append_double(out, v);
+  }
+}
+}  // namespace
+
 void write_surface(const SurfaceMesh& surface, const std::string& path) {
   const std::string ext = detail::lower_extension(path);
   std::string text;
@@ -110,7 +127,7 @@ void write_surface(const SurfaceMesh& surface, const std::string& path) {
     if (ext == ".obj") text += "v ";
     for (int k = 0; k < 3; ++k) {
       if (k) text += ' ';
-      detail::append_double(text, p[k]);
+      append_coordinate(text, p[k]);
     }
     text += '\n';
   }

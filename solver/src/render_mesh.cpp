@@ -334,8 +334,16 @@ TetrahedralizeResult tetrahedralize_surface(const SurfaceMesh& surface, const Te
     std::error_code ec;
     fs::create_directories(dir, ec);
   }
-  const std::string input = (fs::path(dir) / "surface.off").string();
-  write_surface(surface, input);
+  const std::string source_ext = options.source_file.empty() ? "" : detail::lower_extension(options.source_file);
+  const bool direct = source_ext == ".ply" || source_ext == ".off";
+  const std::string input = (fs::path(dir) / ("surface" + (direct ? source_ext : std::string(".off")))).string();
+  if (direct) {
+    std::error_code ec;
+    fs::copy_file(options.source_file, input, fs::copy_options::overwrite_existing, ec);
+    if (ec) throw MeshError("tetrahedralize: cannot copy " + options.source_file + " to " + input + ": " + ec.message());
+  } else {
+    write_surface(surface, input);
+  }
   char ratio[32];
   std::snprintf(ratio, sizeof ratio, "%g", options.quality_ratio);
   TetrahedralizeResult result;

@@ -58,13 +58,18 @@ void write_binding(const SurfaceBinding& binding, const std::string& path, const
 SurfaceBinding read_binding(const std::string& path);
 
 // Runs Debian's `tetgen -pYq<ratio>` on a closed surface (written to a temporary .off in
-// `work_dir`), then loads the result (.1.node/.1.ele). MeshError if tetgen is not installed or
+// `work_dir`, or the source file itself, see below); the result is <work_dir>/surface.1.node/.ele. MeshError if tetgen is not installed or
 // fails. `extra_switches` are appended (e.g. "a1e-6").
 struct TetrahedralizeOptions {
   double quality_ratio = 1.5;      // -q<ratio>, radius-edge bound
   std::string extra_switches;
   std::string work_dir;            // empty: a fresh directory under the system temp dir
   std::string tetgen = "tetgen";   // program to run
+  // The file the surface was loaded from. When TetGen reads its format itself (.ply, .off), the
+  // file is handed to TetGen unchanged, so the result is exactly what `tetgen -pYq<r> file` gives
+  // (assimp reorders vertices, and TetGen's output depends on the input order). Otherwise the
+  // surface is written as .off. Either way the coordinates are the file's: scale the result.
+  std::string source_file;
 };
 struct TetrahedralizeResult {
   std::string node_path;           // the .1.node written by tetgen (in work_dir)
