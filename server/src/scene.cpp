@@ -471,13 +471,6 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   frame->running = t.running && t.mode != TickMode::Lockstep;
   frame->mode = t.mode;
 
-  if (!t.steps.empty()) {
-    auto& job = t.steps.front();
-    if (--job.remaining == 0) {
-      job.done->set_value(StepResult{t.tick, t.state.time, t.rollbacks - job.rollbacks_before});
-      t.steps.pop_front();
-    }
-  }
   publish_status();
   {
     std::lock_guard lk(frame_mu_);
@@ -489,6 +482,14 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     latest_ = std::move(frame);
   }
   frame_cv_.notify_all();
+  // A Step completes after its last frame and status are visible to every reader.
+  if (!t.steps.empty()) {
+    auto& job = t.steps.front();
+    if (--job.remaining == 0) {
+      job.done->set_value(StepResult{t.tick, t.state.time, t.rollbacks - job.rollbacks_before});
+      t.steps.pop_front();
+    }
+  }
 }
 
 }  // namespace pliant::server
