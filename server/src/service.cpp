@@ -183,8 +183,9 @@ class FrameServiceImpl final : public v1::FrameService::Service {
       msg.Clear();
       SceneRegistry::fill_frame(*frame, sel, surface, skipped, &msg);
       if (!writer->Write(msg)) return {};  // the client went away
+      // Keep the decimation's phase when a late reader sends an off-phase frame.
+      last_sent = have_last ? frame->seq - (frame->seq - last_sent) % every : frame->seq;
       have_last = true;
-      last_sent = frame->seq;
       after = frame->seq;
       if (min_interval > Clock::duration::zero()) {
         next_allowed += min_interval;
