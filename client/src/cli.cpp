@@ -493,9 +493,9 @@ int cmd_watch(Client& c, Args& a, bool json) {
       last_print = now;
       char line[256];
       std::snprintf(line, sizeof line,
-                    "tick %-9llu t %9.3f s  %7.1f ticks/s  it %4d  residual %9.3e  late %llu  skipped %llu%s",
+                    "tick %-9llu t %9.3f s  %7.1f ticks/s  step %6.2f ms  it %4d  residual %9.3e  late %llu  skipped %llu%s",
                     static_cast<unsigned long long>(f.tick()), f.sim_time(), f.ticks_per_second(),
-                    f.solver().iterations(), f.solver().residual_final(),
+                    f.solver().step_wall_ms(), f.solver().iterations(), f.solver().residual_final(),
                     static_cast<unsigned long long>(f.late_ticks()), static_cast<unsigned long long>(skipped),
                     f.rollbacks() ? ("  rollbacks " + std::to_string(f.rollbacks())).c_str() : "");
       if (tty) std::printf("\r%-110s", line);
