@@ -4,7 +4,8 @@
 //     50k-tet beam (uploaded as mesh data).
 //  2. Stream latency from the end of a tick (frame publication) to a gRPC client's receipt on
 //     loopback, p50/p99, with and without positions.
-// Usage: pliant_service_bench [--seconds S] [--threads N] [--json]
+// Usage: pliant_service_bench [--seconds S] [--threads N] [--small SUBSTEPS,ITERATIONS]
+//                             [--big SUBSTEPS,ITERATIONS] [--json]
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
@@ -157,12 +158,15 @@ int main(int argc, char** argv) {
   double seconds = 5;
   int threads = 1;
   bool json = false;
+  int small_sub = 1, small_it = 4, big_sub = 1, big_it = 4;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc) seconds = std::atof(argv[++i]);
+    else if (!std::strcmp(argv[i], "--small") && i + 1 < argc) std::sscanf(argv[++i], "%d,%d", &small_sub, &small_it);
+    else if (!std::strcmp(argv[i], "--big") && i + 1 < argc) std::sscanf(argv[++i], "%d,%d", &big_sub, &big_it);
     else if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) threads = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--json")) json = true;
     else {
-      std::fprintf(stderr, "usage: pliant_service_bench [--seconds S] [--threads N] [--json]\n");
+      std::fprintf(stderr, "usage: pliant_service_bench [--seconds S] [--threads N] [--small S,I] [--big S,I] [--json]\n");
       return 2;
     }
   }
@@ -180,12 +184,12 @@ int main(int argc, char** argv) {
 
   std::vector<TickFigures> ticks;
   {
-    auto r = scene_request("beam1-1kHz", 1000, 2, 4, threads);
+    auto r = scene_request("beam1-1kHz", 1000, small_sub, small_it, threads);
     r.mutable_spec()->mutable_mesh()->set_builtin("beam1");
     ticks.push_back(measure_ticks(reg, r, seconds));
   }
   {
-    auto r = scene_request("beam50k-60Hz", 60, 2, 4, threads);
+    auto r = scene_request("beam50k-60Hz", 60, big_sub, big_it, threads);
     TetMesh big = make_beam(51, 21, 11, 0.005);  // 50 x 20 x 10 cubes x 5 = 50,000 tets
     auto* d = r.mutable_spec()->mutable_mesh()->mutable_data();
     d->set_name("beam-50k");
