@@ -352,7 +352,13 @@ void Scene::run() {
     std::deque<Command> commands;
     commands.swap(commands_);
     lk.unlock();
-    for (auto& c : commands) c();
+    for (auto& c : commands) {
+      try {
+        c();
+      } catch (const std::exception& e) {  // a failing command must not take the tick down
+        spdlog::error("scene '{}': command failed: {}", id_, e.what());
+      }
+    }
 
     const bool still_realtime = t.running && t.mode == TickMode::Realtime && t.steps.empty();
     if (!t.steps.empty()) {

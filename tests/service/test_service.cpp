@@ -193,6 +193,30 @@ TEST(Service, PauseResumeAndStepWhilePaused) {
   EXPECT_EQ(c.get_scene("rt")->tick(), t1);  // paused means no ticks
 }
 
+// A realtime scene whose period is far shorter than a step: every tick overruns, and the
+// scheduler counts late ticks and skipped deadlines instead of stretching its schedule.
+TEST(Service, OverrunsAreCountedNotStretched) {
+  TestServer ts;
+  Client c = ts.client();
+  auto req = beam_request("fast", v1::TICK_MODE_REALTIME);
+  req.mutable_spec()->mutable_tick()->set_dt(1e-6);  // 1 MHz: no step fits
+  ASSERT_TRUE(c.create_scene(req).ok());
+  v1::StreamFramesRequest q;
+  q.set_scene_id("fast");
+  q.add_fields(v1::FRAME_FIELD_SOLVER_STATS);
+  auto s = c.stream_frames(q);
+  v1::Frame f;
+  while (s->next(&f) && f.tick() < 20) {
+  }
+  s->cancel();
+  EXPECT_GE(f.tick(), 20u);
+  EXPECT_GT(f.late_ticks(), 0u);
+  EXPECT_GT(f.skipped_ticks(), 0u);
+  auto scene = c.get_scene("fast");
+  ASSERT_TRUE(scene.ok());
+  EXPECT_GE(scene->late_ticks(), f.late_ticks());
+}
+
 TEST(Service, TopologyAndFrameFields) {
   TestServer ts;
   Client c = ts.client();
