@@ -62,7 +62,8 @@ Global flags:
   --help                this text
 
 Scene flags (create and update):
-  --mesh NAME           builtin mesh (beam1 | beam2 | beam3) or a file on the server's model path
+  --mesh NAME           builtin mesh (beam1 | beam2 | beam3; default beam1) or a file on the
+                        server's model path
   --upload FILE         read a mesh locally and send it with the request
   --scale F             scale the mesh coordinates
   --young PA --poisson NU --density KG_M3     material
@@ -508,6 +509,7 @@ int cmd_watch(Client& c, Args& a, bool json) {
   Status s = stream->finish();
   const bool cancelled_by_us = s.code == 1 && (g_interrupted || duration > 0);
   if (tty) std::printf("\n");
+  if (!s.ok() && !cancelled_by_us && frames == 0) return fail(s, c.options());  // nothing to sum up
   const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const uint64_t ticks = frames ? last.tick() - first.tick() : 0;
   const uint64_t late = frames ? last.late_ticks() - first.late_ticks() : 0;
