@@ -107,7 +107,6 @@ void Scene::stop() {
   if (thread_.joinable()) thread_.join();
   {
     std::lock_guard lk(mu_);
-    stopped_ = true;
     commands_.clear();  // breaks the promises of calls still waiting: they answer Unavailable
   }
   if (ts_) {
