@@ -62,7 +62,8 @@ Global flags:
   --help                this text
 
 Scene flags (create and update):
-  --mesh NAME           builtin mesh (beam1 | beam2 | beam3) or a file on the server's model path
+  --mesh NAME           builtin mesh (beam1 | beam2 | beam3; default beam1) or a file on the
+                        server's model path
   --upload FILE         read a mesh locally and send it with the request
   --scale F             scale the mesh coordinates
   --young PA --poisson NU --density KG_M3     material
@@ -493,9 +494,9 @@ int cmd_watch(Client& c, Args& a, bool json) {
       last_print = now;
       char line[256];
       std::snprintf(line, sizeof line,
-                    "tick %-9llu t %9.3f s  %7.1f ticks/s  it %4d  residual %9.3e  late %llu  skipped %llu%s",
+                    "tick %-9llu t %9.3f s  %7.1f ticks/s  step %6.2f ms  it %4d  residual %9.3e  late %llu  skipped %llu%s",
                     static_cast<unsigned long long>(f.tick()), f.sim_time(), f.ticks_per_second(),
-                    f.solver().iterations(), f.solver().residual_final(),
+                    f.solver().step_wall_ms(), f.solver().iterations(), f.solver().residual_final(),
                     static_cast<unsigned long long>(f.late_ticks()), static_cast<unsigned long long>(skipped),
                     f.rollbacks() ? ("  rollbacks " + std::to_string(f.rollbacks())).c_str() : "");
       if (tty) std::printf("\r%-110s", line);
@@ -508,6 +509,7 @@ int cmd_watch(Client& c, Args& a, bool json) {
   Status s = stream->finish();
   const bool cancelled_by_us = s.code == 1 && (g_interrupted || duration > 0);
   if (tty) std::printf("\n");
+  if (!s.ok() && !cancelled_by_us && frames == 0) return fail(s, c.options());  // nothing to sum up
   const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const uint64_t ticks = frames ? last.tick() - first.tick() : 0;
   const uint64_t late = frames ? last.late_ticks() - first.late_ticks() : 0;

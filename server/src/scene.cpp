@@ -107,7 +107,6 @@ void Scene::stop() {
   if (thread_.joinable()) thread_.join();
   {
     std::lock_guard lk(mu_);
-    stopped_ = true;
     commands_.clear();  // breaks the promises of calls still waiting: they answer Unavailable
   }
   if (ts_) {
@@ -352,7 +351,13 @@ void Scene::run() {
     std::deque<Command> commands;
     commands.swap(commands_);
     lk.unlock();
-    for (auto& c : commands) c();
+    for (auto& c : commands) {
+      try {
+        c();
+      } catch (const std::exception& e) {  // a failing command must not take the tick down
+        spdlog::error("scene '{}': command failed: {}", id_, e.what());
+      }
+    }
 
     const bool still_realtime = t.running && t.mode == TickMode::Realtime && t.steps.empty();
     if (!t.steps.empty()) {
@@ -471,13 +476,6 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   frame->running = t.running && t.mode != TickMode::Lockstep;
   frame->mode = t.mode;
 
-  if (!t.steps.empty()) {
-    auto& job = t.steps.front();
-    if (--job.remaining == 0) {
-      job.done->set_value(StepResult{t.tick, t.state.time, t.rollbacks - job.rollbacks_before});
-      t.steps.pop_front();
-    }
-  }
   publish_status();
   {
     std::lock_guard lk(frame_mu_);
@@ -489,6 +487,14 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     latest_ = std::move(frame);
   }
   frame_cv_.notify_all();
+  // A Step completes after its last frame and status are visible to every reader.
+  if (!t.steps.empty()) {
+    auto& job = t.steps.front();
+    if (--job.remaining == 0) {
+      job.done->set_value(StepResult{t.tick, t.state.time, t.rollbacks - job.rollbacks_before});
+      t.steps.pop_front();
+    }
+  }
 }
 
 }  // namespace pliant::server

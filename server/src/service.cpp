@@ -51,8 +51,13 @@ struct ServiceContext {
     if (it == md.end())
       return grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
                           "missing 'authorization' metadata: this server requires 'Bearer <token>'");
+    // Compare in time independent of where the first difference is.
+    const std::string expected = "Bearer " + token;
     std::string_view v(it->second.data(), it->second.size());
-    if (v != "Bearer " + token)
+    unsigned char diff = v.size() != expected.size();
+    for (size_t i = 0; i < std::min(v.size(), expected.size()); ++i)
+      diff |= static_cast<unsigned char>(v[i] ^ expected[i]);
+    if (diff != 0)
       return grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "the access token in 'authorization' is not valid");
     return grpc::Status::OK;
   }
@@ -183,8 +188,9 @@ class FrameServiceImpl final : public v1::FrameService::Service {
       msg.Clear();
       SceneRegistry::fill_frame(*frame, sel, surface, skipped, &msg);
       if (!writer->Write(msg)) return {};  // the client went away
+      // Keep the decimation's phase when a late reader sends an off-phase frame.
+      last_sent = have_last ? frame->seq - (frame->seq - last_sent) % every : frame->seq;
       have_last = true;
-      last_sent = frame->seq;
       after = frame->seq;
       if (min_interval > Clock::duration::zero()) {
         next_allowed += min_interval;

@@ -193,6 +193,30 @@ TEST(Service, PauseResumeAndStepWhilePaused) {
   EXPECT_EQ(c.get_scene("rt")->tick(), t1);  // paused means no ticks
 }
 
+// A realtime scene whose period is far shorter than a step: every tick overruns, and the
+// scheduler counts late ticks and skipped deadlines instead of stretching its schedule.
+TEST(Service, OverrunsAreCountedNotStretched) {
+  TestServer ts;
+  Client c = ts.client();
+  auto req = beam_request("fast", v1::TICK_MODE_REALTIME);
+  req.mutable_spec()->mutable_tick()->set_dt(1e-6);  // 1 MHz: no step fits
+  ASSERT_TRUE(c.create_scene(req).ok());
+  v1::StreamFramesRequest q;
+  q.set_scene_id("fast");
+  q.add_fields(v1::FRAME_FIELD_SOLVER_STATS);
+  auto s = c.stream_frames(q);
+  v1::Frame f;
+  while (s->next(&f) && f.tick() < 20) {
+  }
+  s->cancel();
+  EXPECT_GE(f.tick(), 20u);
+  EXPECT_GT(f.late_ticks(), 0u);
+  EXPECT_GT(f.skipped_ticks(), 0u);
+  auto scene = c.get_scene("fast");
+  ASSERT_TRUE(scene.ok());
+  EXPECT_GE(scene->late_ticks(), f.late_ticks());
+}
+
 TEST(Service, TopologyAndFrameFields) {
   TestServer ts;
   Client c = ts.client();
@@ -750,5 +774,47 @@ TEST(ServerOptions, FlagsWinOverEnvironmentOverConfigFile) {
   env["PLIANT_LOG_LEVEL"] = "loud";
   e = server::parse_server_options({}, lookup, &o, &help);
   EXPECT_NE(e.message.find("PLIANT_LOG_LEVEL"), std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST(Service, OversizeUploadIsResourceExhausted) {
+  server::ServerOptions o;
+  o.max_message_mb = 1;
+  TestServer ts(o);
+  Client c = ts.client();
+  auto req = beam_request("huge");
+  auto* d = req.mutable_spec()->mutable_mesh()->mutable_data();
+  for (int i = 0; i < 200000; ++i) d->add_positions(i * 1e-3);  // 1.6 MB of doubles
+  for (int i = 0; i < 4; ++i) d->add_tets(i);
+  auto r = c.create_scene(req);
+  EXPECT_EQ(r.status.code, kResourceExhausted) << r.status.to_string();
+  EXPECT_TRUE(c.list_scenes().ok());  // and the server carries on
+}
+
+TEST(Service, TlsWithAPrivateCa) {
+  fs::path dir = temp_dir("tls");
+  const std::string key = (dir / "key.pem").string(), cert = (dir / "cert.pem").string();
+  const std::string cmd = "openssl req -x509 -newkey rsa:2048 -nodes -days 1 -subj /CN=localhost "
+                          "-addext subjectAltName=IP:127.0.0.1 -keyout " + key + " -out " + cert +
+                          " >/dev/null 2>&1";
+  if (std::system(cmd.c_str()) != 0) GTEST_SKIP() << "openssl is not available";
+  server::ServerOptions o;
+  o.tls_cert = cert;
+  o.tls_key = key;
+  TestServer ts(o);
+  client::ConnectOptions secure;
+  secure.address = ts.address;
+  secure.tls_ca_file = cert;
+  secure.timeout = std::chrono::seconds(10);
+  Client c(secure);
+  auto h = c.health();
+  ASSERT_TRUE(h.ok()) << h.status.to_string();
+  EXPECT_EQ(*h, client::Health::Serving);
+  EXPECT_TRUE(c.create_scene(beam_request("secure")).ok());
+  client::ConnectOptions plain;
+  plain.address = ts.address;
+  plain.timeout = std::chrono::seconds(5);
+  EXPECT_FALSE(Client(plain).list_scenes().ok());  // plaintext is refused
+  ts.server->shutdown();
   fs::remove_all(dir);
 }

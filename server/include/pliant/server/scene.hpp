@@ -189,7 +189,6 @@ class Scene {
   std::condition_variable cv_;
   std::deque<Command> commands_;
   bool stop_ = false;
-  bool stopped_ = false;
   std::thread thread_;
 
   // Readable copies for other threads (under info_mu_).
