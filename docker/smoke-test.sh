@@ -209,6 +209,13 @@ scene() {  # scene ID FIELD: a field of `scenes get ID --json`
 cli scenes create smoke-rt --mesh beam1 >/dev/null || die "scenes create smoke-rt failed"
 cli scenes create smoke-ls --mesh beam1 --mode lockstep >/dev/null || die "scenes create smoke-ls failed"
 cli step smoke-ls 25 >/dev/null || die "step smoke-ls 25 failed"
+# A model from the image's meshes/ set, found through PLIANT_MODEL_PATH (SOFA liver, 181 vertices).
+if [ -n "$(ls -A "$REPO/meshes" 2>/dev/null)" ]; then
+  cli scenes create smoke-liver --mesh liver --mode lockstep >/dev/null || die "a scene from meshes/ (liver) failed"
+  v=$(scene smoke-liver vertex_count); cli scenes delete smoke-liver >/dev/null
+  say "model path: scene from meshes/ 'liver' has $v vertices"
+  [ "$v" -gt 0 ] || die "liver scene has no vertices"
+fi
 timed watch cli --json watch smoke-rt --duration 3 >"$TMPD/watch1.json" || die "watch failed"
 frames=$(json "d['frames']" <"$TMPD/watch1.json"); ticks=$(json "d['ticks']" <"$TMPD/watch1.json")
 say "streamed from the host: $(tail -n 1 "$TMPD/watch1.json")"
