@@ -1,16 +1,19 @@
 #!/usr/bin/env bash
 # docker/smoke-test.sh - build the Pliant server image from this checkout with podman and use it:
-# start the container, wait for its HEALTHCHECK, create a scene and stream frames from the host with
-# the `pliant` CLI, stop it (SIGTERM: the server snapshots its scenes to the volume), start it again
-# and check the scene and its state came back, then clean up. Needs root (or sudo), a Debian 12 host
-# and the Debian apt mirrors; no Docker engine and no registry (the base image is made with debootstrap).
+# check the image (non-root user, port, volume, HEALTHCHECK, every library found, no compilers),
+# start the container, wait for its HEALTHCHECK, create scenes (one from the image's meshes/) and
+# stream frames from the host with the `pliant` CLI, stop it (SIGTERM: the server snapshots its
+# scenes to the volume), start it again and check the scenes and their exact state came back, run
+# compose.yaml with podman-compose (demo client creates and watches a scene), then clean up.
+# Needs root (or sudo), a Debian 12 host and the Debian apt mirrors; no Docker engine and no
+# registry (the base image is made with debootstrap).
 #
 #   bash docker/smoke-test.sh
 #
 # Exit status: 0 passed, 77 skipped (podman could not be installed; says why), anything else failed.
 # Env:
 #   PLIANT_PODMAN_CACHE=/var/cache/pliant-podman  podman storage + the debootstrap tarball, kept between
-#                        runs so that a rerun reuses the package layers (about 1.5 GB).
+#                        runs so that a rerun reuses the package layers (about 1 GB).
 #   FRESH=1              start from nothing: wipe that cache (and the ccache mount in /var/tmp) first.
 #   PORT=<free port>     host port the server listens on (host networking); default: a free one.
 #   IMAGE=localhost/pliant:smoke  tag of the image built.   CLEAN=1: also delete the image at the end.
