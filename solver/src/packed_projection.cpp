@@ -206,6 +206,18 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   return floor_hits;
 }
 
+int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor) {
+  PackGeometry g;
+  pack_geometry(p, x, g);
+  const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
+                  g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
+                  g.f[0][2] * (g.f[1][0] * g.f[2][1] - g.f[1][1] * g.f[2][0]);
+  int hits = 0;
+  for (int l = 0; l < p.lanes; ++l)
+    if (det[l] < floor) hits += enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, floor);
+  return hits;
+}
+
 double pack_residual_squared(const TetPack& p, const std::vector<Vec3>& x,
                              const std::vector<Vec6>& lambda, const Mat6& at) {
   PackGeometry g;

@@ -40,6 +40,9 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
                  std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
                  double lambda_scale, double inversion_floor);
 
+// Enforces the inversion floor on the real lanes whose det(F) is below it; returns how many.
+int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor);
+
 // Sum over the real lanes of ||C + alpha~ lambda||^2.
 double pack_residual_squared(const TetPack& p, const std::vector<Vec3>& x,
                              const std::vector<Vec6>& lambda, const Mat6& alpha_tilde);
