@@ -34,6 +34,7 @@ grpc::Status to_status(const Error& e) {
     case Code::Unauthenticated: c = grpc::StatusCode::UNAUTHENTICATED; break;
     case Code::Unavailable: c = grpc::StatusCode::UNAVAILABLE; break;
     case Code::DeadlineExceeded: c = grpc::StatusCode::DEADLINE_EXCEEDED; break;
+    case Code::Cancelled: c = grpc::StatusCode::CANCELLED; break;
     case Code::Internal: c = grpc::StatusCode::INTERNAL; break;
   }
   return grpc::Status(c, e.message);
@@ -117,7 +118,7 @@ class SceneServiceImpl final : public v1::SceneService::Service {
       auto remaining = c->deadline() - std::chrono::system_clock::now();
       if (remaining < std::chrono::hours(1))
         deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(remaining);
-      return reg().step(*r, deadline, o);
+      return reg().step(*r, deadline, o, [c] { return c->IsCancelled(); });
     });
   }
   grpc::Status ApplyForce(grpc::ServerContext* c, const v1::ApplyForceRequest* r, v1::ApplyForceResponse* o) override {

@@ -818,3 +818,21 @@ TEST(Service, TlsWithAPrivateCa) {
   ts.server->shutdown();
   fs::remove_all(dir);
 }
+
+TEST(Service, AStepPastItsDeadlineDropsTheRemainingTicks) {
+  TestServer ts;
+  client::ConnectOptions o;
+  o.address = ts.address;
+  o.step_timeout = std::chrono::milliseconds(200);
+  Client c(o);
+  ASSERT_TRUE(c.create_scene(beam_request("long")).ok());
+  auto st = c.step("long", 100000);  // far more than 200 ms of work
+  EXPECT_EQ(st.status.code, kDeadlineExceeded) << st.status.to_string();
+  // The scene is not stuck running the rest: it answers and steps again right away.
+  const uint64_t before = c.get_scene("long")->tick();
+  EXPECT_LT(before, 100000u);
+  auto next = c.step("long", 1);
+  ASSERT_TRUE(next.ok()) << next.status.to_string();
+  EXPECT_LT(next->tick(), 100000u);
+  EXPECT_GT(next->tick(), 0u);
+}
