@@ -139,6 +139,7 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   s.tolerance = a.number("tolerance", s.tolerance);
   s.threads = int(a.integer("threads", s.threads, 1, 256));
   s.inversion_floor = a.number("inversion-floor", s.inversion_floor);
+
   if (std::string err = validate(s); !err.empty()) throw cli::UsageError(err);
   return s;
 }
@@ -153,6 +154,14 @@ double default_omega(Method m) {
     case Method::Extrapolation: return 2.0;
     default: return 1.0;
   }
+}
+
+double mean_edge_length(const BodyModel& m) {
+  double sum = 0;
+  for (const TetRest& t : m.tets)
+    for (int a = 0; a < 4; ++a)
+      for (int b = a + 1; b < 4; ++b) sum += (m.rest_positions[t.v[a]] - m.rest_positions[t.v[b]]).norm();
+  return sum / (6.0 * double(m.tet_count()));
 }
 
 std::shared_ptr<const BodyModel> load_model(const cli::Args& a, const Material& mat, std::optional<double> fix_x) {
@@ -263,16 +272,20 @@ int cmd_static(const cli::Args& a) {
                             a.has("sweep") || a.has("tolerance");
   SolverSettings s;
   if (!solver_flags) {
-    // Converge to the model's equilibrium: every substep solved to a tight tolerance (a
-    // converged implicit-Euler step has the static equilibrium as its fixed point), with
-    // substeps small enough for Gauss-Seidel to converge quickly; strong damping to settle.
+    // Converge to the model's equilibrium. A converged implicit-Euler step has the static
+    // equilibrium as its fixed point, and Gauss-Seidel on the strain multipliers converges in a
+    // few tens of sweeps only when alpha/h^2 dominates J M^-1 J^T, i.e. when a substep is no
+    // longer than a couple of times the time a pressure wave needs to cross one element
+    // (measured in docs/solver.md). So: substeps of h = 2 l / c_p, 30 iterations each.
+    const double c_p = std::sqrt((model->lame.lambda + 2 * model->lame.mu) / mat.density);
+    const double h = 2.0 * mean_edge_length(*model) / c_p;
     s.dt = 1.0 / 60.0;
-    s.substeps = 20;
-    s.iterations = 500;
-    s.tolerance = 1e-6;
+    s.substeps = std::max(1, int(std::ceil(s.dt / h)));
+    s.iterations = 30;
+    spdlog::info("static: {} substeps of {:.3g} s (c_p {:.3g} m/s), {} iterations", s.substeps, s.dt / s.substeps, c_p, s.iterations);
   }
   s.damping = Damping::Simple;
-  s.damping_coefficient = 20.0;
+  s.damping_coefficient = 50.0;
   s = settings_from(a, s);
   if (!a.has("omega")) s.omega = default_omega(s.method);
   s.damping_coefficient = a.number("damping", s.damping_coefficient);

@@ -341,7 +341,9 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
       state.v[i] += h * a;
       state.x[i] += h * state.v[i];
     }
+    if (state.lambda.size() != m.tet_count()) state.lambda.assign(m.tet_count(), Vec6::Zero());
     std::fill(state.lambda.begin(), state.lambda.end(), Vec6::Zero());
+    state.lambda_h = h;
     total.times.other_ms += ms_since(t_other);
 
     double budget = 0;
