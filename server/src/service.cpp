@@ -2,6 +2,7 @@
 // TLS and graceful shutdown.
 #include "pliant/server/server.hpp"
 
+#include "pliant/mesh_io.hpp"
 #include "pliant/v1/pliant.grpc.pb.h"
 
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
@@ -264,7 +265,9 @@ PliantServer::PliantServer(ServerOptions options) : impl_(std::make_unique<Impl>
   ro.max_vertices = impl_->options.max_vertices;
   ro.max_threads = impl_->options.threads;
   ro.data_dir = impl_->options.data_dir;
-  ro.model_path = split_path(impl_->options.model_path);
+  // Without --model-path: $PLIANT_MODEL_PATH, then the source tree's meshes/ (the model set).
+  ro.model_path = impl_->options.model_path.empty() ? default_model_path()
+                                                     : split_path(impl_->options.model_path);
   impl_->registry = std::make_unique<SceneRegistry>(std::move(ro));
 }
 

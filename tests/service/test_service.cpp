@@ -157,6 +157,14 @@ TEST(Service, SceneLifecycle) {
   ASSERT_TRUE(c.delete_scene("a").ok());
   EXPECT_EQ(c.get_scene("a").status.code, kNotFound);
   EXPECT_EQ(c.list_scenes()->size(), 1u);
+
+  // A mesh file on the model path (the source tree's meshes/ by default).
+  v1::CreateSceneRequest from_file = beam_request("file");
+  from_file.mutable_spec()->mutable_mesh()->set_model_path("beams/beam1.vtk");
+  auto f = c.create_scene(from_file);
+  ASSERT_TRUE(f.ok()) << f.status.to_string();
+  EXPECT_EQ(f->tet_count(), 460u);
+  EXPECT_EQ(f->spec().mesh().model_path(), "beams/beam1.vtk");
 }
 
 TEST(Service, PauseResumeAndStepWhilePaused) {
