@@ -1,0 +1,690 @@
+// pliant: the command-line client. Human output by default, --json for scripts.
+// Exit codes: 0 ok; 1 the server refused the request (or health is not SERVING);
+// 2 usage error; 3 server unreachable or too slow (UNAVAILABLE, DEADLINE_EXCEEDED);
+// 4 NOT_FOUND; 5 UNAUTHENTICATED / PERMISSION_DENIED.
+#include "pliant/client/client.hpp"
+#include "pliant/mesh_io.hpp"
+#include "pliant/settings.hpp"
+
+#include <google/protobuf/util/json_util.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <optional>
+#include <sstream>
+#include <thread>
+
+namespace {
+
+using namespace pliant;
+using client::Client;
+using client::Status;
+
+constexpr int kExitOk = 0, kExitRefused = 1, kExitUsage = 2, kExitUnreachable = 3, kExitNotFound = 4,
+              kExitAuth = 5;
+
+const char* kUsage = R"(usage: pliant [global flags] COMMAND [args]
+
+Commands:
+  scenes create [ID] [scene flags]   create a scene (ID optional; the server picks one)
+  scenes list                        list the server's scenes
+  scenes get ID                      show one scene
+  scenes update ID [scene flags]     change solver settings, material, gravity, dt or mode live
+  scenes delete ID                   delete a scene
+  scenes reset ID                    back to the rest state at tick 0
+  pause ID | resume ID               stop / restart a realtime or as-fast-as-possible scene
+  step ID [N]                        advance N ticks (default 1; lockstep or paused scenes)
+  force ID --vertices I,J,.. --force FX,FY,FZ [--ticks N]   push vertices for N ticks
+  watch ID [--duration S] [--every N] [--max-rate HZ]
+                                     live line: tick, sim time, ticks/s, iterations, residual,
+                                     late ticks; ends with a summary (one JSON line with --json)
+  snapshot save ID [--name NAME] [--out FILE]
+                                     save the scene's full state on the server (--name) and/or
+                                     to a local file (--out)
+  snapshot restore (--name NAME | --file FILE) [--as ID] [--replace]
+  snapshot list                      snapshots in the server's data directory
+  health [--service NAME]            exit 0 when the server is SERVING
+
+Global flags:
+  --address HOST:PORT   server (default $PLIANT_ADDRESS or localhost:50051)
+  --token TOKEN         access token (default $PLIANT_TOKEN)
+  --tls                 use TLS with the system roots;  --tls-ca FILE: with these roots
+  --timeout S           deadline of each call in seconds (default 30)
+  --json                machine-readable output
+  --help                this text
+
+Scene flags (create and update):
+  --mesh NAME           builtin mesh (beam1 | beam2 | beam3; default beam1) or a file on the
+                        server's model path
+  --upload FILE         read a mesh locally and send it with the request
+  --scale F             scale the mesh coordinates
+  --young PA --poisson NU --density KG_M3     material
+  --fix I,J,..          fixed vertex indices;   --fix-box X0,Y0,Z0,X1,Y1,Z1   fixed box
+  --fix-x-below X       fix every vertex with x <= X (a cantilever's clamped end)
+  --gravity GX,GY,GZ    m/s^2 (default 0,-9.81,0)
+  --dt S | --rate HZ    tick length (default 1/60 s)
+  --mode realtime|lockstep|as-fast-as-possible
+  --method xpbd|sor|lambda-sor|chebyshev|anderson|anderson-sor|extrapolation
+  --sweep gauss-seidel|jacobi   --substeps N   --iterations N   --window M   --omega W
+  --tolerance T         --time-budget-ms MS    --threads N     --paused (create paused)
+
+Exit codes: 0 ok, 1 refused by the server, 2 usage, 3 server unreachable, 4 not found,
+5 authentication.
+)";
+
+struct Usage : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+// Arguments after the command: positionals and --flag [value] pairs.
+struct Args {
+  std::vector<std::string> positional;
+  std::map<std::string, std::string> flags;
+  std::vector<std::string> used;
+
+  bool has(const std::string& f) {
+    used.push_back(f);
+    return flags.count(f) > 0;
+  }
+  std::optional<std::string> get(const std::string& f) {
+    used.push_back(f);
+    auto it = flags.find(f);
+    if (it == flags.end()) return std::nullopt;
+    return it->second;
+  }
+  void check_all_used() const {
+    for (auto& [k, v] : flags)
+      if (std::find(used.begin(), used.end(), k) == used.end())
+        throw Usage("unknown flag --" + k + " for this command (see pliant --help)");
+  }
+};
+
+const std::vector<std::string> kBoolFlags = {"json", "tls", "paused", "replace", "help"};
+
+double to_double(const std::string& flag, const std::string& v) {
+  try {
+    size_t pos = 0;
+    double d = std::stod(v, &pos);
+    if (pos == v.size() && std::isfinite(d)) return d;
+  } catch (...) {
+  }
+  throw Usage("--" + flag + " needs a number, got '" + v + "'");
+}
+
+long long to_int(const std::string& flag, const std::string& v) {
+  try {
+    size_t pos = 0;
+    long long d = std::stoll(v, &pos);
+    if (pos == v.size()) return d;
+  } catch (...) {
+  }
+  throw Usage("--" + flag + " needs an integer, got '" + v + "'");
+}
+
+std::vector<double> to_doubles(const std::string& flag, const std::string& v, size_t n) {
+  std::vector<double> out;
+  std::stringstream ss(v);
+  for (std::string item; std::getline(ss, item, ',');) out.push_back(to_double(flag, item));
+  if (n && out.size() != n)
+    throw Usage("--" + flag + " needs " + std::to_string(n) + " comma-separated numbers, got '" + v + "'");
+  return out;
+}
+
+std::vector<int32_t> to_ints(const std::string& flag, const std::string& v) {
+  std::vector<int32_t> out;
+  std::stringstream ss(v);
+  for (std::string item; std::getline(ss, item, ',');)
+    out.push_back(static_cast<int32_t>(to_int(flag, item)));
+  if (out.empty()) throw Usage("--" + flag + " needs comma-separated integers");
+  return out;
+}
+
+void set_vec(v1::Vec3* out, const std::vector<double>& v) {
+  out->set_x(v[0]);
+  out->set_y(v[1]);
+  out->set_z(v[2]);
+}
+
+std::string json_of(const google::protobuf::Message& m) {
+  google::protobuf::util::JsonPrintOptions o;
+  o.preserve_proto_field_names = true;
+  o.always_print_primitive_fields = true;
+  std::string s;
+  (void)google::protobuf::util::MessageToJsonString(m, &s, o);
+  return s;
+}
+
+int exit_code_for(const Status& s) {
+  switch (s.code) {
+    case 0: return kExitOk;
+    case 14: case 4: return kExitUnreachable;  // UNAVAILABLE, DEADLINE_EXCEEDED
+    case 5: return kExitNotFound;
+    case 16: case 7: return kExitAuth;
+    default: return kExitRefused;
+  }
+}
+
+int fail(const Status& s, const client::ConnectOptions& o) {
+  std::fprintf(stderr, "pliant: %s\n", s.to_string().c_str());
+  if (s.code == 14)
+    std::fprintf(stderr, "pliant: is pliant-server running at %s? (set --address or PLIANT_ADDRESS)\n",
+                 o.address.c_str());
+  if (s.code == 16) std::fprintf(stderr, "pliant: pass the server's token with --token or PLIANT_TOKEN\n");
+  return exit_code_for(s);
+}
+
+std::string_view state_name(v1::SceneState s) {
+  switch (s) {
+    case v1::SCENE_STATE_RUNNING: return "running";
+    case v1::SCENE_STATE_PAUSED: return "paused";
+    case v1::SCENE_STATE_LOCKSTEP: return "lockstep";
+    default: return "?";
+  }
+}
+
+std::string mesh_name(const v1::MeshSource& m) {
+  if (m.has_data()) return m.data().name() + " (uploaded)";
+  if (!m.model_path().empty()) return m.model_path();
+  return m.builtin();
+}
+
+void print_scene_line(const v1::Scene& s) {
+  std::printf("%-16s %-9s tick %-9llu t %9.3f s  %6u vertices %7u tets  %-12s %7.1f ticks/s  late %llu%s\n",
+              s.scene_id().c_str(), std::string(state_name(s.state())).c_str(),
+              static_cast<unsigned long long>(s.tick()), s.sim_time(), s.vertex_count(), s.tet_count(),
+              mesh_name(s.spec().mesh()).c_str(), s.ticks_per_second(),
+              static_cast<unsigned long long>(s.late_ticks()),
+              s.pause_reason().empty() ? "" : ("  (" + s.pause_reason() + ")").c_str());
+}
+
+void print_scene(const v1::Scene& s, bool json) {
+  if (json) {
+    std::printf("%s\n", json_of(s).c_str());
+    return;
+  }
+  const auto& sp = s.spec();
+  const auto& so = sp.solver();
+  std::printf("scene      %s (%s)\n", s.scene_id().c_str(), std::string(state_name(s.state())).c_str());
+  std::printf("mesh       %s: %u vertices, %u tets, %u surface triangles\n", mesh_name(sp.mesh()).c_str(),
+              s.vertex_count(), s.tet_count(), s.surface_triangle_count());
+  std::printf("material   E %g Pa, nu %g, rho %g kg/m^3\n", sp.material().young_modulus(),
+              sp.material().poisson_ratio(), sp.material().density());
+  std::printf("tick       dt %g s (%g Hz), %s\n", sp.tick().dt(), 1.0 / sp.tick().dt(),
+              v1::TickMode_Name(sp.tick().mode()).c_str());
+  std::printf("solver     %s, %s, %d substeps x %d iterations, window %d, omega %g, tolerance %g, budget %g ms\n",
+              v1::Method_Name(so.method()).c_str(), v1::Sweep_Name(so.sweep()).c_str(), so.substeps(),
+              so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
+  std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
+  std::printf("progress   tick %llu, t %.4f s, %.1f ticks/s, late %llu, skipped %llu, rollbacks %llu\n",
+              static_cast<unsigned long long>(s.tick()), s.sim_time(), s.ticks_per_second(),
+              static_cast<unsigned long long>(s.late_ticks()), static_cast<unsigned long long>(s.skipped_ticks()),
+              static_cast<unsigned long long>(s.rollbacks()));
+  if (!s.pause_reason().empty()) std::printf("paused     %s\n", s.pause_reason().c_str());
+}
+
+// Scene flags shared by create and update. Returns whether any was given.
+bool read_settings(Args& a, v1::SolverSettings* so, v1::TickSettings* tick, v1::Material* mat,
+                   v1::Vec3* gravity, bool* gravity_set) {
+  bool any = false;
+  auto num = [&](const char* f, auto setter) {
+    if (auto v = a.get(f)) {
+      setter(to_double(f, *v));
+      any = true;
+    }
+  };
+  auto integer = [&](const char* f, auto setter) {
+    if (auto v = a.get(f)) {
+      setter(to_int(f, *v));
+      any = true;
+    }
+  };
+  if (auto v = a.get("method")) {
+    auto m = parse_method(*v);
+    if (!m) throw Usage("--method '" + *v + "' is not one of xpbd, sor, lambda-sor, chebyshev, anderson, anderson-sor, extrapolation");
+    static const std::map<Method, v1::Method> map = {
+        {Method::Xpbd, v1::METHOD_XPBD}, {Method::Sor, v1::METHOD_SOR}, {Method::LambdaSor, v1::METHOD_LAMBDA_SOR},
+        {Method::Chebyshev, v1::METHOD_CHEBYSHEV}, {Method::Anderson, v1::METHOD_ANDERSON},
+        {Method::AndersonSor, v1::METHOD_ANDERSON_SOR}, {Method::Extrapolation, v1::METHOD_EXTRAPOLATION}};
+    so->set_method(map.at(*m));
+    any = true;
+  }
+  if (auto v = a.get("sweep")) {
+    auto s = parse_sweep(*v);
+    if (!s) throw Usage("--sweep '" + *v + "' is not one of gauss-seidel, jacobi");
+    so->set_sweep(*s == Sweep::Jacobi ? v1::SWEEP_JACOBI : v1::SWEEP_GAUSS_SEIDEL);
+    any = true;
+  }
+  integer("substeps", [&](long long x) { so->set_substeps(static_cast<int32_t>(x)); });
+  integer("iterations", [&](long long x) { so->set_iterations(static_cast<int32_t>(x)); });
+  integer("window", [&](long long x) { so->set_window(static_cast<int32_t>(x)); });
+  integer("threads", [&](long long x) { so->set_threads(static_cast<int32_t>(x)); });
+  num("omega", [&](double x) { so->set_omega(x); });
+  num("tolerance", [&](double x) { so->set_tolerance(x); });
+  num("time-budget-ms", [&](double x) { so->set_time_budget_ms(x); });
+  num("dt", [&](double x) { tick->set_dt(x); });
+  num("rate", [&](double x) {
+    if (x <= 0) throw Usage("--rate must be > 0 Hz");
+    tick->set_dt(1.0 / x);
+  });
+  if (auto v = a.get("mode")) {
+    if (*v == "realtime") tick->set_mode(v1::TICK_MODE_REALTIME);
+    else if (*v == "lockstep") tick->set_mode(v1::TICK_MODE_LOCKSTEP);
+    else if (*v == "as-fast-as-possible" || *v == "afap") tick->set_mode(v1::TICK_MODE_AS_FAST_AS_POSSIBLE);
+    else throw Usage("--mode '" + *v + "' is not one of realtime, lockstep, as-fast-as-possible");
+    any = true;
+  }
+  num("young", [&](double x) { mat->set_young_modulus(x); });
+  num("poisson", [&](double x) { mat->set_poisson_ratio(x); });
+  num("density", [&](double x) { mat->set_density(x); });
+  if (auto v = a.get("gravity")) {
+    set_vec(gravity, to_doubles("gravity", *v, 3));
+    *gravity_set = true;
+    any = true;
+  }
+  return any;
+}
+
+int cmd_scenes(Client& c, Args& a, bool json) {
+  if (a.positional.empty()) throw Usage("scenes needs a subcommand: create | list | get | update | delete | reset");
+  const std::string sub = a.positional[0];
+  auto need_id = [&]() -> std::string {
+    if (a.positional.size() < 2) throw Usage("scenes " + sub + " needs a scene ID");
+    return a.positional[1];
+  };
+  if (sub == "create") {
+    v1::CreateSceneRequest req;
+    if (a.positional.size() >= 2) req.set_scene_id(a.positional[1]);
+    auto* spec = req.mutable_spec();
+    bool gravity_set = false;
+    read_settings(a, spec->mutable_solver(), spec->mutable_tick(), spec->mutable_material(),
+                  spec->mutable_gravity(), &gravity_set);
+    if (!gravity_set) spec->clear_gravity();
+    auto mesh = a.get("mesh");
+    auto upload = a.get("upload");
+    if (mesh && upload) throw Usage("give --mesh or --upload, not both");
+    if (upload) {
+      TetMesh m;
+      try {
+        m = resolve_mesh(*upload, default_model_path());
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "pliant: --upload %s: %s\n", upload->c_str(), e.what());
+        return kExitUsage;
+      }
+      auto* d = spec->mutable_mesh()->mutable_data();
+      d->set_name(m.name);
+      for (const auto& p : m.vertices)
+        for (int k = 0; k < 3; ++k) d->add_positions(p[k]);
+      for (const auto& t : m.tets)
+        for (int k = 0; k < 4; ++k) d->add_tets(t[k]);
+    } else {
+      std::string name = mesh.value_or("beam1");
+      if (name == "beam1" || name == "beam2" || name == "beam3") spec->mutable_mesh()->set_builtin(name);
+      else spec->mutable_mesh()->set_model_path(name);
+    }
+    if (auto v = a.get("scale")) spec->mutable_mesh()->set_scale(to_double("scale", *v));
+    if (auto v = a.get("fix")) for (int32_t i : to_ints("fix", *v)) spec->mutable_fixed()->add_indices(i);
+    if (auto v = a.get("fix-box")) {
+      auto b = to_doubles("fix-box", *v, 6);
+      auto* box = spec->mutable_fixed()->add_boxes();
+      set_vec(box->mutable_min(), {b[0], b[1], b[2]});
+      set_vec(box->mutable_max(), {b[3], b[4], b[5]});
+    }
+    if (auto v = a.get("fix-x-below")) {
+      double x = to_double("fix-x-below", *v);
+      auto* box = spec->mutable_fixed()->add_boxes();
+      set_vec(box->mutable_min(), {-1e9, -1e9, -1e9});
+      set_vec(box->mutable_max(), {x, 1e9, 1e9});
+    }
+    spec->set_start_paused(a.has("paused"));
+    a.check_all_used();
+    auto r = c.create_scene(req);
+    if (!r.ok()) return fail(r.status, c.options());
+    if (json) print_scene(*r, true);
+    else std::printf("created scene %s\n", r->scene_id().c_str());
+    return kExitOk;
+  }
+  if (sub == "list") {
+    a.check_all_used();
+    auto r = c.list_scenes();
+    if (!r.ok()) return fail(r.status, c.options());
+    if (json) {
+      v1::ListScenesResponse l;
+      for (auto& s : r.value) *l.add_scenes() = s;
+      std::printf("%s\n", json_of(l).c_str());
+    } else if (r->empty()) {
+      std::printf("no scenes\n");
+    } else {
+      for (auto& s : r.value) print_scene_line(s);
+    }
+    return kExitOk;
+  }
+  if (sub == "update") {
+    v1::UpdateSceneRequest req;
+    req.set_scene_id(need_id());
+    bool gravity_set = false;
+    bool any = read_settings(a, req.mutable_solver(), req.mutable_tick(), req.mutable_material(),
+                             req.mutable_gravity(), &gravity_set);
+    if (!gravity_set) req.clear_gravity();
+    a.check_all_used();
+    if (!any) throw Usage("scenes update needs at least one setting (e.g. --method anderson-sor)");
+    auto r = c.update_scene(req);
+    if (!r.ok()) return fail(r.status, c.options());
+    print_scene(*r, json);
+    return kExitOk;
+  }
+  if (sub == "get" || sub == "reset") {
+    std::string id = need_id();
+    a.check_all_used();
+    auto r = sub == "get" ? c.get_scene(id) : c.reset_scene(id);
+    if (!r.ok()) return fail(r.status, c.options());
+    if (sub == "reset" && !json) std::printf("reset scene %s\n", id.c_str());
+    else print_scene(*r, json);
+    return kExitOk;
+  }
+  if (sub == "delete") {
+    std::string id = need_id();
+    a.check_all_used();
+    Status s = c.delete_scene(id);
+    if (!s.ok()) return fail(s, c.options());
+    if (json) std::printf("{\"deleted\":\"%s\"}\n", id.c_str());
+    else std::printf("deleted scene %s\n", id.c_str());
+    return kExitOk;
+  }
+  throw Usage("unknown subcommand 'scenes " + sub + "' (create | list | get | update | delete | reset)");
+}
+
+int cmd_pause_resume(Client& c, Args& a, bool json, bool pause) {
+  if (a.positional.empty()) throw Usage(std::string(pause ? "pause" : "resume") + " needs a scene ID");
+  a.check_all_used();
+  auto r = pause ? c.pause_scene(a.positional[0]) : c.resume_scene(a.positional[0]);
+  if (!r.ok()) return fail(r.status, c.options());
+  if (json) print_scene(*r, true);
+  else std::printf("%s scene %s at tick %llu\n", pause ? "paused" : "resumed", r->scene_id().c_str(),
+                   static_cast<unsigned long long>(r->tick()));
+  return kExitOk;
+}
+
+int cmd_step(Client& c, Args& a, bool json) {
+  if (a.positional.empty()) throw Usage("step needs a scene ID");
+  long long n = 1;
+  if (a.positional.size() >= 2) n = to_int("ticks", a.positional[1]);
+  if (auto v = a.get("ticks")) n = to_int("ticks", *v);
+  a.check_all_used();
+  if (n < 1) throw Usage("step: the number of ticks must be >= 1");
+  auto r = c.step(a.positional[0], static_cast<uint32_t>(n));
+  if (!r.ok()) return fail(r.status, c.options());
+  if (json) std::printf("%s\n", json_of(*r).c_str());
+  else std::printf("scene %s at tick %llu, t %.6f s%s\n", a.positional[0].c_str(),
+                   static_cast<unsigned long long>(r->tick()), r->sim_time(),
+                   r->rollbacks() ? (" (" + std::to_string(r->rollbacks()) + " rollbacks)").c_str() : "");
+  return kExitOk;
+}
+
+int cmd_force(Client& c, Args& a, bool json) {
+  if (a.positional.empty()) throw Usage("force needs a scene ID");
+  v1::ApplyForceRequest req;
+  req.set_scene_id(a.positional[0]);
+  auto v = a.get("vertices");
+  auto f = a.get("force");
+  if (!v || !f) throw Usage("force needs --vertices I,J,.. and --force FX,FY,FZ");
+  for (int32_t i : to_ints("vertices", *v)) req.add_vertices(i);
+  set_vec(req.mutable_force(), to_doubles("force", *f, 3));
+  if (auto t = a.get("ticks")) req.set_ticks(static_cast<uint32_t>(to_int("ticks", *t)));
+  a.check_all_used();
+  auto r = c.apply_force(req);
+  if (!r.ok()) return fail(r.status, c.options());
+  if (json) std::printf("%s\n", json_of(*r).c_str());
+  else std::printf("force applied from tick %llu\n", static_cast<unsigned long long>(r->first_tick()));
+  return kExitOk;
+}
+
+std::atomic<bool> g_interrupted{false};
+extern "C" void on_sigint(int) { g_interrupted = true; }
+
+int cmd_watch(Client& c, Args& a, bool json) {
+  if (a.positional.empty()) throw Usage("watch needs a scene ID");
+  double duration = 0;
+  if (auto v = a.get("duration")) duration = to_double("duration", *v);
+  v1::StreamFramesRequest req;
+  req.set_scene_id(a.positional[0]);
+  req.add_fields(v1::FRAME_FIELD_SOLVER_STATS);  // no positions: a status line needs none
+  if (auto v = a.get("every")) req.set_every_nth_tick(static_cast<uint32_t>(to_int("every", *v)));
+  if (auto v = a.get("max-rate")) req.set_max_rate_hz(to_double("max-rate", *v));
+  a.check_all_used();
+
+  std::signal(SIGINT, on_sigint);
+  std::signal(SIGTERM, on_sigint);
+  const bool tty = isatty(STDOUT_FILENO) && !json;
+  auto stream = c.stream_frames(req);
+  const auto start = std::chrono::steady_clock::now();
+  std::atomic<bool> done{false};
+  std::thread stopper([&] {
+    while (!done) {
+      if (g_interrupted ||
+          (duration > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(duration))) {
+        stream->cancel();
+        return;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  });
+
+  v1::Frame f, first, last;
+  uint64_t frames = 0, skipped = 0;
+  std::vector<double> residuals;
+  double iterations_sum = 0;
+  auto last_print = start;
+  while (stream->next(&f)) {
+    if (frames == 0) first = f;
+    last = f;
+    ++frames;
+    skipped += f.skipped_frames();
+    residuals.push_back(f.solver().residual_final());
+    iterations_sum += f.solver().iterations();
+    auto now = std::chrono::steady_clock::now();
+    if (!json && (now - last_print >= std::chrono::milliseconds(tty ? 100 : 1000) || frames == 1)) {
+      last_print = now;
+      char line[256];
+      std::snprintf(line, sizeof line,
+                    "tick %-9llu t %9.3f s  %7.1f ticks/s  step %6.2f ms  it %4d  residual %9.3e  late %llu  skipped %llu%s",
+                    static_cast<unsigned long long>(f.tick()), f.sim_time(), f.ticks_per_second(),
+                    f.solver().step_wall_ms(), f.solver().iterations(), f.solver().residual_final(),
+                    static_cast<unsigned long long>(f.late_ticks()), static_cast<unsigned long long>(skipped),
+                    f.rollbacks() ? ("  rollbacks " + std::to_string(f.rollbacks())).c_str() : "");
+      if (tty) std::printf("\r%-110s", line);
+      else std::printf("%s\n", line);
+      std::fflush(stdout);
+    }
+  }
+  done = true;
+  stopper.join();
+  Status s = stream->finish();
+  const bool cancelled_by_us = s.code == 1 && (g_interrupted || duration > 0);
+  if (tty) std::printf("\n");
+  if (!s.ok() && !cancelled_by_us && frames == 0) return fail(s, c.options());  // nothing to sum up
+  const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const uint64_t ticks = frames ? last.tick() - first.tick() : 0;
+  const uint64_t late = frames ? last.late_ticks() - first.late_ticks() : 0;
+  double mean_r = 0, p99_r = 0;
+  if (!residuals.empty()) {
+    for (double r : residuals) mean_r += r;
+    mean_r /= residuals.size();
+    std::vector<double> sorted = residuals;
+    std::sort(sorted.begin(), sorted.end());
+    p99_r = sorted[std::min(sorted.size() - 1, static_cast<size_t>(std::ceil(0.99 * sorted.size())) - 1)];
+  }
+  const double mean_it = frames ? iterations_sum / frames : 0;
+  const double tps = elapsed > 0 ? ticks / elapsed : 0;
+  if (json) {
+    std::printf("{\"scene_id\":\"%s\",\"seconds\":%.3f,\"ticks\":%llu,\"ticks_per_s\":%.3f,\"late_ticks\":%llu,"
+                "\"frames\":%llu,\"skipped_frames\":%llu,\"mean_residual\":%.6g,\"p99_residual\":%.6g,"
+                "\"mean_iterations\":%.3f}\n",
+                a.positional[0].c_str(), elapsed, static_cast<unsigned long long>(ticks), tps,
+                static_cast<unsigned long long>(late), static_cast<unsigned long long>(frames),
+                static_cast<unsigned long long>(skipped), mean_r, p99_r, mean_it);
+  } else {
+    std::printf("%llu ticks in %.1f s (%.1f ticks/s), %llu late, %llu frames, %llu skipped, residual mean %.3e p99 %.3e, "
+                "%.1f iterations/tick\n",
+                static_cast<unsigned long long>(ticks), elapsed, tps, static_cast<unsigned long long>(late),
+                static_cast<unsigned long long>(frames), static_cast<unsigned long long>(skipped), mean_r, p99_r,
+                mean_it);
+  }
+  std::fflush(stdout);
+  if (s.ok() || cancelled_by_us) return kExitOk;
+  return fail(s, c.options());
+}
+
+int cmd_snapshot(Client& c, Args& a, bool json) {
+  if (a.positional.empty()) throw Usage("snapshot needs a subcommand: save | restore | list");
+  const std::string sub = a.positional[0];
+  if (sub == "save") {
+    if (a.positional.size() < 2) throw Usage("snapshot save needs a scene ID");
+    v1::SaveSnapshotRequest req;
+    req.set_scene_id(a.positional[1]);
+    auto name = a.get("name");
+    auto out = a.get("out");
+    a.check_all_used();
+    if (!name && !out) throw Usage("snapshot save needs --name NAME (on the server) and/or --out FILE (here)");
+    if (name) req.set_name(*name);
+    req.set_omit_snapshot(!out);
+    auto r = c.save_snapshot(req);
+    if (!r.ok()) return fail(r.status, c.options());
+    if (out) {
+      std::ofstream f(*out, std::ios::binary | std::ios::trunc);
+      if (!f || !r->snapshot().SerializeToOstream(&f)) {
+        std::fprintf(stderr, "pliant: cannot write --out '%s'\n", out->c_str());
+        return kExitRefused;
+      }
+    }
+    if (json) {
+      std::printf("{\"scene_id\":\"%s\",\"tick\":%llu,\"server_path\":\"%s\",\"file\":\"%s\"}\n",
+                  a.positional[1].c_str(), static_cast<unsigned long long>(r->snapshot().tick()),
+                  r->path().c_str(), out.value_or("").c_str());
+    } else {
+      if (!r->path().empty()) std::printf("saved on the server: %s\n", r->path().c_str());
+      if (out) std::printf("saved to %s (tick %llu)\n", out->c_str(), static_cast<unsigned long long>(r->snapshot().tick()));
+    }
+    return kExitOk;
+  }
+  if (sub == "restore") {
+    v1::RestoreSnapshotRequest req;
+    auto name = a.get("name");
+    auto file = a.get("file");
+    if (!!name == !!file) throw Usage("snapshot restore needs exactly one of --name NAME or --file FILE");
+    if (name) req.set_name(*name);
+    if (file) {
+      std::ifstream f(*file, std::ios::binary);
+      if (!f || !req.mutable_snapshot()->ParseFromIstream(&f)) {
+        std::fprintf(stderr, "pliant: --file '%s' is not a readable Pliant snapshot\n", file->c_str());
+        return kExitUsage;
+      }
+    }
+    if (auto id = a.get("as")) req.set_scene_id(*id);
+    req.set_replace(a.has("replace"));
+    a.check_all_used();
+    auto r = c.restore_snapshot(req);
+    if (!r.ok()) return fail(r.status, c.options());
+    if (json) print_scene(*r, true);
+    else std::printf("restored scene %s at tick %llu\n", r->scene_id().c_str(), static_cast<unsigned long long>(r->tick()));
+    return kExitOk;
+  }
+  if (sub == "list") {
+    a.check_all_used();
+    auto r = c.list_snapshots();
+    if (!r.ok()) return fail(r.status, c.options());
+    if (json) {
+      v1::ListSnapshotsResponse l;
+      for (auto& n : r.value) l.add_names(n);
+      std::printf("%s\n", json_of(l).c_str());
+    } else {
+      for (auto& n : r.value) std::printf("%s\n", n.c_str());
+    }
+    return kExitOk;
+  }
+  throw Usage("unknown subcommand 'snapshot " + sub + "' (save | restore | list)");
+}
+
+int cmd_health(Client& c, Args& a, bool json) {
+  std::string service = a.get("service").value_or("");
+  a.check_all_used();
+  auto r = c.health(service);
+  if (!r.ok()) {
+    if (json) std::printf("{\"status\":\"UNREACHABLE\",\"error\":\"%s\"}\n", r.status.code_name().c_str());
+    return fail(r.status, c.options());
+  }
+  if (json) std::printf("{\"status\":\"%s\"}\n", std::string(client::to_string(*r)).c_str());
+  else std::printf("%s\n", std::string(client::to_string(*r)).c_str());
+  return *r == client::Health::Serving ? kExitOk : kExitRefused;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  client::ConnectOptions opt;
+  if (const char* v = std::getenv("PLIANT_ADDRESS")) opt.address = v;
+  if (const char* v = std::getenv("PLIANT_TOKEN")) opt.token = v;
+  bool json = false;
+  std::string command;
+  Args args;
+  try {
+    for (int i = 1; i < argc; ++i) {
+      std::string s = argv[i];
+      if (s.rfind("--", 0) == 0 && s.size() > 2) {
+        std::string name = s.substr(2), value;
+        bool has_value = false;
+        if (auto eq = name.find('='); eq != std::string::npos) {
+          value = name.substr(eq + 1);
+          name = name.substr(0, eq);
+          has_value = true;
+        }
+        const bool boolean = std::find(kBoolFlags.begin(), kBoolFlags.end(), name) != kBoolFlags.end();
+        if (!boolean && !has_value) {
+          if (i + 1 >= argc) throw Usage("--" + name + " needs a value");
+          value = argv[++i];
+        }
+        if (name == "help") {
+          std::fputs(kUsage, stdout);
+          return kExitOk;
+        } else if (name == "address") opt.address = value;
+        else if (name == "token") opt.token = value;
+        else if (name == "json") json = true;
+        else if (name == "tls") opt.tls = true;
+        else if (name == "tls-ca") opt.tls_ca_file = value;
+        else if (name == "timeout") {
+          double t = to_double("timeout", value);
+          if (t <= 0) throw Usage("--timeout must be > 0 s");
+          opt.timeout = std::chrono::milliseconds(static_cast<long long>(t * 1000));
+        } else args.flags[name] = boolean ? "true" : value;
+      } else if (s == "-h") {
+        std::fputs(kUsage, stdout);
+        return kExitOk;
+      } else if (command.empty()) {
+        command = s;
+      } else {
+        args.positional.push_back(s);
+      }
+    }
+    if (command.empty()) throw Usage("no command given");
+    Client c(opt);
+    if (command == "scenes") return cmd_scenes(c, args, json);
+    if (command == "pause") return cmd_pause_resume(c, args, json, true);
+    if (command == "resume") return cmd_pause_resume(c, args, json, false);
+    if (command == "step") return cmd_step(c, args, json);
+    if (command == "force") return cmd_force(c, args, json);
+    if (command == "watch") return cmd_watch(c, args, json);
+    if (command == "snapshot") return cmd_snapshot(c, args, json);
+    if (command == "health") return cmd_health(c, args, json);
+    throw Usage("unknown command '" + command + "'");
+  } catch (const Usage& u) {
+    std::fprintf(stderr, "pliant: %s\n(run 'pliant --help' for usage)\n", u.what());
+    return kExitUsage;
+  }
+}

@@ -1,0 +1,242 @@
+// The client library over the generated stubs.
+#include "pliant/client/client.hpp"
+
+#include "grpc/health/v1/health.grpc.pb.h"
+#include "pliant/v1/pliant.grpc.pb.h"
+
+#include <grpcpp/grpcpp.h>
+
+#include <fstream>
+#include <sstream>
+
+namespace pliant::client {
+
+namespace {
+
+const char* kCodeNames[] = {"OK", "CANCELLED", "UNKNOWN", "INVALID_ARGUMENT", "DEADLINE_EXCEEDED",
+                            "NOT_FOUND", "ALREADY_EXISTS", "PERMISSION_DENIED", "RESOURCE_EXHAUSTED",
+                            "FAILED_PRECONDITION", "ABORTED", "OUT_OF_RANGE", "UNIMPLEMENTED",
+                            "INTERNAL", "UNAVAILABLE", "DATA_LOSS", "UNAUTHENTICATED"};
+
+Status from_grpc(const grpc::Status& s) { return Status{static_cast<int>(s.error_code()), s.error_message()}; }
+
+}  // namespace
+
+std::string Status::code_name() const {
+  if (code >= 0 && code <= 16) return kCodeNames[code];
+  return "CODE_" + std::to_string(code);
+}
+
+std::string Status::to_string() const { return ok() ? "OK" : code_name() + ": " + message; }
+
+std::string_view to_string(Health h) {
+  switch (h) {
+    case Health::Serving: return "SERVING";
+    case Health::NotServing: return "NOT_SERVING";
+    case Health::ServiceUnknown: return "SERVICE_UNKNOWN";
+    default: return "UNKNOWN";
+  }
+}
+
+struct Client::Impl {
+  ConnectOptions options;
+  std::shared_ptr<grpc::Channel> channel;
+  std::unique_ptr<v1::SceneService::Stub> scenes;
+  std::unique_ptr<v1::FrameService::Stub> frames;
+  std::unique_ptr<v1::SnapshotService::Stub> snapshots;
+  std::unique_ptr<grpc::health::v1::Health::Stub> health;
+
+  void prepare(grpc::ClientContext& ctx, std::chrono::milliseconds timeout) const {
+    if (!options.token.empty()) ctx.AddMetadata("authorization", "Bearer " + options.token);
+    if (timeout.count() > 0) ctx.set_deadline(std::chrono::system_clock::now() + timeout);
+  }
+
+  template <class Req, class Resp, class Stub, class Method>
+  Result<Resp> unary(Stub* stub, Method method, const Req& req, std::chrono::milliseconds timeout) {
+    grpc::ClientContext ctx;
+    prepare(ctx, timeout);
+    Result<Resp> r;
+    r.status = from_grpc((stub->*method)(&ctx, req, &r.value));
+    return r;
+  }
+  template <class Req, class Resp, class Stub, class Method>
+  Result<Resp> unary(Stub* stub, Method method, const Req& req) {
+    return unary<Req, Resp>(stub, method, req, options.timeout);
+  }
+};
+
+struct FrameStream::Impl {
+  grpc::ClientContext ctx;
+  std::unique_ptr<grpc::ClientReader<v1::Frame>> reader;
+  bool finished = false;
+  Status status;
+};
+
+FrameStream::FrameStream(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+FrameStream::~FrameStream() {
+  if (impl_ && !impl_->finished) {
+    impl_->ctx.TryCancel();
+    finish();
+  }
+}
+bool FrameStream::next(v1::Frame* frame) { return !impl_->finished && impl_->reader->Read(frame); }
+void FrameStream::cancel() { impl_->ctx.TryCancel(); }
+Status FrameStream::finish() {
+  if (!impl_->finished) {
+    // Drain what is in flight so Finish() does not wait on unread messages.
+    v1::Frame f;
+    while (impl_->reader->Read(&f)) {
+    }
+    impl_->status = from_grpc(impl_->reader->Finish());
+    impl_->finished = true;
+  }
+  return impl_->status;
+}
+
+Client::Client(ConnectOptions options) : impl_(std::make_unique<Impl>()) {
+  impl_->options = std::move(options);
+  const auto& o = impl_->options;
+  std::shared_ptr<grpc::ChannelCredentials> creds = grpc::InsecureChannelCredentials();
+  if (o.tls || !o.tls_ca_file.empty()) {
+    grpc::SslCredentialsOptions ssl;
+    if (!o.tls_ca_file.empty()) {
+      std::ifstream f(o.tls_ca_file);
+      std::stringstream ss;
+      ss << f.rdbuf();
+      ssl.pem_root_certs = ss.str();
+    }
+    creds = grpc::SslCredentials(ssl);
+  }
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(o.max_message_mb * 1024 * 1024);
+  args.SetMaxSendMessageSize(o.max_message_mb * 1024 * 1024);
+  impl_->channel = grpc::CreateCustomChannel(o.address, creds, args);
+  impl_->scenes = v1::SceneService::NewStub(impl_->channel);
+  impl_->frames = v1::FrameService::NewStub(impl_->channel);
+  impl_->snapshots = v1::SnapshotService::NewStub(impl_->channel);
+  impl_->health = grpc::health::v1::Health::NewStub(impl_->channel);
+}
+Client::~Client() = default;
+Client::Client(Client&&) noexcept = default;
+Client& Client::operator=(Client&&) noexcept = default;
+
+const ConnectOptions& Client::options() const { return impl_->options; }
+
+bool Client::wait_connected(std::chrono::milliseconds timeout) {
+  return impl_->channel->WaitForConnected(std::chrono::system_clock::now() + timeout);
+}
+
+using SS = v1::SceneService::Stub;
+
+Result<v1::Scene> Client::create_scene(const v1::CreateSceneRequest& r) {
+  return impl_->unary<v1::CreateSceneRequest, v1::Scene>(impl_->scenes.get(), &SS::CreateScene, r);
+}
+Result<std::vector<v1::Scene>> Client::list_scenes() {
+  auto r = impl_->unary<v1::ListScenesRequest, v1::ListScenesResponse>(impl_->scenes.get(), &SS::ListScenes,
+                                                                         v1::ListScenesRequest{});
+  Result<std::vector<v1::Scene>> out;
+  out.status = r.status;
+  out.value.assign(r.value.scenes().begin(), r.value.scenes().end());
+  return out;
+}
+Result<v1::Scene> Client::get_scene(const std::string& id) {
+  v1::GetSceneRequest r;
+  r.set_scene_id(id);
+  return impl_->unary<v1::GetSceneRequest, v1::Scene>(impl_->scenes.get(), &SS::GetScene, r);
+}
+Result<v1::Scene> Client::update_scene(const v1::UpdateSceneRequest& r) {
+  return impl_->unary<v1::UpdateSceneRequest, v1::Scene>(impl_->scenes.get(), &SS::UpdateScene, r);
+}
+Status Client::delete_scene(const std::string& id) {
+  v1::DeleteSceneRequest r;
+  r.set_scene_id(id);
+  return impl_->unary<v1::DeleteSceneRequest, v1::DeleteSceneResponse>(impl_->scenes.get(), &SS::DeleteScene, r)
+      .status;
+}
+Result<v1::Scene> Client::reset_scene(const std::string& id) {
+  v1::ResetSceneRequest r;
+  r.set_scene_id(id);
+  return impl_->unary<v1::ResetSceneRequest, v1::Scene>(impl_->scenes.get(), &SS::ResetScene, r);
+}
+Result<v1::Scene> Client::pause_scene(const std::string& id) {
+  v1::PauseSceneRequest r;
+  r.set_scene_id(id);
+  return impl_->unary<v1::PauseSceneRequest, v1::Scene>(impl_->scenes.get(), &SS::PauseScene, r);
+}
+Result<v1::Scene> Client::resume_scene(const std::string& id) {
+  v1::ResumeSceneRequest r;
+  r.set_scene_id(id);
+  return impl_->unary<v1::ResumeSceneRequest, v1::Scene>(impl_->scenes.get(), &SS::ResumeScene, r);
+}
+Result<v1::StepResponse> Client::step(const std::string& id, uint32_t ticks) {
+  v1::StepRequest r;
+  r.set_scene_id(id);
+  r.set_ticks(ticks);
+  return impl_->unary<v1::StepRequest, v1::StepResponse>(impl_->scenes.get(), &SS::Step, r,
+                                                         impl_->options.step_timeout);
+}
+Result<v1::ApplyForceResponse> Client::apply_force(const v1::ApplyForceRequest& r) {
+  return impl_->unary<v1::ApplyForceRequest, v1::ApplyForceResponse>(impl_->scenes.get(), &SS::ApplyForce, r);
+}
+
+Result<v1::Topology> Client::topology(const std::string& id) {
+  v1::GetTopologyRequest r;
+  r.set_scene_id(id);
+  return impl_->unary<v1::GetTopologyRequest, v1::Topology>(impl_->frames.get(), &v1::FrameService::Stub::GetTopology, r);
+}
+
+std::unique_ptr<FrameStream> Client::stream_frames(const v1::StreamFramesRequest& r) {
+  auto impl = std::make_unique<FrameStream::Impl>();
+  impl_->prepare(impl->ctx, std::chrono::milliseconds(0));
+  impl->reader = impl_->frames->StreamFrames(&impl->ctx, r);
+  return std::unique_ptr<FrameStream>(new FrameStream(std::move(impl)));
+}
+
+Status Client::stream_frames(const v1::StreamFramesRequest& r,
+                             const std::function<bool(const v1::Frame&)>& on_frame) {
+  auto stream = stream_frames(r);
+  v1::Frame f;
+  while (stream->next(&f)) {
+    if (!on_frame(f)) {
+      stream->cancel();
+      stream->finish();
+      return {};
+    }
+  }
+  return stream->finish();
+}
+
+Result<v1::SaveSnapshotResponse> Client::save_snapshot(const v1::SaveSnapshotRequest& r) {
+  return impl_->unary<v1::SaveSnapshotRequest, v1::SaveSnapshotResponse>(
+      impl_->snapshots.get(), &v1::SnapshotService::Stub::SaveSnapshot, r);
+}
+Result<v1::Scene> Client::restore_snapshot(const v1::RestoreSnapshotRequest& r) {
+  return impl_->unary<v1::RestoreSnapshotRequest, v1::Scene>(impl_->snapshots.get(),
+                                                             &v1::SnapshotService::Stub::RestoreSnapshot, r);
+}
+Result<std::vector<std::string>> Client::list_snapshots() {
+  auto r = impl_->unary<v1::ListSnapshotsRequest, v1::ListSnapshotsResponse>(
+      impl_->snapshots.get(), &v1::SnapshotService::Stub::ListSnapshots, v1::ListSnapshotsRequest{});
+  Result<std::vector<std::string>> out;
+  out.status = r.status;
+  out.value.assign(r.value.names().begin(), r.value.names().end());
+  return out;
+}
+
+Result<Health> Client::health(const std::string& service) {
+  grpc::health::v1::HealthCheckRequest req;
+  req.set_service(service);
+  auto r = impl_->unary<grpc::health::v1::HealthCheckRequest, grpc::health::v1::HealthCheckResponse>(
+      impl_->health.get(), &grpc::health::v1::Health::Stub::Check, req);
+  Result<Health> out;
+  out.status = r.status;
+  switch (r.value.status()) {
+    case grpc::health::v1::HealthCheckResponse::SERVING: out.value = Health::Serving; break;
+    case grpc::health::v1::HealthCheckResponse::NOT_SERVING: out.value = Health::NotServing; break;
+    case grpc::health::v1::HealthCheckResponse::SERVICE_UNKNOWN: out.value = Health::ServiceUnknown; break;
+    default: out.value = Health::Unknown; break;
+  }
+  return out;
+}
+
+}  // namespace pliant::client

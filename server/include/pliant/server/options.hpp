@@ -1,0 +1,43 @@
+// pliant-server's settings: command-line flags, an optional config file of `name = value`
+// lines, and PLIANT_<NAME> environment variables. Precedence: flags, then environment, then
+// the config file, then defaults.
+#pragma once
+
+#include "pliant/server/scene.hpp"
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace pliant::server {
+
+struct ServerOptions {
+  std::string listen = "0.0.0.0:50051";
+  std::string data_dir;          // snapshots (shutdown and named); empty: none
+  std::string model_path;        // colon-separated directories for mesh files
+  int max_scenes = 16;
+  int64_t max_vertices = 2'000'000;
+  int max_message_mb = 64;
+  std::string log_level = "info";  // trace | debug | info | warn | error | critical | off
+  std::string tls_cert;
+  std::string tls_key;
+  std::string token;             // required as "authorization: Bearer <token>" when set
+  int threads = 1;               // cap on each scene's solver threads
+  bool restore = true;           // --no-restore: do not restore scenes from the data dir
+  std::string config;            // the config file read, if any
+};
+
+using EnvLookup = std::function<std::optional<std::string>(const std::string& name)>;
+
+// The process environment.
+EnvLookup process_env();
+
+// Parses argv (without argv[0]). On --help sets *help and returns Ok.
+Error parse_server_options(const std::vector<std::string>& args, const EnvLookup& env,
+                           ServerOptions* out, bool* help);
+
+std::string server_usage();
+
+}  // namespace pliant::server

@@ -1,0 +1,94 @@
+// The server's scenes by id, and everything between the API messages (pliant.v1) and the
+// scenes: validating requests (errors name the field and value), building models, limits,
+// snapshots in the data directory. Protobuf messages only; the gRPC glue is service.cpp.
+#pragma once
+
+#include "pliant/server/scene.hpp"
+#include "pliant/v1/pliant.pb.h"
+
+#include <atomic>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+namespace pliant::server {
+
+struct RegistryOptions {
+  int max_scenes = 16;
+  int64_t max_vertices = 2'000'000;
+  int max_threads = 1;                   // cap on a scene's solver threads
+  std::string data_dir;                  // empty: no snapshots on disk
+  std::vector<std::string> model_path;   // directories searched for mesh files
+};
+
+// Which parts of a frame a subscriber asked for.
+struct FrameSelection {
+  bool positions = true;
+  bool residuals = true;
+  bool solver_stats = true;
+  bool surface_only = false;
+};
+
+class SceneRegistry {
+ public:
+  explicit SceneRegistry(RegistryOptions options);
+  ~SceneRegistry();
+
+  const RegistryOptions& options() const { return options_; }
+
+  Error create(const v1::CreateSceneRequest& request, v1::Scene* out);
+  Error list(v1::ListScenesResponse* out) const;
+  Error get(const std::string& id, v1::Scene* out) const;
+  Error update(const v1::UpdateSceneRequest& request, v1::Scene* out);
+  Error remove(const std::string& id);
+  Error reset(const std::string& id, v1::Scene* out);
+  Error pause(const std::string& id, v1::Scene* out);
+  Error resume(const std::string& id, v1::Scene* out);
+  Error step(const v1::StepRequest& request, std::chrono::steady_clock::time_point deadline,
+             v1::StepResponse* out, const std::function<bool()>& cancelled = {});
+  Error apply_force(const v1::ApplyForceRequest& request, v1::ApplyForceResponse* out);
+  Error topology(const std::string& id, v1::Topology* out) const;
+
+  Error save_snapshot(const v1::SaveSnapshotRequest& request, v1::SaveSnapshotResponse* out);
+  Error restore_snapshot(const v1::RestoreSnapshotRequest& request, v1::Scene* out);
+  Error list_snapshots(v1::ListSnapshotsResponse* out) const;
+
+  // The scene with this id, or NotFound.
+  Error find(const std::string& id, std::shared_ptr<Scene>* out) const;
+  // Checks a StreamFramesRequest and fills the selection.
+  static Error parse_stream_request(const v1::StreamFramesRequest& request, FrameSelection* out);
+  static void fill_frame(const Frame& frame, const FrameSelection& selection,
+                         const std::vector<int32_t>& surface_vertices, uint64_t skipped,
+                         v1::Frame* out);
+
+  // Scenes whose snapshots are in <data-dir>/scenes/ are recreated (on start).
+  // Returns how many were restored; unreadable files are logged and skipped.
+  int restore_from_data_dir();
+  // Marks the registry as closing: streams end with UNAVAILABLE, new scenes are refused.
+  void begin_shutdown();
+  bool shutting_down() const { return shutting_down_.load(); }
+  // Stops every scene and writes its snapshot to <data-dir>/scenes/ (when set).
+  // Returns how many snapshots were written.
+  int shutdown();
+
+ private:
+  Error describe(const Scene& scene, v1::Scene* out) const;
+  Error add_scene(std::shared_ptr<Scene> scene, bool replace);
+  std::string scene_file(const std::string& id) const;
+  std::string snapshot_file(const std::string& name) const;
+
+  RegistryOptions options_;
+  mutable std::mutex mu_;
+  std::map<std::string, std::shared_ptr<Scene>> scenes_;
+  uint64_t next_id_ = 1;
+  std::atomic<bool> shutting_down_{false};
+};
+
+// Conversions (exposed for tests and the snapshot tools).
+Error snapshot_to_proto(const SceneSnapshot& snapshot, v1::Snapshot* out);
+Error snapshot_from_proto(const v1::Snapshot& snapshot, int max_threads, int64_t max_vertices,
+                          SceneSnapshot* out);
+
+}  // namespace pliant::server

@@ -1,0 +1,217 @@
+// One simulated scene and the thread that ticks it. Only the tick thread touches the body
+// state: callers post commands that the tick drains at the start of a tick, and read the
+// latest immutable Frame, published atomically after every tick. No gRPC in here.
+#pragma once
+
+#include "pliant/model.hpp"
+#include "pliant/settings.hpp"
+#include "pliant/state.hpp"
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace pliant::server {
+
+// The outcome of an operation at the service's edge: a gRPC-like code and a message naming
+// the field and the value. Ok when code == Ok.
+enum class Code {
+  Ok,
+  InvalidArgument,
+  NotFound,
+  AlreadyExists,
+  ResourceExhausted,
+  FailedPrecondition,
+  Unauthenticated,
+  Unavailable,
+  DeadlineExceeded,
+  Cancelled,
+  Internal,
+};
+
+struct Error {
+  Code code = Code::Ok;
+  std::string message;
+  bool ok() const { return code == Code::Ok; }
+  static Error make(Code c, std::string m) { return Error{c, std::move(m)}; }
+};
+
+enum class TickMode { Realtime, Lockstep, AsFastAsPossible };
+
+std::string_view to_string(TickMode mode);
+
+// How the scene was built (echoed back to clients; the model holds the geometry).
+struct SceneConfig {
+  std::string mesh_kind = "builtin";  // "builtin" | "model_path" | "data"
+  std::string mesh_name;
+  double mesh_scale = 1.0;
+  FixedSelection fixed;               // as requested
+  SolverSettings settings;            // dt is the tick length; gravity lives here too
+  TickMode mode = TickMode::Realtime;
+};
+
+// What a tick produced. Immutable once published; shared by every reader.
+struct Frame {
+  uint64_t seq = 0;        // publication number (monotonic for the scene's lifetime)
+  uint64_t tick = 0;
+  double sim_time = 0;
+  std::vector<float> positions;  // all vertices, packed xyz
+  std::vector<double> residuals;
+  int substeps = 0;
+  int iterations = 0;
+  double residual_initial = 0;
+  double residual_final = 0;
+  int accelerations_tried = 0;
+  int accelerations_accepted = 0;
+  double step_wall_ms = 0;
+  bool stopped_by_tolerance = false;
+  bool stopped_by_budget = false;
+  uint64_t late_ticks = 0;
+  uint64_t skipped_ticks = 0;
+  double lateness_ms = 0;
+  double ticks_per_second = 0;
+  bool rolled_back = false;
+  uint64_t rollbacks = 0;
+  std::string rollback_reason;
+  int64_t published_unix_ns = 0;
+  std::chrono::steady_clock::time_point published;  // for in-process latency figures
+  bool running = false;
+  TickMode mode = TickMode::Realtime;
+};
+
+struct SceneStatus {
+  bool running = false;  // ticking on its own (realtime / as-fast-as-possible, not paused)
+  TickMode mode = TickMode::Realtime;
+  uint64_t tick = 0;
+  double sim_time = 0;
+  uint64_t late_ticks = 0;
+  uint64_t skipped_ticks = 0;
+  uint64_t rollbacks = 0;
+  double ticks_per_second = 0;
+  std::string pause_reason;
+};
+
+struct StepResult {
+  uint64_t tick = 0;
+  double sim_time = 0;
+  uint64_t rollbacks = 0;
+};
+
+// Everything needed to recreate the scene exactly.
+struct SceneSnapshot {
+  std::string id;
+  SceneConfig config;
+  std::shared_ptr<const BodyModel> model;
+  BodyState state;
+  uint64_t tick = 0;
+  bool paused = false;
+};
+
+// A live change of settings; unset parts are kept.
+struct SceneUpdate {
+  std::optional<SolverSettings> settings;             // already merged and validated
+  std::shared_ptr<const BodyModel> model;             // new material (same geometry)
+  std::optional<TickMode> mode;
+};
+
+class Scene {
+ public:
+  // Consecutive blow-ups after which the scene pauses itself instead of retrying forever.
+  static constexpr int kMaxConsecutiveRollbacks = 20;
+
+  Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel> model,
+        BodyState state, uint64_t tick, bool paused);
+  ~Scene();
+  Scene(const Scene&) = delete;
+  Scene& operator=(const Scene&) = delete;
+
+  void start();
+  // Stops the tick thread (joins it). Pending calls fail with Unavailable; frame waiters wake.
+  void stop();
+  bool stopped() const;
+
+  const std::string& id() const { return id_; }
+  std::shared_ptr<const BodyModel> model() const;
+  SceneConfig config() const;
+  SceneStatus status() const;
+  // Surface vertices (ascending) of the fixed geometry.
+  const std::vector<int32_t>& surface_vertices() const { return surface_vertices_; }
+
+  // Commands, executed by the tick thread; each waits for it up to `timeout`.
+  Error pause(std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  Error resume(std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  Error reset(std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  Error update(const SceneUpdate& update, std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  Error apply_force(std::vector<int32_t> vertices, const Vec3& force, uint32_t ticks,
+                    uint64_t* first_tick, std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  // Advances `ticks` ticks (lockstep or paused only) and waits until they are done. When
+  // `cancelled` turns true (the caller went away) or the deadline passes, the ticks not yet
+  // run are dropped.
+  Error step(uint32_t ticks, std::chrono::steady_clock::time_point deadline, StepResult* out,
+             const std::function<bool()>& cancelled = {});
+  // The full state at a tick boundary.
+  Error snapshot(SceneSnapshot* out, std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  // Snapshot of a stopped scene (after stop(); no tick thread to ask).
+  SceneSnapshot snapshot_stopped() const;
+
+  // The latest frame (null before the first tick).
+  std::shared_ptr<const Frame> latest_frame() const;
+  // Waits for a frame with seq > after_seq; null on timeout or when the scene stopped.
+  std::shared_ptr<const Frame> wait_frame(uint64_t after_seq,
+                                          std::chrono::steady_clock::time_point deadline) const;
+
+  // Serialises live updates (merge + validate + apply) from concurrent callers.
+  std::mutex& update_mutex() { return update_mu_; }
+
+ private:
+  using Command = std::function<void()>;
+  struct StepJob;
+  struct ActiveForce {
+    std::vector<int32_t> vertices;
+    Vec3 force;
+    uint32_t remaining;
+  };
+
+  Error call(std::function<Error()> fn, std::chrono::steady_clock::time_point deadline);
+  void run();
+  void tick_once(bool scheduled, std::chrono::steady_clock::time_point due);
+  void publish_status();
+
+  const std::string id_;
+  std::vector<int32_t> surface_vertices_;
+
+  // Shared with callers (under mu_).
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<Command> commands_;
+  bool stop_ = false;
+  std::thread thread_;
+
+  // Readable copies for other threads (under info_mu_).
+  mutable std::mutex info_mu_;
+  SceneConfig config_;
+  std::shared_ptr<const BodyModel> model_shared_;
+  SceneStatus status_;
+
+  std::mutex update_mu_;
+
+  // Latest frame (under frame_mu_).
+  mutable std::mutex frame_mu_;
+  mutable std::condition_variable frame_cv_;
+  std::shared_ptr<const Frame> latest_;
+  uint64_t seq_ = 0;
+
+  // Tick-thread-only state.
+  struct TickState;
+  std::unique_ptr<TickState> ts_;
+};
+
+}  // namespace pliant::server

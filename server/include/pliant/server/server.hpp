@@ -1,0 +1,33 @@
+// The gRPC server around a SceneRegistry: pliant.v1 services, grpc.health.v1, reflection,
+// token check, TLS, and graceful shutdown (NOT_SERVING, streams end with UNAVAILABLE, then
+// every scene is written to the data directory). Used by pliant-server and the tests.
+#pragma once
+
+#include "pliant/server/options.hpp"
+#include "pliant/server/registry.hpp"
+
+#include <memory>
+
+namespace pliant::server {
+
+class PliantServer {
+ public:
+  explicit PliantServer(ServerOptions options);
+  ~PliantServer();
+
+  // Restores scenes (unless disabled), binds and starts serving.
+  Error start();
+  // The bound port (useful with --listen HOST:0).
+  int port() const;
+  SceneRegistry& registry();
+  // Graceful stop; safe to call twice. Returns the number of scene snapshots written.
+  int shutdown();
+  // Blocks until shutdown() has completed.
+  void wait();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace pliant::server

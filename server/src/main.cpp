@@ -1,0 +1,45 @@
+// pliant-server: hosts soft-body scenes over gRPC until SIGTERM/SIGINT, then saves them.
+#include "pliant/server/server.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <csignal>
+#include <cstdio>
+#include <pthread.h>
+
+int main(int argc, char** argv) {
+  using namespace pliant::server;
+  // Block the stop signals in every thread; main waits for them with sigwait below.
+  sigset_t stop_signals;
+  sigemptyset(&stop_signals);
+  sigaddset(&stop_signals, SIGINT);
+  sigaddset(&stop_signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+
+  ServerOptions options;
+  bool help = false;
+  std::vector<std::string> args(argv + 1, argv + argc);
+  if (Error e = parse_server_options(args, process_env(), &options, &help); !e.ok()) {
+    std::fprintf(stderr, "pliant-server: %s\n", e.message.c_str());
+    return 2;
+  }
+  if (help) {
+    std::fputs(server_usage().c_str(), stdout);
+    return 0;
+  }
+  spdlog::set_level(spdlog::level::from_str(options.log_level));
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
+  if (!options.config.empty()) spdlog::info("settings read from {}", options.config);
+
+  PliantServer server(options);
+  if (Error e = server.start(); !e.ok()) {
+    spdlog::critical("{}", e.message);
+    return 1;
+  }
+  int sig = 0;
+  sigwait(&stop_signals, &sig);
+  spdlog::info("received {}", sig == SIGTERM ? "SIGTERM" : "SIGINT");
+  int written = server.shutdown();
+  spdlog::info("stopped ({} scene snapshot(s) written)", written);
+  return 0;
+}

@@ -1,0 +1,223 @@
+// Flags, environment and config file for pliant-server.
+#include "pliant/server/options.hpp"
+
+#include <spdlog/fmt/fmt.h>
+
+#include <cstdlib>
+#include <fstream>
+#include <map>
+
+namespace pliant::server {
+
+namespace {
+
+struct Flag {
+  const char* name;  // without "--"
+  const char* help;
+  std::function<Error(const std::string& value, ServerOptions& o)> set;
+};
+
+Error bad(const std::string& flag, const std::string& value, const std::string& rule) {
+  return Error::make(Code::InvalidArgument, fmt::format("--{} {}, got '{}'", flag, rule, value));
+}
+
+Error parse_int(const std::string& flag, const std::string& v, int64_t lo, int64_t hi, int64_t* out) {
+  try {
+    size_t pos = 0;
+    long long x = std::stoll(v, &pos);
+    if (pos != v.size() || x < lo || x > hi) throw std::out_of_range("");
+    *out = x;
+    return {};
+  } catch (...) {
+    return bad(flag, v, fmt::format("must be an integer in [{}, {}]", lo, hi));
+  }
+}
+
+const std::vector<Flag>& flags() {
+  static const std::vector<Flag> f = {
+      {"listen", "HOST:PORT to listen on (default 0.0.0.0:50051; port 0 picks a free port)",
+       [](const std::string& v, ServerOptions& o) {
+         if (v.find(':') == std::string::npos) return bad("listen", v, "must be HOST:PORT");
+         o.listen = v;
+         return Error{};
+       }},
+      {"data-dir", "directory for snapshots; scenes are saved there on shutdown and restored on start",
+       [](const std::string& v, ServerOptions& o) { o.data_dir = v; return Error{}; }},
+      {"model-path", "colon-separated directories searched for mesh files and model names "
+                     "(MeshSource.model_path; default: the source tree's meshes/)",
+       [](const std::string& v, ServerOptions& o) { o.model_path = v; return Error{}; }},
+      {"max-scenes", "most scenes hosted at once (default 16)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-scenes", v, 1, 100000, &x); !e.ok()) return e;
+         o.max_scenes = static_cast<int>(x);
+         return Error{};
+       }},
+      {"max-vertices", "most vertices in one scene's mesh (default 2000000)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-vertices", v, 4, 1'000'000'000, &x); !e.ok()) return e;
+         o.max_vertices = x;
+         return Error{};
+       }},
+      {"max-message-mb", "largest request or response message, MiB (default 64)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-message-mb", v, 1, 2000, &x); !e.ok()) return e;
+         o.max_message_mb = static_cast<int>(x);
+         return Error{};
+       }},
+      {"log-level", "trace | debug | info | warn | error | critical | off (default info)",
+       [](const std::string& v, ServerOptions& o) {
+         static const char* levels[] = {"trace", "debug", "info", "warn", "error", "critical", "off"};
+         for (const char* l : levels)
+           if (v == l) {
+             o.log_level = v;
+             return Error{};
+           }
+         return bad("log-level", v, "must be one of trace, debug, info, warn, error, critical, off");
+       }},
+      {"tls-cert", "PEM certificate chain; with --tls-key the server speaks TLS",
+       [](const std::string& v, ServerOptions& o) { o.tls_cert = v; return Error{}; }},
+      {"tls-key", "PEM private key for --tls-cert",
+       [](const std::string& v, ServerOptions& o) { o.tls_key = v; return Error{}; }},
+      {"token", "access token clients must send as 'authorization: Bearer TOKEN'",
+       [](const std::string& v, ServerOptions& o) { o.token = v; return Error{}; }},
+      {"threads", "most solver threads one scene may use (default 1)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("threads", v, 1, 256, &x); !e.ok()) return e;
+         o.threads = static_cast<int>(x);
+         return Error{};
+       }},
+      {"restore", "true | false: restore the scenes saved in --data-dir on start (default true)",
+       [](const std::string& v, ServerOptions& o) {
+         if (v == "true" || v == "1" || v == "yes") o.restore = true;
+         else if (v == "false" || v == "0" || v == "no") o.restore = false;
+         else return bad("restore", v, "must be true or false");
+         return Error{};
+       }},
+  };
+  return f;
+}
+
+const Flag* find_flag(const std::string& name) {
+  for (const auto& f : flags())
+    if (name == f.name) return &f;
+  return nullptr;
+}
+
+std::string env_name(const std::string& flag) {
+  std::string s = "PLIANT_";
+  for (char c : flag) s += c == '-' ? '_' : static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  return s;
+}
+
+std::string trim(const std::string& s) {
+  size_t a = s.find_first_not_of(" \t\r\n"), b = s.find_last_not_of(" \t\r\n");
+  return a == std::string::npos ? "" : s.substr(a, b - a + 1);
+}
+
+}  // namespace
+
+EnvLookup process_env() {
+  return [](const std::string& name) -> std::optional<std::string> {
+    if (const char* v = std::getenv(name.c_str())) return std::string(v);
+    return std::nullopt;
+  };
+}
+
+std::string server_usage() {
+  std::string s =
+      "usage: pliant-server [--flag value | --flag=value]...\n"
+      "Hosts Pliant soft-body scenes over gRPC (pliant.v1, grpc.health.v1, reflection).\n\n";
+  for (const auto& f : flags()) s += fmt::format("  --{:<16} {}\n", f.name, f.help);
+  s += fmt::format("  --{:<16} {}\n", "no-restore", "same as --restore=false");
+  s += fmt::format("  --{:<16} {}\n", "config FILE", "read 'name = value' lines (flag names without --)");
+  s += fmt::format("  --{:<16} {}\n", "help", "this text");
+  s += "\nEvery flag can also be set as PLIANT_<NAME> in the environment (e.g. PLIANT_LISTEN,\n"
+       "PLIANT_DATA_DIR, PLIANT_TOKEN); flags win over the environment, the environment over\n"
+       "the config file (PLIANT_CONFIG).\n";
+  return s;
+}
+
+Error parse_server_options(const std::vector<std::string>& args, const EnvLookup& env,
+                           ServerOptions* out, bool* help) {
+  *help = false;
+  // Collect flags first: the config file (named by a flag or the environment) is read
+  // before anything else, then the environment, then the flags themselves.
+  std::vector<std::pair<std::string, std::string>> given;
+  for (size_t i = 0; i < args.size(); ++i) {
+    const std::string& a = args[i];
+    if (a == "--help" || a == "-h") {
+      *help = true;
+      return {};
+    }
+    if (a.rfind("--", 0) != 0)
+      return Error::make(Code::InvalidArgument, fmt::format("unexpected argument '{}' (flags start with --)", a));
+    std::string name = a.substr(2), value;
+    if (auto eq = name.find('='); eq != std::string::npos) {
+      value = name.substr(eq + 1);
+      name = name.substr(0, eq);
+    } else if (name == "no-restore") {
+      given.emplace_back("restore", "false");
+      continue;
+    } else {
+      if (name != "config" && !find_flag(name))
+        return Error::make(Code::InvalidArgument, fmt::format("unknown flag --{} (see --help)", name));
+      if (i + 1 >= args.size())
+        return Error::make(Code::InvalidArgument, fmt::format("--{} needs a value", name));
+      value = args[++i];
+    }
+    if (name != "config" && !find_flag(name))
+      return Error::make(Code::InvalidArgument, fmt::format("unknown flag --{} (see --help)", name));
+    given.emplace_back(name, value);
+  }
+
+  ServerOptions o;
+  std::string config_file;
+  if (auto v = env("PLIANT_CONFIG")) config_file = *v;
+  for (auto& [n, v] : given)
+    if (n == "config") config_file = v;
+  if (!config_file.empty()) {
+    std::ifstream f(config_file);
+    if (!f) return Error::make(Code::InvalidArgument, fmt::format("--config '{}' cannot be read", config_file));
+    std::string line;
+    for (int lineno = 1; std::getline(f, line); ++lineno) {
+      line = trim(line.substr(0, line.find('#')));
+      if (line.empty()) continue;
+      auto eq = line.find('=');
+      if (eq == std::string::npos)
+        return Error::make(Code::InvalidArgument,
+                           fmt::format("{}:{}: expected 'name = value', got '{}'", config_file, lineno, line));
+      std::string name = trim(line.substr(0, eq)), value = trim(line.substr(eq + 1));
+      if (name.rfind("--", 0) == 0) name = name.substr(2);
+      const Flag* flag = find_flag(name);
+      if (!flag)
+        return Error::make(Code::InvalidArgument, fmt::format("{}:{}: unknown setting '{}'", config_file, lineno, name));
+      if (Error e = flag->set(value, o); !e.ok()) {
+        e.message = fmt::format("{}:{}: {}", config_file, lineno, e.message);
+        return e;
+      }
+    }
+    o.config = config_file;
+  }
+  for (const auto& f : flags()) {
+    if (auto v = env(env_name(f.name))) {
+      if (Error e = f.set(*v, o); !e.ok()) {
+        e.message = fmt::format("{} (from {})", e.message, env_name(f.name));
+        return e;
+      }
+    }
+  }
+  for (auto& [n, v] : given) {
+    if (n == "config") continue;
+    if (Error e = find_flag(n)->set(v, o); !e.ok()) return e;
+  }
+  if (o.tls_cert.empty() != o.tls_key.empty())
+    return Error::make(Code::InvalidArgument, "--tls-cert and --tls-key must be given together");
+  *out = std::move(o);
+  return {};
+}
+
+}  // namespace pliant::server

@@ -1,0 +1,909 @@
+// Requests to scenes: validation with messages naming field and value, model building,
+// limits, proto conversions, snapshots on disk.
+#include "pliant/server/registry.hpp"
+
+#include "pliant/builtin_meshes.hpp"
+#include "pliant/mesh_io.hpp"
+
+#include <spdlog/fmt/fmt.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+namespace fs = std::filesystem;
+
+namespace pliant::server {
+
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+Error invalid(std::string m) { return Error::make(Code::InvalidArgument, std::move(m)); }
+
+bool valid_name(const std::string& s) {
+  if (s.empty() || s.size() > 64 || s == "." || s == "..") return false;
+  return std::all_of(s.begin(), s.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '.' || c == '-';
+  });
+}
+
+Error check_name(const std::string& field, const std::string& value) {
+  if (valid_name(value)) return {};
+  return invalid(fmt::format("{} '{}' is not a valid name: use 1 to 64 of A-Z a-z 0-9 _ . -",
+                             field, value));
+}
+
+Error check_id_present(const std::string& id) {
+  if (id.empty()) return invalid("scene_id is empty");
+  return {};
+}
+
+Vec3 to_vec(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
+void to_proto(const Vec3& v, v1::Vec3* out) {
+  out->set_x(v.x());
+  out->set_y(v.y());
+  out->set_z(v.z());
+}
+
+std::optional<Method> method_from(v1::Method m) {
+  switch (m) {
+    case v1::METHOD_XPBD: return Method::Xpbd;
+    case v1::METHOD_SOR: return Method::Sor;
+    case v1::METHOD_LAMBDA_SOR: return Method::LambdaSor;
+    case v1::METHOD_CHEBYSHEV: return Method::Chebyshev;
+    case v1::METHOD_ANDERSON: return Method::Anderson;
+    case v1::METHOD_ANDERSON_SOR: return Method::AndersonSor;
+    case v1::METHOD_EXTRAPOLATION: return Method::Extrapolation;
+    default: return std::nullopt;
+  }
+}
+v1::Method method_to(Method m) {
+  switch (m) {
+    case Method::Xpbd: return v1::METHOD_XPBD;
+    case Method::Sor: return v1::METHOD_SOR;
+    case Method::LambdaSor: return v1::METHOD_LAMBDA_SOR;
+    case Method::Chebyshev: return v1::METHOD_CHEBYSHEV;
+    case Method::Anderson: return v1::METHOD_ANDERSON;
+    case Method::AndersonSor: return v1::METHOD_ANDERSON_SOR;
+    case Method::Extrapolation: return v1::METHOD_EXTRAPOLATION;
+  }
+  return v1::METHOD_UNSPECIFIED;
+}
+std::optional<Damping> damping_from(v1::Damping d) {
+  switch (d) {
+    case v1::DAMPING_NONE: return Damping::None;
+    case v1::DAMPING_SIMPLE: return Damping::Simple;
+    case v1::DAMPING_RIGID_PRESERVING: return Damping::RigidPreserving;
+    default: return std::nullopt;
+  }
+}
+v1::Damping damping_to(Damping d) {
+  switch (d) {
+    case Damping::None: return v1::DAMPING_NONE;
+    case Damping::Simple: return v1::DAMPING_SIMPLE;
+    case Damping::RigidPreserving: return v1::DAMPING_RIGID_PRESERVING;
+  }
+  return v1::DAMPING_UNSPECIFIED;
+}
+std::optional<TickMode> mode_from(v1::TickMode m) {
+  switch (m) {
+    case v1::TICK_MODE_REALTIME: return TickMode::Realtime;
+    case v1::TICK_MODE_LOCKSTEP: return TickMode::Lockstep;
+    case v1::TICK_MODE_AS_FAST_AS_POSSIBLE: return TickMode::AsFastAsPossible;
+    default: return std::nullopt;
+  }
+}
+v1::TickMode mode_to(TickMode m) {
+  switch (m) {
+    case TickMode::Realtime: return v1::TICK_MODE_REALTIME;
+    case TickMode::Lockstep: return v1::TICK_MODE_LOCKSTEP;
+    case TickMode::AsFastAsPossible: return v1::TICK_MODE_AS_FAST_AS_POSSIBLE;
+  }
+  return v1::TICK_MODE_UNSPECIFIED;
+}
+
+// Merges the set fields of `p` into `s`; `prefix` names the message in errors ("spec.solver").
+Error merge_solver(const v1::SolverSettings& p, const std::string& prefix, int max_threads,
+                   SolverSettings& s) {
+  if (p.sweep() == v1::SWEEP_GAUSS_SEIDEL) s.sweep = Sweep::GaussSeidel;
+  else if (p.sweep() == v1::SWEEP_JACOBI) s.sweep = Sweep::Jacobi;
+  else if (p.sweep() != v1::SWEEP_UNSPECIFIED)
+    return invalid(fmt::format("{}.sweep has unknown value {}", prefix, static_cast<int>(p.sweep())));
+  if (p.method() != v1::METHOD_UNSPECIFIED) {
+    auto m = method_from(p.method());
+    if (!m) return invalid(fmt::format("{}.method has unknown value {}", prefix, static_cast<int>(p.method())));
+    s.method = *m;
+  }
+  if (p.damping() != v1::DAMPING_UNSPECIFIED) {
+    auto d = damping_from(p.damping());
+    if (!d) return invalid(fmt::format("{}.damping has unknown value {}", prefix, static_cast<int>(p.damping())));
+    s.damping = *d;
+  }
+  if (p.has_substeps()) s.substeps = p.substeps();
+  if (p.has_iterations()) s.iterations = p.iterations();
+  if (p.has_window()) s.window = p.window();
+  if (p.has_omega()) s.omega = p.omega();
+  if (p.has_tolerance()) s.tolerance = p.tolerance();
+  if (p.has_time_budget_ms()) s.time_budget_ms = p.time_budget_ms();
+  if (p.has_damping_coefficient()) s.damping_coefficient = p.damping_coefficient();
+  if (p.has_threads()) {
+    if (p.threads() < 1)
+      return invalid(fmt::format("{}.threads must be >= 1, got {}", prefix, p.threads()));
+    s.threads = std::min(p.threads(), std::max(1, max_threads));
+  }
+  return {};
+}
+
+Error merge_tick(const v1::TickSettings& p, const std::string& prefix, SolverSettings& s,
+                 TickMode& mode) {
+  if (p.has_dt()) {
+    if (!std::isfinite(p.dt()) || p.dt() <= 0 || p.dt() > 1)
+      return invalid(fmt::format("{}.dt must be in (0, 1] s, got {}", prefix, p.dt()));
+    s.dt = p.dt();
+  }
+  if (p.mode() != v1::TICK_MODE_UNSPECIFIED) {
+    auto m = mode_from(p.mode());
+    if (!m) return invalid(fmt::format("{}.mode has unknown value {}", prefix, static_cast<int>(p.mode())));
+    mode = *m;
+  }
+  return {};
+}
+
+Error merge_gravity(const v1::Vec3& g, const std::string& field, SolverSettings& s) {
+  Vec3 v = to_vec(g);
+  if (!v.allFinite())
+    return invalid(fmt::format("{} must be finite, got ({}, {}, {})", field, v.x(), v.y(), v.z()));
+  s.gravity = v;
+  return {};
+}
+
+Error check_solver(const SolverSettings& s, const std::string& prefix) {
+  std::string err = validate(s);
+  if (err.empty()) return {};
+  // The solver names its fields "solver.<name>"; say where they are in this request.
+  if (err.rfind("solver.", 0) == 0) err = prefix + err.substr(6);
+  return invalid(err);
+}
+
+Error merge_material(const v1::Material& p, const std::string& prefix, Material& m) {
+  if (p.has_young_modulus()) m.young = p.young_modulus();
+  if (p.has_poisson_ratio()) m.poisson = p.poisson_ratio();
+  if (p.has_density()) m.density = p.density();
+  if (!(std::isfinite(m.young) && m.young > 0))
+    return invalid(fmt::format("{}.young_modulus must be a finite value > 0 Pa, got {}", prefix, m.young));
+  if (!(m.poisson > -1 && m.poisson < 0.5))
+    return invalid(fmt::format("{}.poisson_ratio must be in (-1, 0.5), got {}", prefix, m.poisson));
+  if (!(std::isfinite(m.density) && m.density > 0))
+    return invalid(fmt::format("{}.density must be a finite value > 0 kg/m^3, got {}", prefix, m.density));
+  return {};
+}
+
+Error mesh_from_data(const v1::MeshData& d, const std::string& prefix, int64_t max_vertices,
+                     TetMesh* out) {
+  if (d.positions_size() % 3 != 0)
+    return invalid(fmt::format("{}.positions has {} values, not a multiple of 3", prefix, d.positions_size()));
+  if (d.tets_size() % 4 != 0)
+    return invalid(fmt::format("{}.tets has {} values, not a multiple of 4", prefix, d.tets_size()));
+  const int64_t nv = d.positions_size() / 3;
+  if (nv == 0 || d.tets_size() == 0)
+    return invalid(fmt::format("{} is empty ({} vertices, {} tets)", prefix, nv, d.tets_size() / 4));
+  if (nv > max_vertices)
+    return Error::make(Code::ResourceExhausted,
+                       fmt::format("{} has {} vertices, more than this server's --max-vertices {}",
+                                   prefix, nv, max_vertices));
+  out->vertices.resize(nv);
+  for (int64_t i = 0; i < nv; ++i) {
+    Vec3 p(d.positions(3 * i), d.positions(3 * i + 1), d.positions(3 * i + 2));
+    if (!p.allFinite()) return invalid(fmt::format("{}.positions: vertex {} is not finite", prefix, i));
+    out->vertices[i] = p;
+  }
+  out->tets.resize(d.tets_size() / 4);
+  for (size_t t = 0; t < out->tets.size(); ++t)
+    for (int k = 0; k < 4; ++k) {
+      int32_t v = d.tets(4 * t + k);
+      if (v < 0 || v >= nv)
+        return invalid(fmt::format("{}.tets[{}]: vertex index {} out of range [0, {})", prefix, t, v, nv));
+      out->tets[t][k] = v;
+    }
+  out->name = d.name().empty() ? "upload" : d.name();
+  return {};
+}
+
+Error resolve_source(const v1::MeshSource& src, const RegistryOptions& opt, SceneConfig& cfg,
+                     TetMesh* mesh) {
+  switch (src.source_case()) {
+    case v1::MeshSource::kBuiltin: {
+      auto m = builtin_mesh(src.builtin());
+      if (!m) {
+        std::string names;
+        for (auto& n : builtin_mesh_names()) names += (names.empty() ? "" : ", ") + n;
+        return invalid(fmt::format("spec.mesh.builtin '{}' is not a builtin mesh; choose one of {}",
+                                   src.builtin(), names));
+      }
+      *mesh = std::move(*m);
+      cfg.mesh_kind = "builtin";
+      cfg.mesh_name = src.builtin();
+      break;
+    }
+    case v1::MeshSource::kModelPath: {
+      const std::string& name = src.model_path();
+      fs::path p(name);
+      bool escapes = name.empty() || p.is_absolute();
+      for (const auto& part : p)
+        if (part == "..") escapes = true;
+      if (escapes)
+        return invalid(fmt::format(
+            "spec.mesh.model_path '{}' must be a relative name on the server's model path "
+            "(no '..', not absolute)", name));
+      if (opt.model_path.empty())
+        return Error::make(Code::FailedPrecondition,
+                           fmt::format("spec.mesh.model_path '{}': this server has no --model-path", name));
+      std::string found;
+      for (const auto& dir : opt.model_path) {
+        std::error_code ec;
+        if (fs::is_regular_file(fs::path(dir) / p, ec)) {
+          found = (fs::path(dir) / p).string();
+          break;
+        }
+      }
+      try {
+        *mesh = found.empty() ? resolve_mesh(name, opt.model_path) : resolve_mesh(found, opt.model_path);
+      } catch (const std::exception& e) {
+        if (found.empty())
+          return Error::make(Code::NotFound,
+                             fmt::format("spec.mesh.model_path '{}' not found on the model path ({})",
+                                         name, e.what()));
+        return invalid(fmt::format("spec.mesh.model_path '{}': {}", name, e.what()));
+      }
+      cfg.mesh_kind = "model_path";
+      cfg.mesh_name = name;
+      break;
+    }
+    case v1::MeshSource::kData: {
+      if (Error e = mesh_from_data(src.data(), "spec.mesh.data", opt.max_vertices, mesh); !e.ok()) return e;
+      cfg.mesh_kind = "data";
+      cfg.mesh_name = mesh->name;
+      break;
+    }
+    default:
+      return invalid("spec.mesh: no source set; set one of builtin, model_path, data");
+  }
+  if (src.has_scale()) {
+    double s = src.scale();
+    if (!std::isfinite(s) || s < 0)
+      return invalid(fmt::format("spec.mesh.scale must be a finite value > 0, got {}", s));
+    if (s > 0 && s != 1.0) scale_mesh(*mesh, s);
+    cfg.mesh_scale = s > 0 ? s : 1.0;
+  }
+  if (static_cast<int64_t>(mesh->vertices.size()) > opt.max_vertices)
+    return Error::make(Code::ResourceExhausted,
+                       fmt::format("spec.mesh '{}' has {} vertices, more than this server's --max-vertices {}",
+                                   mesh->name, mesh->vertices.size(), opt.max_vertices));
+  return {};
+}
+
+Error fixed_from(const v1::FixedSelection& p, const std::string& prefix, FixedSelection* out) {
+  out->indices.assign(p.indices().begin(), p.indices().end());
+  for (int i = 0; i < p.boxes_size(); ++i) {
+    Vec3 lo = to_vec(p.boxes(i).min()), hi = to_vec(p.boxes(i).max());
+    if (!lo.allFinite() || !hi.allFinite() || (lo.array() > hi.array()).any())
+      return invalid(fmt::format("{}.boxes[{}] must have finite min <= max, got min ({}, {}, {}) max ({}, {}, {})",
+                                 prefix, i, lo.x(), lo.y(), lo.z(), hi.x(), hi.y(), hi.z()));
+    out->boxes.push_back({lo, hi});
+  }
+  return {};
+}
+
+// Builds the model; std::invalid_argument from the solver becomes INVALID_ARGUMENT.
+Error build(const TetMesh& mesh, const Material& material, const FixedSelection& fixed,
+            std::shared_ptr<const BodyModel>* out) {
+  try {
+    *out = build_model(mesh, material, fixed);
+  } catch (const std::invalid_argument& e) {
+    return invalid(std::string("spec.") + e.what());
+  } catch (const std::exception& e) {
+    return invalid(std::string("spec.mesh: ") + e.what());
+  }
+  return {};
+}
+
+void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* spec) {
+  auto* mesh = spec->mutable_mesh();
+  if (cfg.mesh_kind == "model_path") mesh->set_model_path(cfg.mesh_name);
+  else if (cfg.mesh_kind == "data") mesh->mutable_data()->set_name(cfg.mesh_name);
+  else mesh->set_builtin(cfg.mesh_name);
+  mesh->set_scale(cfg.mesh_scale);
+  auto* m = spec->mutable_material();
+  m->set_young_modulus(model.material.young);
+  m->set_poisson_ratio(model.material.poisson);
+  m->set_density(model.material.density);
+  auto* f = spec->mutable_fixed();
+  for (int32_t i : cfg.fixed.indices) f->add_indices(i);
+  for (const auto& b : cfg.fixed.boxes) {
+    auto* pb = f->add_boxes();
+    to_proto(b.min, pb->mutable_min());
+    to_proto(b.max, pb->mutable_max());
+  }
+  const SolverSettings& s = cfg.settings;
+  to_proto(s.gravity, spec->mutable_gravity());
+  auto* ps = spec->mutable_solver();
+  ps->set_sweep(s.sweep == Sweep::Jacobi ? v1::SWEEP_JACOBI : v1::SWEEP_GAUSS_SEIDEL);
+  ps->set_method(method_to(s.method));
+  ps->set_substeps(s.substeps);
+  ps->set_iterations(s.iterations);
+  ps->set_window(s.window);
+  ps->set_omega(s.omega);
+  ps->set_tolerance(s.tolerance);
+  ps->set_time_budget_ms(s.time_budget_ms);
+  ps->set_damping(damping_to(s.damping));
+  ps->set_damping_coefficient(s.damping_coefficient);
+  ps->set_threads(s.threads);
+  spec->mutable_tick()->set_dt(s.dt);
+  spec->mutable_tick()->set_mode(mode_to(cfg.mode));
+}
+
+v1::SceneState state_of(const SceneStatus& st) {
+  if (st.mode == TickMode::Lockstep) return v1::SCENE_STATE_LOCKSTEP;
+  return st.running ? v1::SCENE_STATE_RUNNING : v1::SCENE_STATE_PAUSED;
+}
+
+Error write_file_atomically(const std::string& path, const std::string& bytes) {
+  std::error_code ec;
+  fs::create_directories(fs::path(path).parent_path(), ec);
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
+    if (!f) return Error::make(Code::Internal, fmt::format("cannot write '{}'", tmp));
+    f.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    if (!f) return Error::make(Code::Internal, fmt::format("cannot write '{}'", tmp));
+  }
+  fs::rename(tmp, path, ec);
+  if (ec) return Error::make(Code::Internal, fmt::format("cannot rename '{}' to '{}': {}", tmp, path, ec.message()));
+  return {};
+}
+
+Error read_snapshot_file(const std::string& path, v1::Snapshot* out) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return Error::make(Code::NotFound, fmt::format("snapshot file '{}' not found", path));
+  std::stringstream ss;
+  ss << f.rdbuf();
+  if (!out->ParseFromString(ss.str()))
+    return invalid(fmt::format("snapshot file '{}' is not a pliant.v1.Snapshot", path));
+  return {};
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------
+
+Error snapshot_to_proto(const SceneSnapshot& s, v1::Snapshot* out) {
+  const BodyModel& m = *s.model;
+  out->set_format_version(1);
+  out->set_scene_id(s.id);
+  fill_spec(s.config, m, out->mutable_spec());
+  auto* mesh = out->mutable_mesh();
+  mesh->set_name(m.name);
+  mesh->mutable_positions()->Reserve(static_cast<int>(3 * m.vertex_count()));
+  for (const auto& p : m.rest_positions)
+    for (int k = 0; k < 3; ++k) mesh->add_positions(p[k]);
+  for (const auto& t : m.tets)
+    for (int k = 0; k < 4; ++k) mesh->add_tets(t.v[k]);
+  for (size_t i = 0; i < m.fixed.size(); ++i)
+    if (m.fixed[i]) out->add_fixed_vertices(static_cast<int32_t>(i));
+  for (const auto& p : s.state.x)
+    for (int k = 0; k < 3; ++k) out->add_x(p[k]);
+  for (const auto& p : s.state.v)
+    for (int k = 0; k < 3; ++k) out->add_v(p[k]);
+  for (const auto& l : s.state.lambda)
+    for (int k = 0; k < 6; ++k) out->add_lambda(l[k]);
+  out->set_sim_time(s.state.time);
+  out->set_tick(s.tick);
+  out->set_paused(s.paused);
+  out->set_saved_unix_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                             std::chrono::system_clock::now().time_since_epoch())
+                             .count());
+  return {};
+}
+
+Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_vertices,
+                          SceneSnapshot* out) {
+  if (p.format_version() != 1)
+    return invalid(fmt::format("snapshot.format_version {} is not supported (this server reads 1)",
+                               p.format_version()));
+  TetMesh mesh;
+  if (Error e = mesh_from_data(p.mesh(), "snapshot.mesh", max_vertices, &mesh); !e.ok()) return e;
+  const size_t nv = mesh.vertices.size(), nt = mesh.tets.size();
+  if (static_cast<size_t>(p.x_size()) != 3 * nv || static_cast<size_t>(p.v_size()) != 3 * nv)
+    return invalid(fmt::format("snapshot.x/v have {}/{} values, expected {} (3 per vertex)",
+                               p.x_size(), p.v_size(), 3 * nv));
+  if (static_cast<size_t>(p.lambda_size()) != 6 * nt)
+    return invalid(fmt::format("snapshot.lambda has {} values, expected {} (6 per tet)",
+                               p.lambda_size(), 6 * nt));
+  SceneConfig cfg;
+  const auto& spec = p.spec();
+  switch (spec.mesh().source_case()) {
+    case v1::MeshSource::kModelPath: cfg.mesh_kind = "model_path"; cfg.mesh_name = spec.mesh().model_path(); break;
+    case v1::MeshSource::kData: cfg.mesh_kind = "data"; cfg.mesh_name = spec.mesh().data().name(); break;
+    default: cfg.mesh_kind = "builtin"; cfg.mesh_name = spec.mesh().builtin(); break;
+  }
+  cfg.mesh_scale = spec.mesh().has_scale() && spec.mesh().scale() > 0 ? spec.mesh().scale() : 1.0;
+  Material material;
+  if (Error e = merge_material(spec.material(), "snapshot.spec.material", material); !e.ok()) return e;
+  if (Error e = merge_solver(spec.solver(), "snapshot.spec.solver", max_threads, cfg.settings); !e.ok()) return e;
+  if (Error e = merge_tick(spec.tick(), "snapshot.spec.tick", cfg.settings, cfg.mode); !e.ok()) return e;
+  if (spec.has_gravity())
+    if (Error e = merge_gravity(spec.gravity(), "snapshot.spec.gravity", cfg.settings); !e.ok()) return e;
+  if (Error e = check_solver(cfg.settings, "snapshot.spec.solver"); !e.ok()) return e;
+  if (Error e = fixed_from(spec.fixed(), "snapshot.spec.fixed", &cfg.fixed); !e.ok()) return e;
+  FixedSelection fixed;
+  fixed.indices.assign(p.fixed_vertices().begin(), p.fixed_vertices().end());
+  std::shared_ptr<const BodyModel> model;
+  if (Error e = build(mesh, material, fixed, &model); !e.ok()) {
+    e.message = "snapshot: " + e.message;
+    return e;
+  }
+  BodyState st;
+  st.x.resize(nv);
+  st.v.resize(nv);
+  st.lambda.resize(nt);
+  for (size_t i = 0; i < nv; ++i) {
+    st.x[i] = Vec3(p.x(3 * i), p.x(3 * i + 1), p.x(3 * i + 2));
+    st.v[i] = Vec3(p.v(3 * i), p.v(3 * i + 1), p.v(3 * i + 2));
+  }
+  for (size_t t = 0; t < nt; ++t)
+    for (int k = 0; k < 6; ++k) st.lambda[t][k] = p.lambda(6 * t + k);
+  st.time = p.sim_time();
+  st.steps = p.tick();
+  if (!is_finite(st)) return invalid("snapshot.x/v contain non-finite values");
+  out->id = p.scene_id();
+  out->config = std::move(cfg);
+  out->model = std::move(model);
+  out->state = std::move(st);
+  out->tick = p.tick();
+  out->paused = p.paused();
+  return {};
+}
+
+// ---------------------------------------------------------------------------------------
+
+SceneRegistry::SceneRegistry(RegistryOptions options) : options_(std::move(options)) {}
+
+SceneRegistry::~SceneRegistry() {
+  std::map<std::string, std::shared_ptr<Scene>> scenes;
+  {
+    std::lock_guard lk(mu_);
+    scenes.swap(scenes_);
+  }
+  for (auto& [id, s] : scenes) s->stop();
+}
+
+std::string SceneRegistry::scene_file(const std::string& id) const {
+  return (fs::path(options_.data_dir) / "scenes" / (id + ".snapshot")).string();
+}
+std::string SceneRegistry::snapshot_file(const std::string& name) const {
+  return (fs::path(options_.data_dir) / "snapshots" / (name + ".snapshot")).string();
+}
+
+Error SceneRegistry::find(const std::string& id, std::shared_ptr<Scene>* out) const {
+  if (Error e = check_id_present(id); !e.ok()) return e;
+  std::lock_guard lk(mu_);
+  auto it = scenes_.find(id);
+  if (it == scenes_.end())
+    return Error::make(Code::NotFound, fmt::format("scene_id '{}' not found", id));
+  *out = it->second;
+  return {};
+}
+
+Error SceneRegistry::describe(const Scene& scene, v1::Scene* out) const {
+  out->Clear();
+  auto model = scene.model();
+  SceneConfig cfg = scene.config();
+  SceneStatus st = scene.status();
+  out->set_scene_id(scene.id());
+  fill_spec(cfg, *model, out->mutable_spec());
+  out->mutable_spec()->set_start_paused(!st.running);
+  out->set_state(state_of(st));
+  out->set_tick(st.tick);
+  out->set_sim_time(st.sim_time);
+  out->set_vertex_count(static_cast<uint32_t>(model->vertex_count()));
+  out->set_tet_count(static_cast<uint32_t>(model->tet_count()));
+  out->set_surface_triangle_count(static_cast<uint32_t>(model->surface.size()));
+  out->set_late_ticks(st.late_ticks);
+  out->set_skipped_ticks(st.skipped_ticks);
+  out->set_rollbacks(st.rollbacks);
+  out->set_ticks_per_second(st.running ? st.ticks_per_second : 0.0);
+  out->set_pause_reason(st.pause_reason);
+  return {};
+}
+
+Error SceneRegistry::add_scene(std::shared_ptr<Scene> scene, bool replace) {
+  std::shared_ptr<Scene> old;
+  {
+    std::lock_guard lk(mu_);
+    if (shutting_down_) return Error::make(Code::Unavailable, "the server is shutting down");
+    auto it = scenes_.find(scene->id());
+    if (it != scenes_.end() && !replace)
+      return Error::make(Code::AlreadyExists, fmt::format("scene_id '{}' already exists", scene->id()));
+    if (it == scenes_.end() && static_cast<int>(scenes_.size()) >= options_.max_scenes)
+      return Error::make(Code::ResourceExhausted,
+                         fmt::format("this server already hosts {} scenes (--max-scenes {}); delete one first",
+                                     scenes_.size(), options_.max_scenes));
+    if (it != scenes_.end()) old = it->second;
+    scenes_[scene->id()] = scene;
+    scene->start();
+  }
+  if (old) old->stop();
+  return {};
+}
+
+Error SceneRegistry::create(const v1::CreateSceneRequest& req, v1::Scene* out) {
+  std::string id = req.scene_id();
+  if (!id.empty())
+    if (Error e = check_name("scene_id", id); !e.ok()) return e;
+  {
+    std::lock_guard lk(mu_);
+    if (shutting_down_) return Error::make(Code::Unavailable, "the server is shutting down");
+    if (!id.empty() && scenes_.count(id))
+      return Error::make(Code::AlreadyExists, fmt::format("scene_id '{}' already exists", id));
+    if (static_cast<int>(scenes_.size()) >= options_.max_scenes)
+      return Error::make(Code::ResourceExhausted,
+                         fmt::format("this server already hosts {} scenes (--max-scenes {}); delete one first",
+                                     scenes_.size(), options_.max_scenes));
+    if (id.empty()) {
+      do id = "scene-" + std::to_string(next_id_++);
+      while (scenes_.count(id));
+    }
+  }
+  const auto& spec = req.spec();
+  SceneConfig cfg;
+  Material material;
+  TetMesh mesh;
+  if (Error e = merge_material(spec.material(), "spec.material", material); !e.ok()) return e;
+  if (Error e = merge_solver(spec.solver(), "spec.solver", options_.max_threads, cfg.settings); !e.ok()) return e;
+  if (Error e = merge_tick(spec.tick(), "spec.tick", cfg.settings, cfg.mode); !e.ok()) return e;
+  if (spec.has_gravity())
+    if (Error e = merge_gravity(spec.gravity(), "spec.gravity", cfg.settings); !e.ok()) return e;
+  if (Error e = check_solver(cfg.settings, "spec.solver"); !e.ok()) return e;
+  if (Error e = fixed_from(spec.fixed(), "spec.fixed", &cfg.fixed); !e.ok()) return e;
+  if (Error e = resolve_source(spec.mesh(), options_, cfg, &mesh); !e.ok()) return e;
+  std::shared_ptr<const BodyModel> model;
+  if (Error e = build(mesh, material, cfg.fixed, &model); !e.ok()) return e;
+  BodyState state = rest_state(*model);
+  auto scene = std::make_shared<Scene>(id, cfg, model, std::move(state), 0, spec.start_paused());
+  if (Error e = add_scene(scene, false); !e.ok()) return e;
+  spdlog::info("scene '{}' created: {} ({} vertices, {} tets), {} mode, dt {} s, {}", id,
+               cfg.mesh_name, model->vertex_count(), model->tet_count(), to_string(cfg.mode),
+               cfg.settings.dt, pliant::to_string(cfg.settings.method));
+  return describe(*scene, out);
+}
+
+Error SceneRegistry::list(v1::ListScenesResponse* out) const {
+  std::vector<std::shared_ptr<Scene>> scenes;
+  {
+    std::lock_guard lk(mu_);
+    for (auto& [id, s] : scenes_) scenes.push_back(s);
+  }
+  for (auto& s : scenes) describe(*s, out->add_scenes());
+  return {};
+}
+
+Error SceneRegistry::get(const std::string& id, v1::Scene* out) const {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(id, &s); !e.ok()) return e;
+  return describe(*s, out);
+}
+
+Error SceneRegistry::update(const v1::UpdateSceneRequest& req, v1::Scene* out) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
+  std::lock_guard ulk(s->update_mutex());
+  SceneConfig cfg = s->config();
+  SceneUpdate up;
+  SolverSettings settings = cfg.settings;
+  TickMode mode = cfg.mode;
+  if (req.has_solver())
+    if (Error e = merge_solver(req.solver(), "solver", options_.max_threads, settings); !e.ok()) return e;
+  if (req.has_tick())
+    if (Error e = merge_tick(req.tick(), "tick", settings, mode); !e.ok()) return e;
+  if (req.has_gravity())
+    if (Error e = merge_gravity(req.gravity(), "gravity", settings); !e.ok()) return e;
+  if (Error e = check_solver(settings, "solver"); !e.ok()) return e;
+  up.settings = settings;
+  if (mode != cfg.mode) up.mode = mode;
+  if (req.has_material()) {
+    auto model = s->model();
+    Material m = model->material;
+    if (Error e = merge_material(req.material(), "material", m); !e.ok()) return e;
+    try {
+      up.model = with_material(*model, m);
+    } catch (const std::exception& e) {
+      return invalid(e.what());
+    }
+  }
+  if (Error e = s->update(up); !e.ok()) return e;
+  spdlog::info("scene '{}' updated", s->id());
+  return describe(*s, out);
+}
+
+Error SceneRegistry::remove(const std::string& id) {
+  std::shared_ptr<Scene> s;
+  {
+    if (Error e = check_id_present(id); !e.ok()) return e;
+    std::lock_guard lk(mu_);
+    auto it = scenes_.find(id);
+    if (it == scenes_.end()) return Error::make(Code::NotFound, fmt::format("scene_id '{}' not found", id));
+    s = it->second;
+    scenes_.erase(it);
+  }
+  s->stop();
+  if (!options_.data_dir.empty()) {
+    std::error_code ec;
+    fs::remove(scene_file(id), ec);
+  }
+  spdlog::info("scene '{}' deleted", id);
+  return {};
+}
+
+Error SceneRegistry::reset(const std::string& id, v1::Scene* out) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(id, &s); !e.ok()) return e;
+  if (Error e = s->reset(); !e.ok()) return e;
+  return describe(*s, out);
+}
+
+Error SceneRegistry::pause(const std::string& id, v1::Scene* out) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(id, &s); !e.ok()) return e;
+  if (Error e = s->pause(); !e.ok()) return e;
+  return describe(*s, out);
+}
+
+Error SceneRegistry::resume(const std::string& id, v1::Scene* out) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(id, &s); !e.ok()) return e;
+  if (Error e = s->resume(); !e.ok()) return e;
+  return describe(*s, out);
+}
+
+Error SceneRegistry::step(const v1::StepRequest& req, Clock::time_point deadline, v1::StepResponse* out,
+                          const std::function<bool()>& cancelled) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
+  uint32_t n = req.ticks() == 0 ? 1 : req.ticks();
+  if (n > 100000) return invalid(fmt::format("ticks must be in [1, 100000], got {}", req.ticks()));
+  StepResult r;
+  if (Error e = s->step(n, deadline, &r, cancelled); !e.ok()) return e;
+  out->set_tick(r.tick);
+  out->set_sim_time(r.sim_time);
+  out->set_rollbacks(r.rollbacks);
+  return {};
+}
+
+Error SceneRegistry::apply_force(const v1::ApplyForceRequest& req, v1::ApplyForceResponse* out) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
+  const auto nv = static_cast<int64_t>(s->model()->vertex_count());
+  if (req.vertices_size() == 0) return invalid("vertices is empty; list the vertex indices to push");
+  for (int i = 0; i < req.vertices_size(); ++i)
+    if (req.vertices(i) < 0 || req.vertices(i) >= nv)
+      return invalid(fmt::format("vertices[{}] = {} is out of range [0, {})", i, req.vertices(i), nv));
+  Vec3 f = to_vec(req.force());
+  if (!f.allFinite()) return invalid(fmt::format("force must be finite, got ({}, {}, {})", f.x(), f.y(), f.z()));
+  uint32_t ticks = req.ticks() == 0 ? 1 : req.ticks();
+  if (ticks > 1000000) return invalid(fmt::format("ticks must be in [1, 1000000], got {}", req.ticks()));
+  uint64_t first = 0;
+  if (Error e = s->apply_force({req.vertices().begin(), req.vertices().end()}, f, ticks, &first); !e.ok())
+    return e;
+  out->set_first_tick(first);
+  return {};
+}
+
+Error SceneRegistry::topology(const std::string& id, v1::Topology* out) const {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(id, &s); !e.ok()) return e;
+  auto m = s->model();
+  out->set_vertex_count(static_cast<uint32_t>(m->vertex_count()));
+  out->mutable_rest_positions()->Reserve(static_cast<int>(3 * m->vertex_count()));
+  for (const auto& p : m->rest_positions)
+    for (int k = 0; k < 3; ++k) out->add_rest_positions(static_cast<float>(p[k]));
+  for (const auto& t : m->tets)
+    for (int k = 0; k < 4; ++k) out->add_tets(t.v[k]);
+  for (const auto& t : m->surface)
+    for (int k = 0; k < 3; ++k) out->add_surface_triangles(t[k]);
+  for (int32_t v : s->surface_vertices()) out->add_surface_vertices(v);
+  for (size_t i = 0; i < m->fixed.size(); ++i)
+    if (m->fixed[i]) out->add_fixed_vertices(static_cast<int32_t>(i));
+  return {};
+}
+
+Error SceneRegistry::parse_stream_request(const v1::StreamFramesRequest& req, FrameSelection* out) {
+  if (req.fields_size() > 0) {
+    out->positions = out->residuals = out->solver_stats = false;
+    for (int i = 0; i < req.fields_size(); ++i) {
+      switch (req.fields(i)) {
+        case v1::FRAME_FIELD_POSITIONS: out->positions = true; break;
+        case v1::FRAME_FIELD_RESIDUALS: out->residuals = true; break;
+        case v1::FRAME_FIELD_SOLVER_STATS: out->solver_stats = true; break;
+        default:
+          return invalid(fmt::format("fields[{}] has unknown value {}", i, static_cast<int>(req.fields(i))));
+      }
+    }
+  }
+  out->surface_only = req.surface_only();
+  if (!std::isfinite(req.max_rate_hz()) || req.max_rate_hz() < 0)
+    return invalid(fmt::format("max_rate_hz must be a finite value >= 0, got {}", req.max_rate_hz()));
+  return {};
+}
+
+void SceneRegistry::fill_frame(const Frame& f, const FrameSelection& sel,
+                               const std::vector<int32_t>& surface, uint64_t skipped, v1::Frame* out) {
+  out->set_tick(f.tick);
+  out->set_sim_time(f.sim_time);
+  out->set_skipped_frames(skipped);
+  if (sel.positions) {
+    auto* pos = out->mutable_positions();
+    if (sel.surface_only) {
+      pos->Resize(static_cast<int>(3 * surface.size()), 0.0f);
+      float* dst = pos->mutable_data();
+      for (size_t i = 0; i < surface.size(); ++i)
+        for (int k = 0; k < 3; ++k) dst[3 * i + k] = f.positions[3 * surface[i] + k];
+    } else {
+      pos->Add(f.positions.begin(), f.positions.end());
+    }
+    out->set_surface_only(sel.surface_only);
+  }
+  if (sel.residuals) out->mutable_residuals()->Add(f.residuals.begin(), f.residuals.end());
+  auto* st = out->mutable_solver();
+  st->set_iterations(f.iterations);
+  st->set_residual_final(f.residual_final);
+  if (sel.solver_stats) {
+    st->set_substeps(f.substeps);
+    st->set_residual_initial(f.residual_initial);
+    st->set_accelerations_tried(f.accelerations_tried);
+    st->set_accelerations_accepted(f.accelerations_accepted);
+    st->set_accelerations_rejected(f.accelerations_tried - f.accelerations_accepted);
+    st->set_step_wall_ms(f.step_wall_ms);
+    st->set_stopped_by_tolerance(f.stopped_by_tolerance);
+    st->set_stopped_by_budget(f.stopped_by_budget);
+  }
+  out->set_late_ticks(f.late_ticks);
+  out->set_skipped_ticks(f.skipped_ticks);
+  out->set_lateness_ms(f.lateness_ms);
+  out->set_ticks_per_second(f.ticks_per_second);
+  out->set_rolled_back(f.rolled_back);
+  out->set_rollbacks(f.rollbacks);
+  out->set_rollback_reason(f.rollback_reason);
+  out->set_published_unix_ns(f.published_unix_ns);
+  out->set_state(f.mode == TickMode::Lockstep ? v1::SCENE_STATE_LOCKSTEP
+                                              : (f.running ? v1::SCENE_STATE_RUNNING : v1::SCENE_STATE_PAUSED));
+}
+
+Error SceneRegistry::save_snapshot(const v1::SaveSnapshotRequest& req, v1::SaveSnapshotResponse* out) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
+  if (!req.name().empty()) {
+    if (Error e = check_name("name", req.name()); !e.ok()) return e;
+    if (options_.data_dir.empty())
+      return Error::make(Code::FailedPrecondition,
+                         fmt::format("name '{}': this server has no --data-dir to store snapshots in", req.name()));
+  } else if (req.omit_snapshot()) {
+    return invalid("omit_snapshot is set but name is empty: the snapshot would go nowhere");
+  }
+  SceneSnapshot snap;
+  if (Error e = s->snapshot(&snap); !e.ok()) return e;
+  v1::Snapshot proto;
+  snapshot_to_proto(snap, &proto);
+  if (!req.name().empty()) {
+    std::string path = snapshot_file(req.name());
+    if (Error e = write_file_atomically(path, proto.SerializeAsString()); !e.ok()) return e;
+    out->set_path(path);
+    spdlog::info("scene '{}': snapshot '{}' written to {}", s->id(), req.name(), path);
+  }
+  if (!req.omit_snapshot()) *out->mutable_snapshot() = std::move(proto);
+  return {};
+}
+
+Error SceneRegistry::restore_snapshot(const v1::RestoreSnapshotRequest& req, v1::Scene* out) {
+  v1::Snapshot from_file;
+  const v1::Snapshot* proto = nullptr;
+  switch (req.source_case()) {
+    case v1::RestoreSnapshotRequest::kSnapshot: proto = &req.snapshot(); break;
+    case v1::RestoreSnapshotRequest::kName: {
+      if (Error e = check_name("name", req.name()); !e.ok()) return e;
+      if (options_.data_dir.empty())
+        return Error::make(Code::FailedPrecondition,
+                           fmt::format("name '{}': this server has no --data-dir", req.name()));
+      std::string path = snapshot_file(req.name());
+      if (!fs::exists(path))
+        return Error::make(Code::NotFound, fmt::format("snapshot name '{}' not found in the data directory", req.name()));
+      if (Error e = read_snapshot_file(path, &from_file); !e.ok()) return e;
+      proto = &from_file;
+      break;
+    }
+    default: return invalid("source: set snapshot or name");
+  }
+  SceneSnapshot snap;
+  if (Error e = snapshot_from_proto(*proto, options_.max_threads, options_.max_vertices, &snap); !e.ok())
+    return e;
+  std::string id = req.scene_id().empty() ? snap.id : req.scene_id();
+  if (Error e = check_name("scene_id", id); !e.ok()) return e;
+  auto scene = std::make_shared<Scene>(id, snap.config, snap.model, std::move(snap.state), snap.tick, snap.paused);
+  if (Error e = add_scene(scene, req.replace()); !e.ok()) return e;
+  spdlog::info("scene '{}' restored from a snapshot at tick {}", id, snap.tick);
+  return describe(*scene, out);
+}
+
+Error SceneRegistry::list_snapshots(v1::ListSnapshotsResponse* out) const {
+  if (options_.data_dir.empty()) return {};
+  std::vector<std::string> names;
+  std::error_code ec;
+  for (auto it = fs::directory_iterator(fs::path(options_.data_dir) / "snapshots", ec);
+       !ec && it != fs::directory_iterator(); it.increment(ec))
+    if (it->path().extension() == ".snapshot") names.push_back(it->path().stem().string());
+  std::sort(names.begin(), names.end());
+  for (auto& n : names) out->add_names(n);
+  return {};
+}
+
+int SceneRegistry::restore_from_data_dir() {
+  if (options_.data_dir.empty()) return 0;
+  std::vector<fs::path> files;
+  std::error_code ec;
+  for (auto it = fs::directory_iterator(fs::path(options_.data_dir) / "scenes", ec);
+       !ec && it != fs::directory_iterator(); it.increment(ec))
+    if (it->path().extension() == ".snapshot") files.push_back(it->path());
+  std::sort(files.begin(), files.end());
+  int restored = 0;
+  for (const auto& f : files) {
+    v1::Snapshot proto;
+    SceneSnapshot snap;
+    Error e = read_snapshot_file(f.string(), &proto);
+    if (e.ok()) e = snapshot_from_proto(proto, options_.max_threads, options_.max_vertices, &snap);
+    if (e.ok()) e = check_name("scene_id", snap.id);
+    if (e.ok()) {
+      auto scene = std::make_shared<Scene>(snap.id, snap.config, snap.model, std::move(snap.state),
+                                           snap.tick, snap.paused);
+      e = add_scene(scene, false);
+    }
+    if (!e.ok()) {
+      spdlog::error("not restoring {}: {}", f.string(), e.message);
+      continue;
+    }
+    spdlog::info("scene '{}' restored from {} (tick {}, t = {} s)", snap.id, f.string(), snap.tick,
+                 proto.sim_time());
+    ++restored;
+  }
+  return restored;
+}
+
+void SceneRegistry::begin_shutdown() { shutting_down_ = true; }
+
+int SceneRegistry::shutdown() {
+  shutting_down_ = true;
+  std::map<std::string, std::shared_ptr<Scene>> scenes;
+  {
+    std::lock_guard lk(mu_);
+    scenes.swap(scenes_);
+  }
+  for (auto& [id, s] : scenes) s->stop();
+  int written = 0;
+  if (!options_.data_dir.empty()) {
+    for (auto& [id, s] : scenes) {
+      v1::Snapshot proto;
+      snapshot_to_proto(s->snapshot_stopped(), &proto);
+      if (Error e = write_file_atomically(scene_file(id), proto.SerializeAsString()); !e.ok()) {
+        spdlog::error("scene '{}': shutdown snapshot failed: {}", id, e.message);
+        continue;
+      }
+      ++written;
+    }
+    spdlog::info("wrote {} scene snapshot(s) to {}", written, (fs::path(options_.data_dir) / "scenes").string());
+  }
+  return written;
+}
+
+}  // namespace pliant::server

@@ -1,0 +1,527 @@
+// The scene's tick thread: drains commands, steps on absolute deadlines, rolls back blow-ups,
+// publishes frames.
+#include "pliant/server/scene.hpp"
+
+#include "pliant/stepper.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <future>
+#include <set>
+
+namespace pliant::server {
+
+using Clock = std::chrono::steady_clock;
+
+std::string_view to_string(TickMode mode) {
+  switch (mode) {
+    case TickMode::Realtime: return "realtime";
+    case TickMode::Lockstep: return "lockstep";
+    case TickMode::AsFastAsPossible: return "as-fast-as-possible";
+  }
+  return "?";
+}
+
+struct Scene::StepJob {
+  uint32_t remaining;
+  uint64_t rollbacks_before;
+  std::shared_ptr<std::promise<StepResult>> done;
+};
+
+struct Scene::TickState {
+  std::shared_ptr<const BodyModel> model;
+  SolverSettings settings;
+  TickMode mode = TickMode::Realtime;
+  bool running = true;
+  std::string pause_reason;
+  BodyState state;
+  BodyState last_good;
+  Stepper stepper;
+  uint64_t tick = 0;
+  std::deque<StepJob> steps;
+  std::vector<ActiveForce> forces;
+  // Realtime schedule: tick k is due at anchor + k * period.
+  bool schedule_valid = false;
+  Clock::time_point anchor;
+  uint64_t slot = 0;
+  uint64_t late_ticks = 0;
+  uint64_t skipped_ticks = 0;
+  uint64_t rollbacks = 0;
+  int consecutive_rollbacks = 0;
+  // Tick rate over the last second.
+  Clock::time_point rate_window_start = Clock::now();
+  uint64_t rate_window_ticks = 0;
+  double ticks_per_second = 0;
+  Clock::time_point last_tick_end;
+
+  Clock::duration period() const {
+    return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(settings.dt));
+  }
+};
+
+namespace {
+
+std::vector<int32_t> surface_vertices_of(const BodyModel& model) {
+  std::vector<int32_t> out;
+  out.reserve(model.surface.size());
+  for (const auto& t : model.surface) out.insert(out.end(), t.begin(), t.end());
+  std::sort(out.begin(), out.end());
+  out.erase(std::unique(out.begin(), out.end()), out.end());
+  return out;
+}
+
+}  // namespace
+
+Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel> model,
+             BodyState state, uint64_t tick, bool paused)
+    : id_(std::move(id)), ts_(std::make_unique<TickState>()) {
+  surface_vertices_ = surface_vertices_of(*model);
+  ts_->model = model;
+  ts_->settings = config.settings;
+  ts_->mode = config.mode;
+  ts_->running = !paused;
+  ts_->state = std::move(state);
+  ts_->last_good = ts_->state;
+  ts_->tick = tick;
+  config_ = std::move(config);
+  model_shared_ = std::move(model);
+  publish_status();
+}
+
+Scene::~Scene() { stop(); }
+
+void Scene::start() {
+  std::lock_guard lk(mu_);
+  if (thread_.joinable() || stop_) return;
+  thread_ = std::thread([this] { run(); });
+}
+
+void Scene::stop() {
+  {
+    std::lock_guard lk(mu_);
+    stop_ = true;
+  }
+  cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+  {
+    std::lock_guard lk(mu_);
+    commands_.clear();  // breaks the promises of calls still waiting: they answer Unavailable
+  }
+  if (ts_) {
+    for (auto& job : ts_->steps)
+      job.done->set_exception(std::make_exception_ptr(std::runtime_error("scene stopped")));
+    ts_->steps.clear();
+  }
+  {
+    std::lock_guard lk(frame_mu_);
+  }
+  frame_cv_.notify_all();
+}
+
+bool Scene::stopped() const {
+  std::lock_guard lk(mu_);
+  return stop_;
+}
+
+std::shared_ptr<const BodyModel> Scene::model() const {
+  std::lock_guard lk(info_mu_);
+  return model_shared_;
+}
+
+SceneConfig Scene::config() const {
+  std::lock_guard lk(info_mu_);
+  return config_;
+}
+
+SceneStatus Scene::status() const {
+  std::lock_guard lk(info_mu_);
+  return status_;
+}
+
+void Scene::publish_status() {
+  SceneStatus s;
+  s.running = ts_->running && ts_->mode != TickMode::Lockstep;
+  s.mode = ts_->mode;
+  s.tick = ts_->tick;
+  s.sim_time = ts_->state.time;
+  s.late_ticks = ts_->late_ticks;
+  s.skipped_ticks = ts_->skipped_ticks;
+  s.rollbacks = ts_->rollbacks;
+  s.ticks_per_second = ts_->ticks_per_second;
+  s.pause_reason = ts_->pause_reason;
+  std::lock_guard lk(info_mu_);
+  status_ = std::move(s);
+  config_.settings = ts_->settings;
+  config_.mode = ts_->mode;
+  model_shared_ = ts_->model;
+}
+
+Error Scene::call(std::function<Error()> fn, Clock::time_point deadline) {
+  auto promise = std::make_shared<std::promise<Error>>();
+  auto future = promise->get_future();
+  {
+    std::lock_guard lk(mu_);
+    if (stop_) return Error::make(Code::Unavailable, "scene '" + id_ + "' is shutting down");
+    commands_.push_back([promise, fn = std::move(fn)] { promise->set_value(fn()); });
+  }
+  cv_.notify_all();
+  if (future.wait_until(deadline) != std::future_status::ready)
+    return Error::make(Code::DeadlineExceeded,
+                       "scene '" + id_ + "' did not reach a tick boundary in time");
+  try {
+    return future.get();
+  } catch (const std::future_error&) {
+    return Error::make(Code::Unavailable, "scene '" + id_ + "' stopped before the command ran");
+  }
+}
+
+Error Scene::pause(std::chrono::milliseconds timeout) {
+  return call(
+      [this] {
+        if (ts_->mode == TickMode::Lockstep)
+          return Error::make(Code::FailedPrecondition,
+                             "scene '" + id_ + "' is in lockstep mode (it ticks only on Step)");
+        ts_->running = false;
+        ts_->schedule_valid = false;
+        publish_status();
+        return Error{};
+      },
+      Clock::now() + timeout);
+}
+
+Error Scene::resume(std::chrono::milliseconds timeout) {
+  return call(
+      [this] {
+        if (ts_->mode == TickMode::Lockstep)
+          return Error::make(Code::FailedPrecondition,
+                             "scene '" + id_ + "' is in lockstep mode (it ticks only on Step)");
+        ts_->running = true;
+        ts_->pause_reason.clear();
+        ts_->consecutive_rollbacks = 0;
+        ts_->schedule_valid = false;
+        publish_status();
+        return Error{};
+      },
+      Clock::now() + timeout);
+}
+
+Error Scene::reset(std::chrono::milliseconds timeout) {
+  return call(
+      [this] {
+        ts_->state = rest_state(*ts_->model);
+        ts_->last_good = ts_->state;
+        ts_->tick = 0;
+        ts_->forces.clear();
+        ts_->schedule_valid = false;
+        ts_->consecutive_rollbacks = 0;
+        publish_status();
+        return Error{};
+      },
+      Clock::now() + timeout);
+}
+
+Error Scene::update(const SceneUpdate& update, std::chrono::milliseconds timeout) {
+  return call(
+      [this, update] {
+        if (update.settings) {
+          if (update.settings->dt != ts_->settings.dt) ts_->schedule_valid = false;
+          ts_->settings = *update.settings;
+        }
+        if (update.model) ts_->model = update.model;
+        if (update.mode && *update.mode != ts_->mode) {
+          ts_->mode = *update.mode;
+          ts_->schedule_valid = false;
+        }
+        publish_status();
+        return Error{};
+      },
+      Clock::now() + timeout);
+}
+
+Error Scene::apply_force(std::vector<int32_t> vertices, const Vec3& force, uint32_t ticks,
+                         uint64_t* first_tick, std::chrono::milliseconds timeout) {
+  // Results go through shared storage: the command may outlive a caller that timed out.
+  auto first = std::make_shared<uint64_t>(0);
+  Error e = call(
+      [this, vertices = std::move(vertices), force, ticks, first]() mutable {
+        ts_->forces.push_back(ActiveForce{std::move(vertices), force, ticks});
+        *first = ts_->tick + 1;
+        return Error{};
+      },
+      Clock::now() + timeout);
+  if (e.ok() && first_tick) *first_tick = *first;
+  return e;
+}
+
+Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out,
+                  const std::function<bool()>& cancelled) {
+  auto done = std::make_shared<std::promise<StepResult>>();
+  auto future = done->get_future();
+  Error queued = call(
+      [this, ticks, done] {
+        if (ts_->running && ts_->mode != TickMode::Lockstep)
+          return Error::make(Code::FailedPrecondition,
+                             "scene '" + id_ + "' is running in " +
+                                 std::string(to_string(ts_->mode)) +
+                                 " mode; pause it or switch it to lockstep before stepping");
+        ts_->steps.push_back(StepJob{ticks, ts_->rollbacks, done});
+        return Error{};
+      },
+      deadline);
+  if (!queued.ok()) return queued;
+  // Wait in slices so that a caller who went away is noticed.
+  bool gave_up = false, was_cancelled = false;
+  while (future.wait_until(std::min(deadline, Clock::now() + std::chrono::milliseconds(50))) !=
+         std::future_status::ready) {
+    if (cancelled && cancelled()) {
+      gave_up = was_cancelled = true;
+      break;
+    }
+    if (Clock::now() >= deadline) {
+      gave_up = true;
+      break;
+    }
+  }
+  if (gave_up) {
+    // Drop the ticks not run yet (the job may have finished meanwhile: then nothing to drop).
+    call(
+        [this, done] {
+          for (auto it = ts_->steps.begin(); it != ts_->steps.end(); ++it)
+            if (it->done == done) {
+              ts_->steps.erase(it);
+              break;
+            }
+          return Error{};
+        },
+        Clock::now() + std::chrono::seconds(10));
+    if (was_cancelled)
+      return Error::make(Code::Cancelled, "scene '" + id_ + "': step cancelled by the caller");
+    return Error::make(Code::DeadlineExceeded, "scene '" + id_ + "': step of " + std::to_string(ticks) +
+                                                   " ticks did not finish before the deadline");
+  }
+  try {
+    *out = future.get();
+  } catch (const std::exception&) {
+    return Error::make(Code::Unavailable, "scene '" + id_ + "' stopped during the step");
+  }
+  return {};
+}
+
+Error Scene::snapshot(SceneSnapshot* out, std::chrono::milliseconds timeout) {
+  auto result = std::make_shared<SceneSnapshot>();
+  Error e = call(
+      [this, result] {
+        result->id = id_;
+        result->config = config();
+        result->model = ts_->model;
+        result->state = ts_->state;
+        result->tick = ts_->tick;
+        result->paused = !ts_->running;
+        return Error{};
+      },
+      Clock::now() + timeout);
+  if (e.ok()) *out = std::move(*result);
+  return e;
+}
+
+SceneSnapshot Scene::snapshot_stopped() const {
+  SceneSnapshot out;
+  out.id = id_;
+  out.config = config();
+  out.model = ts_->model;
+  out.state = ts_->state;
+  out.tick = ts_->tick;
+  out.paused = !ts_->running;
+  return out;
+}
+
+std::shared_ptr<const Frame> Scene::latest_frame() const {
+  std::lock_guard lk(frame_mu_);
+  return latest_;
+}
+
+std::shared_ptr<const Frame> Scene::wait_frame(uint64_t after_seq, Clock::time_point deadline) const {
+  std::unique_lock lk(frame_mu_);
+  frame_cv_.wait_until(lk, deadline, [&] {
+    if (latest_ && latest_->seq > after_seq) return true;
+    std::lock_guard lk2(mu_);
+    return stop_;
+  });
+  if (latest_ && latest_->seq > after_seq) return latest_;
+  return nullptr;
+}
+
+void Scene::run() {
+  spdlog::debug("scene '{}': tick thread started ({} mode, dt {} s)", id_, to_string(ts_->mode),
+                ts_->settings.dt);
+  std::unique_lock lk(mu_);
+  while (true) {
+    TickState& t = *ts_;
+    const bool realtime = t.running && t.mode == TickMode::Realtime && t.steps.empty();
+    const bool afap = t.running && t.mode == TickMode::AsFastAsPossible;
+    Clock::time_point due{};
+    if (realtime) {
+      if (!t.schedule_valid) {
+        t.schedule_valid = true;
+        t.anchor = Clock::now();
+        t.slot = 0;
+      }
+      due = t.anchor + t.period() * static_cast<int64_t>(t.slot);
+      // Commands wait for the tick boundary; only stop wakes us early.
+      cv_.wait_until(lk, due, [&] { return stop_; });
+    } else if (!afap && t.steps.empty()) {
+      cv_.wait(lk, [&] { return stop_ || !commands_.empty(); });
+    }
+    if (stop_) break;
+    std::deque<Command> commands;
+    commands.swap(commands_);
+    lk.unlock();
+    for (auto& c : commands) {
+      try {
+        c();
+      } catch (const std::exception& e) {  // a failing command must not take the tick down
+        spdlog::error("scene '{}': command failed: {}", id_, e.what());
+      }
+    }
+
+    const bool still_realtime = t.running && t.mode == TickMode::Realtime && t.steps.empty();
+    if (!t.steps.empty()) {
+      tick_once(false, {});
+    } else if (t.running && t.mode == TickMode::AsFastAsPossible) {
+      tick_once(false, {});
+    } else if (still_realtime && realtime && t.schedule_valid && Clock::now() >= due) {
+      tick_once(true, due);
+    }
+    lk.lock();
+  }
+  spdlog::debug("scene '{}': tick thread stopped at tick {}", id_, ts_->tick);
+}
+
+void Scene::tick_once(bool scheduled, Clock::time_point due) {
+  TickState& t = *ts_;
+  const auto start = Clock::now();
+  const double lateness_ms =
+      scheduled ? std::chrono::duration<double, std::milli>(start - due).count() : 0.0;
+
+  StepInputs inputs;
+  if (!t.forces.empty()) {
+    inputs.external_forces.assign(t.model->vertex_count(), Vec3::Zero());
+    for (auto& f : t.forces)
+      for (int32_t v : f.vertices) inputs.external_forces[v] += f.force;
+    for (auto& f : t.forces) --f.remaining;
+    std::erase_if(t.forces, [](const ActiveForce& f) { return f.remaining == 0; });
+  }
+
+  t.last_good = t.state;  // copy-assign reuses the buffers
+  StepReport report;
+  std::string failure;
+  try {
+    report = t.stepper.step(*t.model, t.state, t.settings, inputs);
+    if (report.diverged)
+      failure = "solver diverged (residual " + std::to_string(report.residual_final) +
+                " from " + std::to_string(report.residual_initial) + ")";
+    else if (!is_finite(t.state))
+      failure = "non-finite positions or velocities";
+  } catch (const std::exception& e) {
+    failure = std::string("solver error: ") + e.what();
+  }
+  ++t.tick;
+  const bool rolled_back = !failure.empty();
+  if (rolled_back) {
+    t.state = t.last_good;
+    ++t.rollbacks;
+    ++t.consecutive_rollbacks;
+    spdlog::warn("scene '{}': tick {}: {}; rolled back to the state of tick {}", id_, t.tick,
+                 failure, t.tick - 1);
+    if (t.consecutive_rollbacks >= kMaxConsecutiveRollbacks && t.mode != TickMode::Lockstep &&
+        t.running) {
+      t.running = false;
+      t.schedule_valid = false;
+      t.pause_reason = "paused after " + std::to_string(t.consecutive_rollbacks) +
+                       " consecutive solver blow-ups (" + failure +
+                       "); change the settings and resume";
+      spdlog::error("scene '{}': {}", id_, t.pause_reason);
+    }
+  } else {
+    t.consecutive_rollbacks = 0;
+  }
+
+  const auto end = Clock::now();
+  if (scheduled) {
+    // Absolute deadlines: the next tick is due one period after this one's slot, whatever
+    // this tick cost. Ending past that deadline makes this tick late; falling a whole period
+    // or more behind skips the missed slots (counted) instead of stretching the schedule.
+    const auto period = t.period();
+    ++t.slot;
+    auto next_due = t.anchor + period * static_cast<int64_t>(t.slot);
+    if (end > next_due) {
+      ++t.late_ticks;
+      const auto behind = end - next_due;
+      const auto missed = static_cast<uint64_t>(behind / period);
+      if (missed > 0) {
+        t.slot += missed;
+        t.skipped_ticks += missed;
+      }
+    }
+  }
+  ++t.rate_window_ticks;
+  const double window_s = std::chrono::duration<double>(end - t.rate_window_start).count();
+  if (window_s >= 1.0) {
+    t.ticks_per_second = t.rate_window_ticks / window_s;
+    t.rate_window_ticks = 0;
+    t.rate_window_start = end;
+  } else if (t.ticks_per_second == 0 && window_s > 0.1) {
+    t.ticks_per_second = t.rate_window_ticks / window_s;
+  }
+  t.last_tick_end = end;
+
+  auto frame = std::make_shared<Frame>();
+  frame->tick = t.tick;
+  frame->sim_time = t.state.time;
+  frame->positions.resize(t.state.x.size() * 3);
+  for (size_t i = 0; i < t.state.x.size(); ++i)
+    for (int k = 0; k < 3; ++k) frame->positions[3 * i + k] = static_cast<float>(t.state.x[i][k]);
+  frame->residuals = std::move(report.residuals);
+  frame->substeps = report.substeps;
+  frame->iterations = report.iterations;
+  frame->residual_initial = report.residual_initial;
+  frame->residual_final = report.residual_final;
+  frame->accelerations_tried = report.accelerations_tried;
+  frame->accelerations_accepted = report.accelerations_accepted;
+  frame->step_wall_ms = report.wall_ms;
+  frame->stopped_by_tolerance = report.stopped_by_tolerance;
+  frame->stopped_by_budget = report.stopped_by_budget;
+  frame->late_ticks = t.late_ticks;
+  frame->skipped_ticks = t.skipped_ticks;
+  frame->lateness_ms = lateness_ms;
+  frame->ticks_per_second = t.ticks_per_second;
+  frame->rolled_back = rolled_back;
+  frame->rollbacks = t.rollbacks;
+  frame->rollback_reason = failure;
+  frame->running = t.running && t.mode != TickMode::Lockstep;
+  frame->mode = t.mode;
+
+  publish_status();
+  {
+    std::lock_guard lk(frame_mu_);
+    frame->seq = ++seq_;
+    frame->published = Clock::now();
+    frame->published_unix_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                   std::chrono::system_clock::now().time_since_epoch())
+                                   .count();
+    latest_ = std::move(frame);
+  }
+  frame_cv_.notify_all();
+  // A Step completes after its last frame and status are visible to every reader.
+  if (!t.steps.empty()) {
+    auto& job = t.steps.front();
+    if (--job.remaining == 0) {
+      job.done->set_value(StepResult{t.tick, t.state.time, t.rollbacks - job.rollbacks_before});
+      t.steps.pop_front();
+    }
+  }
+}
+
+}  // namespace pliant::server

@@ -1,0 +1,369 @@
+// gRPC glue: the pliant.v1 services over the SceneRegistry, token check, health, reflection,
+// TLS and graceful shutdown.
+#include "pliant/server/server.hpp"
+
+#include "pliant/mesh_io.hpp"
+#include "pliant/v1/pliant.grpc.pb.h"
+
+#include <grpcpp/ext/proto_server_reflection_plugin.h>
+#include <grpcpp/grpcpp.h>
+#include <grpcpp/health_check_service_interface.h>
+#include <spdlog/fmt/fmt.h>
+#include <spdlog/spdlog.h>
+
+#include <condition_variable>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+namespace pliant::server {
+
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+grpc::Status to_status(const Error& e) {
+  grpc::StatusCode c = grpc::StatusCode::UNKNOWN;
+  switch (e.code) {
+    case Code::Ok: return grpc::Status::OK;
+    case Code::InvalidArgument: c = grpc::StatusCode::INVALID_ARGUMENT; break;
+    case Code::NotFound: c = grpc::StatusCode::NOT_FOUND; break;
+    case Code::AlreadyExists: c = grpc::StatusCode::ALREADY_EXISTS; break;
+    case Code::ResourceExhausted: c = grpc::StatusCode::RESOURCE_EXHAUSTED; break;
+    case Code::FailedPrecondition: c = grpc::StatusCode::FAILED_PRECONDITION; break;
+    case Code::Unauthenticated: c = grpc::StatusCode::UNAUTHENTICATED; break;
+    case Code::Unavailable: c = grpc::StatusCode::UNAVAILABLE; break;
+    case Code::DeadlineExceeded: c = grpc::StatusCode::DEADLINE_EXCEEDED; break;
+    case Code::Cancelled: c = grpc::StatusCode::CANCELLED; break;
+    case Code::Internal: c = grpc::StatusCode::INTERNAL; break;
+  }
+  return grpc::Status(c, e.message);
+}
+
+// Shared by the three services: the registry, the token, and error logging.
+struct ServiceContext {
+  SceneRegistry* registry;
+  std::string token;
+
+  grpc::Status check(grpc::ServerContext* ctx) const {
+    if (token.empty()) return grpc::Status::OK;
+    const auto& md = ctx->client_metadata();
+    auto it = md.find("authorization");
+    if (it == md.end())
+      return grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
+                          "missing 'authorization' metadata: this server requires 'Bearer <token>'");
+    // Compare in time independent of where the first difference is.
+    const std::string expected = "Bearer " + token;
+    std::string_view v(it->second.data(), it->second.size());
+    unsigned char diff = v.size() != expected.size();
+    for (size_t i = 0; i < std::min(v.size(), expected.size()); ++i)
+      diff |= static_cast<unsigned char>(v[i] ^ expected[i]);
+    if (diff != 0)
+      return grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "the access token in 'authorization' is not valid");
+    return grpc::Status::OK;
+  }
+
+  grpc::Status answer(const char* rpc, grpc::ServerContext* ctx, const Error& e) const {
+    if (!e.ok()) spdlog::debug("{} from {}: {}", rpc, ctx->peer(), e.message);
+    return to_status(e);
+  }
+};
+
+// Runs `body` unless the call is unauthenticated; exceptions never escape to gRPC.
+template <class F>
+grpc::Status guarded(const ServiceContext& sc, const char* rpc, grpc::ServerContext* ctx, F&& body) {
+  if (grpc::Status s = sc.check(ctx); !s.ok()) {
+    spdlog::warn("{} from {}: {}", rpc, ctx->peer(), s.error_message());
+    return s;
+  }
+  try {
+    return sc.answer(rpc, ctx, body());
+  } catch (const std::exception& e) {
+    spdlog::error("{}: internal error: {}", rpc, e.what());
+    return grpc::Status(grpc::StatusCode::INTERNAL, std::string(rpc) + ": " + e.what());
+  }
+}
+
+class SceneServiceImpl final : public v1::SceneService::Service {
+ public:
+  explicit SceneServiceImpl(ServiceContext sc) : sc_(std::move(sc)) {}
+  grpc::Status CreateScene(grpc::ServerContext* c, const v1::CreateSceneRequest* r, v1::Scene* o) override {
+    return guarded(sc_, "CreateScene", c, [&] { return reg().create(*r, o); });
+  }
+  grpc::Status ListScenes(grpc::ServerContext* c, const v1::ListScenesRequest*, v1::ListScenesResponse* o) override {
+    return guarded(sc_, "ListScenes", c, [&] { return reg().list(o); });
+  }
+  grpc::Status GetScene(grpc::ServerContext* c, const v1::GetSceneRequest* r, v1::Scene* o) override {
+    return guarded(sc_, "GetScene", c, [&] { return reg().get(r->scene_id(), o); });
+  }
+  grpc::Status UpdateScene(grpc::ServerContext* c, const v1::UpdateSceneRequest* r, v1::Scene* o) override {
+    return guarded(sc_, "UpdateScene", c, [&] { return reg().update(*r, o); });
+  }
+  grpc::Status DeleteScene(grpc::ServerContext* c, const v1::DeleteSceneRequest* r, v1::DeleteSceneResponse*) override {
+    return guarded(sc_, "DeleteScene", c, [&] { return reg().remove(r->scene_id()); });
+  }
+  grpc::Status ResetScene(grpc::ServerContext* c, const v1::ResetSceneRequest* r, v1::Scene* o) override {
+    return guarded(sc_, "ResetScene", c, [&] { return reg().reset(r->scene_id(), o); });
+  }
+  grpc::Status PauseScene(grpc::ServerContext* c, const v1::PauseSceneRequest* r, v1::Scene* o) override {
+    return guarded(sc_, "PauseScene", c, [&] { return reg().pause(r->scene_id(), o); });
+  }
+  grpc::Status ResumeScene(grpc::ServerContext* c, const v1::ResumeSceneRequest* r, v1::Scene* o) override {
+    return guarded(sc_, "ResumeScene", c, [&] { return reg().resume(r->scene_id(), o); });
+  }
+  grpc::Status Step(grpc::ServerContext* c, const v1::StepRequest* r, v1::StepResponse* o) override {
+    return guarded(sc_, "Step", c, [&] {
+      // Bounded by the call's deadline, and by an hour when the client set none.
+      auto deadline = Clock::now() + std::chrono::hours(1);
+      auto remaining = c->deadline() - std::chrono::system_clock::now();
+      if (remaining < std::chrono::hours(1))
+        deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(remaining);
+      return reg().step(*r, deadline, o, [c] { return c->IsCancelled(); });
+    });
+  }
+  grpc::Status ApplyForce(grpc::ServerContext* c, const v1::ApplyForceRequest* r, v1::ApplyForceResponse* o) override {
+    return guarded(sc_, "ApplyForce", c, [&] { return reg().apply_force(*r, o); });
+  }
+
+ private:
+  SceneRegistry& reg() { return *sc_.registry; }
+  ServiceContext sc_;
+};
+
+class FrameServiceImpl final : public v1::FrameService::Service {
+ public:
+  explicit FrameServiceImpl(ServiceContext sc) : sc_(std::move(sc)) {}
+  grpc::Status GetTopology(grpc::ServerContext* c, const v1::GetTopologyRequest* r, v1::Topology* o) override {
+    return guarded(sc_, "GetTopology", c, [&] { return sc_.registry->topology(r->scene_id(), o); });
+  }
+
+  grpc::Status StreamFrames(grpc::ServerContext* c, const v1::StreamFramesRequest* r,
+                            grpc::ServerWriter<v1::Frame>* writer) override {
+    return guarded(sc_, "StreamFrames", c, [&] { return stream(c, *r, writer); });
+  }
+
+ private:
+  Error stream(grpc::ServerContext* c, const v1::StreamFramesRequest& r, grpc::ServerWriter<v1::Frame>* writer) {
+    std::shared_ptr<Scene> scene;
+    if (Error e = sc_.registry->find(r.scene_id(), &scene); !e.ok()) return e;
+    FrameSelection sel;
+    if (Error e = SceneRegistry::parse_stream_request(r, &sel); !e.ok()) return e;
+    const uint64_t every = r.every_nth_tick() <= 1 ? 1 : r.every_nth_tick();
+    const auto min_interval = r.max_rate_hz() > 0
+        ? std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / r.max_rate_hz()))
+        : Clock::duration::zero();
+    const auto& surface = scene->surface_vertices();
+
+    // Start with the latest frame, so a paused scene's subscriber sees its current state.
+    auto latest = scene->latest_frame();
+    uint64_t after = latest ? latest->seq - 1 : 0;
+    bool have_last = false;
+    uint64_t last_sent = 0;
+    Clock::time_point next_allowed = Clock::now();
+    v1::Frame msg;
+    spdlog::debug("StreamFrames: {} subscribed to '{}'", c->peer(), scene->id());
+    while (true) {
+      if (c->IsCancelled()) return {};
+      auto frame = scene->wait_frame(after, Clock::now() + std::chrono::milliseconds(100));
+      if (!frame) {
+        if (sc_.registry->shutting_down())
+          return Error::make(Code::Unavailable, "the server is shutting down");
+        if (scene->stopped())
+          return Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", scene->id()));
+        continue;
+      }
+      if (have_last && frame->seq < last_sent + every) {  // decimation
+        after = frame->seq;
+        continue;
+      }
+      if (min_interval > Clock::duration::zero() && Clock::now() < next_allowed) {
+        // Rate limit: wait for the slot (cancellably), then send whatever is latest.
+        while (Clock::now() < next_allowed && !c->IsCancelled() && !scene->stopped())
+          std::this_thread::sleep_for(std::min<Clock::duration>(next_allowed - Clock::now(),
+                                                                std::chrono::milliseconds(50)));
+        if (auto newer = scene->latest_frame()) frame = newer;
+      }
+      uint64_t skipped = 0;
+      if (have_last && min_interval == Clock::duration::zero())
+        skipped = (frame->seq - last_sent) / every - 1;
+      msg.Clear();
+      SceneRegistry::fill_frame(*frame, sel, surface, skipped, &msg);
+      if (!writer->Write(msg)) return {};  // the client went away
+      // Keep the decimation's phase when a late reader sends an off-phase frame.
+      last_sent = have_last ? frame->seq - (frame->seq - last_sent) % every : frame->seq;
+      have_last = true;
+      after = frame->seq;
+      if (min_interval > Clock::duration::zero()) {
+        next_allowed += min_interval;
+        if (next_allowed < Clock::now()) next_allowed = Clock::now();
+      }
+    }
+  }
+
+  ServiceContext sc_;
+};
+
+class SnapshotServiceImpl final : public v1::SnapshotService::Service {
+ public:
+  explicit SnapshotServiceImpl(ServiceContext sc) : sc_(std::move(sc)) {}
+  grpc::Status SaveSnapshot(grpc::ServerContext* c, const v1::SaveSnapshotRequest* r, v1::SaveSnapshotResponse* o) override {
+    return guarded(sc_, "SaveSnapshot", c, [&] { return sc_.registry->save_snapshot(*r, o); });
+  }
+  grpc::Status RestoreSnapshot(grpc::ServerContext* c, const v1::RestoreSnapshotRequest* r, v1::Scene* o) override {
+    return guarded(sc_, "RestoreSnapshot", c, [&] { return sc_.registry->restore_snapshot(*r, o); });
+  }
+  grpc::Status ListSnapshots(grpc::ServerContext* c, const v1::ListSnapshotsRequest*, v1::ListSnapshotsResponse* o) override {
+    return guarded(sc_, "ListSnapshots", c, [&] { return sc_.registry->list_snapshots(o); });
+  }
+
+ private:
+  ServiceContext sc_;
+};
+
+std::vector<std::string> split_path(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  for (std::string item; std::getline(ss, item, ':');)
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+Error read_file(const std::string& flag, const std::string& path, std::string* out) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return Error::make(Code::InvalidArgument, fmt::format("--{} '{}' cannot be read", flag, path));
+  std::stringstream ss;
+  ss << f.rdbuf();
+  *out = ss.str();
+  return {};
+}
+
+const char* kServices[] = {"pliant.v1.SceneService", "pliant.v1.FrameService", "pliant.v1.SnapshotService"};
+
+}  // namespace
+
+struct PliantServer::Impl {
+  ServerOptions options;
+  std::unique_ptr<SceneRegistry> registry;
+  std::unique_ptr<SceneServiceImpl> scenes;
+  std::unique_ptr<FrameServiceImpl> frames;
+  std::unique_ptr<SnapshotServiceImpl> snapshots;
+  std::unique_ptr<grpc::Server> server;
+  int port = 0;
+  std::mutex mu;
+  std::condition_variable cv;
+  bool started = false;
+  bool done = false;
+  bool shutting_down = false;
+  int written = 0;
+};
+
+PliantServer::PliantServer(ServerOptions options) : impl_(std::make_unique<Impl>()) {
+  impl_->options = std::move(options);
+  RegistryOptions ro;
+  ro.max_scenes = impl_->options.max_scenes;
+  ro.max_vertices = impl_->options.max_vertices;
+  ro.max_threads = impl_->options.threads;
+  ro.data_dir = impl_->options.data_dir;
+  // Without --model-path: $PLIANT_MODEL_PATH, then the source tree's meshes/ (the model set).
+  ro.model_path = impl_->options.model_path.empty() ? default_model_path()
+                                                     : split_path(impl_->options.model_path);
+  impl_->registry = std::make_unique<SceneRegistry>(std::move(ro));
+}
+
+PliantServer::~PliantServer() { shutdown(); }
+
+SceneRegistry& PliantServer::registry() { return *impl_->registry; }
+int PliantServer::port() const { return impl_->port; }
+
+Error PliantServer::start() {
+  auto& o = impl_->options;
+  if (!o.data_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(o.data_dir, ec);
+    if (ec)
+      return Error::make(Code::InvalidArgument,
+                         fmt::format("--data-dir '{}' cannot be created: {}", o.data_dir, ec.message()));
+    if (o.restore) {
+      int n = impl_->registry->restore_from_data_dir();
+      if (n > 0) spdlog::info("restored {} scene(s) from {}", n, o.data_dir);
+    }
+  }
+  std::shared_ptr<grpc::ServerCredentials> creds = grpc::InsecureServerCredentials();
+  if (!o.tls_cert.empty()) {
+    grpc::SslServerCredentialsOptions ssl;
+    grpc::SslServerCredentialsOptions::PemKeyCertPair pair;
+    if (Error e = read_file("tls-key", o.tls_key, &pair.private_key); !e.ok()) return e;
+    if (Error e = read_file("tls-cert", o.tls_cert, &pair.cert_chain); !e.ok()) return e;
+    ssl.pem_key_cert_pairs.push_back(std::move(pair));
+    creds = grpc::SslServerCredentials(ssl);
+  }
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  ServiceContext sc{impl_->registry.get(), o.token};
+  impl_->scenes = std::make_unique<SceneServiceImpl>(sc);
+  impl_->frames = std::make_unique<FrameServiceImpl>(sc);
+  impl_->snapshots = std::make_unique<SnapshotServiceImpl>(sc);
+  grpc::ServerBuilder builder;
+  builder.AddListeningPort(o.listen, creds, &impl_->port);
+  builder.SetMaxReceiveMessageSize(o.max_message_mb * 1024 * 1024);
+  builder.SetMaxSendMessageSize(o.max_message_mb * 1024 * 1024);
+  builder.RegisterService(impl_->scenes.get());
+  builder.RegisterService(impl_->frames.get());
+  builder.RegisterService(impl_->snapshots.get());
+  impl_->server = builder.BuildAndStart();
+  if (!impl_->server || impl_->port == 0)
+    return Error::make(Code::Unavailable, fmt::format("--listen '{}': cannot bind (address in use or invalid)", o.listen));
+  auto* health = impl_->server->GetHealthCheckService();
+  if (health) {
+    health->SetServingStatus(true);
+    for (const char* s : kServices) health->SetServingStatus(s, true);
+  }
+  {
+    std::lock_guard lk(impl_->mu);
+    impl_->started = true;
+  }
+  spdlog::info("pliant-server listening on {} (port {}){}{}", o.listen, impl_->port,
+               o.tls_cert.empty() ? "" : ", TLS", o.token.empty() ? "" : ", token required");
+  return {};
+}
+
+int PliantServer::shutdown() {
+  {
+    std::unique_lock lk(impl_->mu);
+    if (impl_->done) return impl_->written;
+    if (impl_->shutting_down) {
+      impl_->cv.wait(lk, [&] { return impl_->done; });
+      return impl_->written;
+    }
+    impl_->shutting_down = true;
+  }
+  int written = 0;
+  if (impl_->server) {
+    spdlog::info("shutting down: NOT_SERVING, ending streams, saving scenes");
+    if (auto* health = impl_->server->GetHealthCheckService()) {
+      health->SetServingStatus(false);
+      for (const char* s : kServices) health->SetServingStatus(s, false);
+    }
+    impl_->registry->begin_shutdown();
+    // In-flight unary calls get a moment to finish; streams notice begin_shutdown() within
+    // 100 ms and end with UNAVAILABLE.
+    impl_->server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(3));
+    impl_->server->Wait();
+  }
+  written = impl_->registry->shutdown();
+  {
+    std::lock_guard lk(impl_->mu);
+    impl_->done = true;
+    impl_->written = written;
+  }
+  impl_->cv.notify_all();
+  return written;
+}
+
+void PliantServer::wait() {
+  std::unique_lock lk(impl_->mu);
+  impl_->cv.wait(lk, [&] { return impl_->done; });
+}
+
+}  // namespace pliant::server
