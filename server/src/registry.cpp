@@ -669,13 +669,14 @@ Error SceneRegistry::resume(const std::string& id, v1::Scene* out) {
   return describe(*s, out);
 }
 
-Error SceneRegistry::step(const v1::StepRequest& req, Clock::time_point deadline, v1::StepResponse* out) {
+Error SceneRegistry::step(const v1::StepRequest& req, Clock::time_point deadline, v1::StepResponse* out,
+                          const std::function<bool()>& cancelled) {
   std::shared_ptr<Scene> s;
   if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
   uint32_t n = req.ticks() == 0 ? 1 : req.ticks();
   if (n > 100000) return invalid(fmt::format("ticks must be in [1, 100000], got {}", req.ticks()));
   StepResult r;
-  if (Error e = s->step(n, deadline, &r); !e.ok()) return e;
+  if (Error e = s->step(n, deadline, &r, cancelled); !e.ok()) return e;
   out->set_tick(r.tick);
   out->set_sim_time(r.sim_time);
   out->set_rollbacks(r.rollbacks);

@@ -255,7 +255,8 @@ Error Scene::apply_force(std::vector<int32_t> vertices, const Vec3& force, uint3
   return e;
 }
 
-Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out) {
+Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out,
+                  const std::function<bool()>& cancelled) {
   auto done = std::make_shared<std::promise<StepResult>>();
   auto future = done->get_future();
   Error queued = call(
@@ -270,10 +271,36 @@ Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out) {
       },
       deadline);
   if (!queued.ok()) return queued;
-  if (future.wait_until(deadline) != std::future_status::ready)
-    return Error::make(Code::DeadlineExceeded, "scene '" + id_ + "': step of " +
-                                                   std::to_string(ticks) +
+  // Wait in slices so that a caller who went away is noticed.
+  bool gave_up = false, was_cancelled = false;
+  while (future.wait_until(std::min(deadline, Clock::now() + std::chrono::milliseconds(50))) !=
+         std::future_status::ready) {
+    if (cancelled && cancelled()) {
+      gave_up = was_cancelled = true;
+      break;
+    }
+    if (Clock::now() >= deadline) {
+      gave_up = true;
+      break;
+    }
+  }
+  if (gave_up) {
+    // Drop the ticks not run yet (the job may have finished meanwhile: then nothing to drop).
+    call(
+        [this, done] {
+          for (auto it = ts_->steps.begin(); it != ts_->steps.end(); ++it)
+            if (it->done == done) {
+              ts_->steps.erase(it);
+              break;
+            }
+          return Error{};
+        },
+        Clock::now() + std::chrono::seconds(10));
+    if (was_cancelled)
+      return Error::make(Code::Cancelled, "scene '" + id_ + "': step cancelled by the caller");
+    return Error::make(Code::DeadlineExceeded, "scene '" + id_ + "': step of " + std::to_string(ticks) +
                                                    " ticks did not finish before the deadline");
+  }
   try {
     *out = future.get();
   } catch (const std::exception&) {

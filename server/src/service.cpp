@@ -2,6 +2,7 @@
 // TLS and graceful shutdown.
 #include "pliant/server/server.hpp"
 
+#include "pliant/mesh_io.hpp"
 #include "pliant/v1/pliant.grpc.pb.h"
 
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
@@ -34,6 +35,7 @@ grpc::Status to_status(const Error& e) {
     case Code::Unauthenticated: c = grpc::StatusCode::UNAUTHENTICATED; break;
     case Code::Unavailable: c = grpc::StatusCode::UNAVAILABLE; break;
     case Code::DeadlineExceeded: c = grpc::StatusCode::DEADLINE_EXCEEDED; break;
+    case Code::Cancelled: c = grpc::StatusCode::CANCELLED; break;
     case Code::Internal: c = grpc::StatusCode::INTERNAL; break;
   }
   return grpc::Status(c, e.message);
@@ -117,7 +119,7 @@ class SceneServiceImpl final : public v1::SceneService::Service {
       auto remaining = c->deadline() - std::chrono::system_clock::now();
       if (remaining < std::chrono::hours(1))
         deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(remaining);
-      return reg().step(*r, deadline, o);
+      return reg().step(*r, deadline, o, [c] { return c->IsCancelled(); });
     });
   }
   grpc::Status ApplyForce(grpc::ServerContext* c, const v1::ApplyForceRequest* r, v1::ApplyForceResponse* o) override {
@@ -263,7 +265,9 @@ PliantServer::PliantServer(ServerOptions options) : impl_(std::make_unique<Impl>
   ro.max_vertices = impl_->options.max_vertices;
   ro.max_threads = impl_->options.threads;
   ro.data_dir = impl_->options.data_dir;
-  ro.model_path = split_path(impl_->options.model_path);
+  // Without --model-path: $PLIANT_MODEL_PATH, then the source tree's meshes/ (the model set).
+  ro.model_path = impl_->options.model_path.empty() ? default_model_path()
+                                                     : split_path(impl_->options.model_path);
   impl_->registry = std::make_unique<SceneRegistry>(std::move(ro));
 }
 

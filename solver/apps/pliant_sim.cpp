@@ -14,6 +14,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <sstream>
@@ -323,6 +324,49 @@ int cmd_reference(const cli::Args& a) {
   return r.converged ? 0 : 4;
 }
 
+int cmd_run(const cli::Args& a) {
+  const Material mat = material_from(a);
+  auto model = load_model(a, mat, a.number("fix-x-max"));
+  SolverSettings s = settings_from(a, SolverSettings{});
+  if (!a.has("omega")) s.omega = default_omega(s.method);
+  const int steps = int(a.integer("steps", 60, 1, 10000000));
+  const int every = int(a.integer("every", 1, 1, 10000000));
+  const std::string out = a.str("out", "");
+  if (out.empty()) throw cli::UsageError("--out DIR is required");
+  std::error_code ec;
+  std::filesystem::create_directories(out, ec);
+  if (ec) throw cli::UsageError("--out: cannot create '" + out + "': " + ec.message());
+  BodyState state = rest_state(*model);
+  Stepper stepper;
+  TetMesh frame;
+  frame.name = model->name;
+  for (const TetRest& t : model->tets) frame.tets.push_back(t.v);
+  int written = 0, diverged = 0;
+  double wall = 0;
+  auto write = [&](int k) {
+    frame.vertices = state.x;
+    char name[64];
+    std::snprintf(name, sizeof name, "frame_%06d.vtk", k);
+    write_vtk_legacy(frame, (std::filesystem::path(out) / name).string(), true);
+    ++written;
+  };
+  write(0);
+  for (int k = 1; k <= steps; ++k) {
+    const StepReport r = stepper.step(*model, state, s);
+    wall += r.wall_ms;
+    diverged += r.diverged;
+    if (k % every == 0) write(k);
+    if (k % 60 == 0) spdlog::info("step {}/{}: {:.2f} ms/step", k, steps, wall / k);
+  }
+  JsonLine j;
+  j.add("mesh", model->name).add("steps", steps).add("frames", written).add("out", out)
+      .add("ms_per_step", wall / steps).add("diverged_steps", diverged)
+      .add("tip_displacement", tip_displacement(*model, state.x))
+      .add("inverted_tets", long(count_inverted(*model, state.x)));
+  std::cout << j.str() << std::endl;
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -344,6 +388,7 @@ int main(int argc, char** argv) {
     if (cmd == "converge") return cmd_converge(a);
     if (cmd == "static") return cmd_static(a);
     if (cmd == "reference") return cmd_reference(a);
+    if (cmd == "run") return cmd_run(a);
     throw cli::UsageError("unknown command '" + cmd + "' (converge, static, reference, run)");
   } catch (const cli::UsageError& e) {
     std::cerr << "pliant-sim: " << e.what() << "\n";

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -66,6 +67,11 @@ std::vector<std::vector<int32_t>> colour_tets(const std::vector<TetRest>& tets, 
 
 namespace {
 
+uint64_t next_model_id() {
+  static std::atomic<uint64_t> counter{0};
+  return ++counter;
+}
+
 void set_material(BodyModel& m, const Material& material) {
   if (std::string err = validate(material); !err.empty()) throw std::invalid_argument(err);
   m.material = material;
@@ -92,6 +98,7 @@ std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material
   if (mesh.vertices.empty() || mesh.tets.empty())
     throw std::invalid_argument("mesh: '" + mesh.name + "' has no vertices or no tetrahedra");
   auto m = std::make_shared<BodyModel>();
+  m->id = next_model_id();
   m->name = mesh.name;
   m->rest_positions = mesh.vertices;
   const size_t nv = mesh.vertices.size();
@@ -138,6 +145,7 @@ std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material
 
 std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Material& material) {
   auto m = std::make_shared<BodyModel>(model);
+  m->id = next_model_id();
   set_material(*m, material);
   for (size_t i = 0; i < m->mass.size(); ++i)
     m->inv_mass[i] = (m->fixed[i] || m->mass[i] <= 0) ? 0.0 : 1.0 / m->mass[i];
@@ -146,6 +154,7 @@ std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Mat
 
 std::shared_ptr<const BodyModel> with_fixed(const BodyModel& model, const FixedSelection& fixed) {
   auto m = std::make_shared<BodyModel>(model);
+  m->id = next_model_id();
   set_fixed(*m, fixed);
   return m;
 }

@@ -1,6 +1,7 @@
 #include "pliant/stepper.hpp"
 
 #include "accelerators.hpp"
+#include "packed_projection.hpp"
 #include "projection.hpp"
 #include "thread_pool.hpp"
 
@@ -51,8 +52,9 @@ struct Stepper::Impl {
   IterationHook hook;
 
   // Vertex -> (tet, corner) adjacency for the Jacobi gather, rebuilt when the model changes.
-  const void* adjacency_key = nullptr;
-  size_t adjacency_tets = 0;
+  uint64_t adjacency_model = 0;
+  // Colours cut into SIMD packs for the Gauss-Seidel sweep and the residual.
+  detail::PackedModel packed;
   std::vector<int32_t> adj_start, adj_entry;
 
   // Scratch.
@@ -71,11 +73,8 @@ struct Stepper::Impl {
   }
 
   void ensure_adjacency(const BodyModel& m) {
-    if (adjacency_key == m.tets.data() && adjacency_tets == m.tets.size() &&
-        adj_start.size() == m.vertex_count() + 1)
-      return;
-    adjacency_key = m.tets.data();
-    adjacency_tets = m.tets.size();
+    if (adjacency_model == m.id && m.id != 0) return;
+    adjacency_model = m.id;
     adj_start.assign(m.vertex_count() + 1, 0);
     for (const TetRest& t : m.tets)
       for (int k = 0; k < 4; ++k) adj_start[t.v[k] + 1]++;
@@ -88,30 +87,34 @@ struct Stepper::Impl {
 
   double residual(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
                   const Mat6& alpha_tilde, ThreadPool& tp) {
+    detail::ensure_packed(packed, m);
     partial.assign(tp.size(), 0.0);
-    tp.parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
+    tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
       double s = 0;
-      for (size_t t = b; t < e; ++t) s += detail::residual_squared(m.tets[t], x, lambda[t], alpha_tilde);
+      for (size_t i = b; i < e; ++i) s += detail::pack_residual_squared(packed.packs[i], x, lambda, alpha_tilde);
       partial[chunk] = s;
-    });
+    }, 32);
     double sum = 0;
     for (double s : partial) sum += s;
     return std::sqrt(sum);
   }
 
-  // One Gauss-Seidel sweep in colour order; colours run in parallel inside.
+  // One Gauss-Seidel sweep in colour order, four tets of a colour at a time; colours run in
+  // parallel inside (no two tets of a colour share a vertex, so the result does not depend on
+  // the thread count).
   int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                          const detail::ProjectionParams& params, ThreadPool& tp) {
+    detail::ensure_packed(packed, m);
     std::vector<int> floor_hits(tp.size(), 0);
-    for (const auto& colour : m.colours) {
-      tp.parallel_for(colour.size(), [&](int chunk, size_t b, size_t e) {
+    for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
+      const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
+      tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
         int hits = 0;
-        for (size_t i = b; i < e; ++i) {
-          const int32_t t = colour[i];
-          hits += detail::project_tet(m.tets[t], x, m.inv_mass, lambda[t], params, dlambda[t]);
-        }
+        for (size_t i = b; i < e; ++i)
+          hits += detail::project_pack(packed.packs[first + i], x, lambda, dlambda, m, params.alpha_tilde,
+                                       params.lambda_scale, params.inversion_floor);
         floor_hits[chunk] += hits;
-      });
+      }, 32);
     }
     int total = 0;
     for (int h : floor_hits) total += h;
@@ -153,12 +156,14 @@ struct Stepper::Impl {
   }
 
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp) {
+    detail::ensure_packed(packed, m);
     std::vector<int> hits(tp.size(), 0);
-    for (const auto& colour : m.colours)
-      tp.parallel_for(colour.size(), [&](int chunk, size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i)
-          hits[chunk] += detail::enforce_volume_floor(m.tets[colour[i]], x, m.inv_mass, floor);
-      });
+    for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
+      const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
+      tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) hits[chunk] += detail::pack_volume_floor(packed.packs[first + i], x, m, floor);
+      }, 32);
+    }
     int total = 0;
     for (int h : hits) total += h;
     return total;
@@ -311,8 +316,14 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
     }
   }
   if (s.inversion_floor > 0) {
+    // Neighbours projected later in a pass can push an earlier tet back under the floor:
+    // repeat (a few times at most) until a pass finds nothing to do.
     PhaseTimer t{rep.times.other_ms};
-    rep.volume_corrections += I.volume_pass(m, x, s.inversion_floor, tp);
+    for (int pass = 0; pass < 4; ++pass) {
+      const int hits = I.volume_pass(m, x, s.inversion_floor, tp);
+      rep.volume_corrections += hits;
+      if (hits == 0) break;
+    }
   }
   rep.wall_ms = ms_since(t_start) - hook_ms;
   return rep;
@@ -328,6 +339,9 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   if (state.v.size() != nv) state.v.assign(nv, Vec3::Zero());
   const bool forces = inputs.external_forces.size() == nv;
   StepReport total;
+  SolverSettings quiet = s;
+  quiet.record_residuals = s.record_residuals && (s.tolerance > 0 || s.method == Method::Anderson ||
+                                                  s.method == Method::AndersonSor || s.method == Method::Extrapolation);
   for (int sub = 0; sub < n; ++sub) {
     const auto t_other = Clock::now();
     I.v_prev = state.x;  // positions at the start of the substep
@@ -348,8 +362,10 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
 
     double budget = 0;
     if (s.time_budget_ms > 0) budget = std::max(0.0, (s.time_budget_ms - ms_since(t_start)) / (n - sub));
-    StepReport r = solve_substep_budgeted(m, I.v_prev, state.x, state.lambda, h, s, inputs,
-                                          s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
+    // The report carries the residual history of the last substep only; earlier substeps
+    // compute residuals only when the method or a tolerance needs them.
+    StepReport r = solve_substep_budgeted(m, I.v_prev, state.x, state.lambda, h, sub + 1 == n ? s : quiet,
+                                          inputs, s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
 
     const auto t_vel = Clock::now();
     for (size_t i = 0; i < nv; ++i) state.v[i] = (state.x[i] - I.v_prev[i]) / h;

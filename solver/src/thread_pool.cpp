@@ -48,7 +48,12 @@ void ThreadPool::parallel_for(size_t n, const std::function<void(int, size_t, si
   size_t b, e;
   chunk_range(n, size(), 0, b, e);
   fn(0, b, e);
-  while (pending_.load(std::memory_order_acquire) != 0) PLIANT_PAUSE();
+  // Spin briefly (workers finish within microseconds when they have a core), then yield so an
+  // oversubscribed machine does not burn the waiting thread's whole time slice.
+  for (int spins = 0; pending_.load(std::memory_order_acquire) != 0; ++spins) {
+    if (spins < 2000) PLIANT_PAUSE();
+    else std::this_thread::yield();
+  }
 }
 
 void ThreadPool::worker_loop(int index) {
@@ -57,7 +62,8 @@ void ThreadPool::worker_loop(int index) {
     int spins = 0;
     while (generation_.load(std::memory_order_acquire) == seen && !stop_.load()) {
       if (++spins < kSpinRounds) {
-        PLIANT_PAUSE();
+        if (spins < kSpinRounds / 10) PLIANT_PAUSE();
+        else std::this_thread::yield();
         continue;
       }
       std::unique_lock<std::mutex> lock(mutex_);

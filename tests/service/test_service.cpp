@@ -157,6 +157,14 @@ TEST(Service, SceneLifecycle) {
   ASSERT_TRUE(c.delete_scene("a").ok());
   EXPECT_EQ(c.get_scene("a").status.code, kNotFound);
   EXPECT_EQ(c.list_scenes()->size(), 1u);
+
+  // A mesh file on the model path (the source tree's meshes/ by default).
+  v1::CreateSceneRequest from_file = beam_request("file");
+  from_file.mutable_spec()->mutable_mesh()->set_model_path("beams/beam1.vtk");
+  auto f = c.create_scene(from_file);
+  ASSERT_TRUE(f.ok()) << f.status.to_string();
+  EXPECT_EQ(f->tet_count(), 460u);
+  EXPECT_EQ(f->spec().mesh().model_path(), "beams/beam1.vtk");
 }
 
 TEST(Service, PauseResumeAndStepWhilePaused) {
@@ -817,4 +825,22 @@ TEST(Service, TlsWithAPrivateCa) {
   EXPECT_FALSE(Client(plain).list_scenes().ok());  // plaintext is refused
   ts.server->shutdown();
   fs::remove_all(dir);
+}
+
+TEST(Service, AStepPastItsDeadlineDropsTheRemainingTicks) {
+  TestServer ts;
+  client::ConnectOptions o;
+  o.address = ts.address;
+  o.step_timeout = std::chrono::milliseconds(200);
+  Client c(o);
+  ASSERT_TRUE(c.create_scene(beam_request("long")).ok());
+  auto st = c.step("long", 100000);  // far more than 200 ms of work
+  EXPECT_EQ(st.status.code, kDeadlineExceeded) << st.status.to_string();
+  // The scene is not stuck running the rest: it answers and steps again right away.
+  const uint64_t before = c.get_scene("long")->tick();
+  EXPECT_LT(before, 100000u);
+  auto next = c.step("long", 1);
+  ASSERT_TRUE(next.ok()) << next.status.to_string();
+  EXPECT_LT(next->tick(), 100000u);
+  EXPECT_GT(next->tick(), 0u);
 }

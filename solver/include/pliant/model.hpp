@@ -34,6 +34,7 @@ struct FixedSelection {
 };
 
 struct BodyModel {
+  uint64_t id = 0;  // unique per built model (caches in the solver key on it)
   std::string name;
   std::vector<Vec3> rest_positions;
   std::vector<TetRest> tets;

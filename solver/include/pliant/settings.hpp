@@ -39,8 +39,8 @@ struct ChebyshevParams {
 
 struct SolverSettings {
   double dt = 1.0 / 60.0;   // tick length h, s
-  int substeps = 8;         // h is split into this many substeps
-  int iterations = 8;       // iterations per substep (upper bound when a stop rule is set)
+  int substeps = 64;        // h is split into this many substeps (small steps: see docs/solver.md)
+  int iterations = 1;       // iterations per substep (upper bound when a stop rule is set)
   Sweep sweep = Sweep::GaussSeidel;
   Method method = Method::Xpbd;
   int window = 5;           // Anderson window m

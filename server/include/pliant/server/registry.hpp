@@ -47,7 +47,7 @@ class SceneRegistry {
   Error pause(const std::string& id, v1::Scene* out);
   Error resume(const std::string& id, v1::Scene* out);
   Error step(const v1::StepRequest& request, std::chrono::steady_clock::time_point deadline,
-             v1::StepResponse* out);
+             v1::StepResponse* out, const std::function<bool()>& cancelled = {});
   Error apply_force(const v1::ApplyForceRequest& request, v1::ApplyForceResponse* out);
   Error topology(const std::string& id, v1::Topology* out) const;
 

@@ -33,6 +33,7 @@ enum class Code {
   Unauthenticated,
   Unavailable,
   DeadlineExceeded,
+  Cancelled,
   Internal,
 };
 
@@ -151,8 +152,11 @@ class Scene {
   Error update(const SceneUpdate& update, std::chrono::milliseconds timeout = std::chrono::seconds(10));
   Error apply_force(std::vector<int32_t> vertices, const Vec3& force, uint32_t ticks,
                     uint64_t* first_tick, std::chrono::milliseconds timeout = std::chrono::seconds(10));
-  // Advances `ticks` ticks (lockstep or paused only) and waits until they are done.
-  Error step(uint32_t ticks, std::chrono::steady_clock::time_point deadline, StepResult* out);
+  // Advances `ticks` ticks (lockstep or paused only) and waits until they are done. When
+  // `cancelled` turns true (the caller went away) or the deadline passes, the ticks not yet
+  // run are dropped.
+  Error step(uint32_t ticks, std::chrono::steady_clock::time_point deadline, StepResult* out,
+             const std::function<bool()>& cancelled = {});
   // The full state at a tick boundary.
   Error snapshot(SceneSnapshot* out, std::chrono::milliseconds timeout = std::chrono::seconds(10));
   // Snapshot of a stopped scene (after stop(); no tick thread to ask).

@@ -1,0 +1,100 @@
+// Google Benchmark: cost of the solver's iterations in ns per tet-iteration, on the thesis
+// beam3 and armadillo, per sweep, accelerator and thread count.
+//   build/bench/bench_solver --benchmark_counters_tabular=true
+// The counter ns_per_tet_iter is wall time / (iterations x tets) of one substep solve.
+#include "pliant/experiments.hpp"
+#include "pliant/mesh_io.hpp"
+#include "pliant/stepper.hpp"
+
+#include <benchmark/benchmark.h>
+
+#include <map>
+#include <memory>
+
+using namespace pliant;
+
+namespace {
+
+struct Setup {
+  std::shared_ptr<const BodyModel> model;
+  std::vector<Vec3> x0;
+};
+
+const Setup& setup(const std::string& mesh) {
+  static std::map<std::string, Setup> cache;
+  auto it = cache.find(mesh);
+  if (it != cache.end()) return it->second;
+  const TetMesh m = resolve_mesh(mesh);
+  Setup s;
+  const double clamp = default_clamp_x(m.vertices);
+  s.model = build_model(m, Material{1e6, 0.4, 1000}, clamp_below_x(clamp));
+  s.x0 = cantilever_bend(*s.model, clamp, 0.1 * bounding_box(m.vertices).extent().x());
+  return cache.emplace(mesh, std::move(s)).first->second;
+}
+
+void run(benchmark::State& state, const std::string& mesh, Method method, Sweep sweep, bool residuals) {
+  const Setup& su = setup(mesh);
+  SolverSettings s;
+  s.method = method;
+  s.sweep = sweep;
+  s.omega = method == Method::AndersonSor ? 2.0 : (method == Method::Sor ? 1.5 : 1.0);
+  s.iterations = 20;
+  s.threads = int(state.range(0));
+  s.record_residuals = residuals || method == Method::AndersonSor || method == Method::Anderson;
+  Stepper stepper;
+  std::vector<Vec3> x;
+  std::vector<Vec6> lambda(su.model->tet_count(), Vec6::Zero());
+  long iterations = 0;
+  StepReport last;
+  for (auto _ : state) {
+    state.PauseTiming();
+    x = su.x0;
+    std::fill(lambda.begin(), lambda.end(), Vec6::Zero());
+    state.ResumeTiming();
+    last = stepper.solve_substep(*su.model, su.x0, x, lambda, 1.0 / 60, s);
+    iterations += last.iterations;
+    benchmark::DoNotOptimize(x.data());
+  }
+  state.counters["tets"] = double(su.model->tet_count());
+  state.counters["ns_per_tet_iter"] = benchmark::Counter(
+      double(iterations) * double(su.model->tet_count()) * 1e-9,
+      benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+  const double total = last.times.projection_ms + last.times.anderson_ms + last.times.update_ms + last.times.residual_ms;
+  if (total > 0) {
+    state.counters["share_projection"] = last.times.projection_ms / total;
+    state.counters["share_anderson"] = last.times.anderson_ms / total;
+    state.counters["share_update"] = last.times.update_ms / total;
+    state.counters["share_residual"] = last.times.residual_ms / total;
+  }
+}
+
+void register_all() {
+  for (const std::string mesh : {"beam3", "armadillo"}) {
+    struct Variant {
+      const char* name;
+      Method method;
+      Sweep sweep;
+      bool residuals;
+    };
+    for (const Variant& v : {Variant{"gs_xpbd", Method::Xpbd, Sweep::GaussSeidel, false},
+                             Variant{"gs_xpbd_residual", Method::Xpbd, Sweep::GaussSeidel, true},
+                             Variant{"jacobi_xpbd", Method::Xpbd, Sweep::Jacobi, false},
+                             Variant{"gs_chebyshev", Method::Chebyshev, Sweep::GaussSeidel, false},
+                             Variant{"gs_anderson_sor", Method::AndersonSor, Sweep::GaussSeidel, true}}) {
+      benchmark::RegisterBenchmark((std::string(v.name) + "/" + mesh).c_str(),
+                                   [=](benchmark::State& st) { run(st, mesh, v.method, v.sweep, v.residuals); })
+          ->Arg(1)->Arg(2)->ArgName("threads")->Unit(benchmark::kMillisecond)->UseRealTime();
+    }
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  register_all();
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

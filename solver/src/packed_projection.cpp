@@ -1,0 +1,239 @@
+#include "packed_projection.hpp"
+
+#include "projection.hpp"
+
+#include <cmath>
+
+namespace pliant::detail {
+
+namespace {
+
+inline v4d splat(double a) { return v4d{a, a, a, a}; }
+
+}  // namespace
+
+void ensure_packed(PackedModel& pm, const BodyModel& m) {
+  if (pm.model_id == m.id && m.id != 0) return;
+  pm.model_id = m.id;
+  pm.packs.clear();
+  pm.colour_begin.assign(1, 0);
+  for (const auto& colour : m.colours) {
+    for (size_t start = 0; start < colour.size(); start += 4) {
+      TetPack p{};
+      p.lanes = int(std::min<size_t>(4, colour.size() - start));
+      for (int l = 0; l < 4; ++l) {
+        const int32_t t = colour[start + std::min(l, p.lanes - 1)];
+        const TetRest& tr = m.tets[t];
+        p.tet[l] = t;
+        for (int k = 0; k < 4; ++k) {
+          p.v[k][l] = tr.v[k];
+          p.w[k][l] = m.inv_mass[tr.v[k]];
+        }
+        for (int k = 0; k < 3; ++k)
+          for (int i = 0; i < 3; ++i) p.B[3 * k + i][l] = tr.dm_inv(k, i);
+        p.volume[l] = tr.volume;
+        p.sqrt_volume[l] = tr.sqrt_volume;
+        Vec3 b[4];
+        for (int k = 0; k < 3; ++k) b[k] = tr.dm_inv.row(k).transpose();
+        b[3] = -(b[0] + b[1] + b[2]);
+        double Q[3][3] = {};
+        for (int k = 0; k < 4; ++k)
+          for (int i = 0; i < 3; ++i)
+            for (int j = i; j < 3; ++j) Q[i][j] += m.inv_mass[tr.v[k]] * b[k][i] * b[k][j];
+        p.Q[0][l] = Q[0][0];
+        p.Q[1][l] = Q[1][1];
+        p.Q[2][l] = Q[2][2];
+        p.Q[3][l] = Q[0][1];
+        p.Q[4][l] = Q[0][2];
+        p.Q[5][l] = Q[1][2];
+      }
+      pm.packs.push_back(p);
+    }
+    pm.colour_begin.push_back(pm.packs.size());
+  }
+}
+
+namespace {
+
+struct PackGeometry {
+  v4d f[3][3];  // f[i][c]: component c of column i of F
+  v4d S00, S11, S22, S01, S02, S12;
+};
+
+inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeometry& g) {
+  v4d px[4][3];
+  for (int k = 0; k < 4; ++k)
+    for (int l = 0; l < 4; ++l) {
+      const Vec3& q = x[p.v[k][l]];
+      px[k][0][l] = q[0];
+      px[k][1][l] = q[1];
+      px[k][2][l] = q[2];
+    }
+  v4d d[3][3];
+  for (int k = 0; k < 3; ++k)
+    for (int c = 0; c < 3; ++c) d[k][c] = px[k][c] - px[3][c];
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) g.f[i][c] = d[0][c] * p.B[i] + d[1][c] * p.B[3 + i] + d[2][c] * p.B[6 + i];
+  auto dot = [&](int i, int j) { return g.f[i][0] * g.f[j][0] + g.f[i][1] * g.f[j][1] + g.f[i][2] * g.f[j][2]; };
+  g.S00 = dot(0, 0);
+  g.S11 = dot(1, 1);
+  g.S22 = dot(2, 2);
+  g.S01 = dot(0, 1);
+  g.S02 = dot(0, 2);
+  g.S12 = dot(1, 2);
+}
+
+inline void pack_constraint(const TetPack& p, const PackGeometry& g, v4d C[6]) {
+  C[0] = p.sqrt_volume * (0.5 * g.S00 - 0.5);
+  C[1] = p.sqrt_volume * (0.5 * g.S11 - 0.5);
+  C[2] = p.sqrt_volume * (0.5 * g.S22 - 0.5);
+  C[3] = p.sqrt_volume * g.S12;
+  C[4] = p.sqrt_volume * g.S02;
+  C[5] = p.sqrt_volume * g.S01;
+}
+
+inline void gather_lambda(const TetPack& p, const std::vector<Vec6>& lambda, v4d lam[6]) {
+  for (int l = 0; l < 4; ++l) {
+    const Vec6& a = lambda[p.tet[l]];
+    for (int r = 0; r < 6; ++r) lam[r][l] = a[r];
+  }
+}
+
+}  // namespace
+
+int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
+                 std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& at,
+                 double lambda_scale, double inversion_floor) {
+  PackGeometry g;
+  pack_geometry(p, x, g);
+  v4d C[6], lam[6];
+  pack_constraint(p, g, C);
+  gather_lambda(p, lambda, lam);
+
+  const v4d S00 = g.S00, S11 = g.S11, S22 = g.S22, S01 = g.S01, S02 = g.S02, S12 = g.S12;
+  const v4d Q00 = p.Q[0], Q11 = p.Q[1], Q22 = p.Q[2], Q01 = p.Q[3], Q02 = p.Q[4], Q12 = p.Q[5];
+  const v4d V = p.volume;
+  v4d A[6][6];
+  A[0][0] = V * (S00 * Q00) + at(0, 0);
+  A[1][0] = V * (S01 * Q01) + at(1, 0);
+  A[1][1] = V * (S11 * Q11) + at(1, 1);
+  A[2][0] = V * (S02 * Q02) + at(2, 0);
+  A[2][1] = V * (S12 * Q12) + at(2, 1);
+  A[2][2] = V * (S22 * Q22) + at(2, 2);
+  A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
+  A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
+  A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
+  A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
+  A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
+  A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
+  A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
+  A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
+  A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
+  A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
+  A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
+  A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
+  A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
+  A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
+  A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
+
+  v4d rhs[6];
+  for (int r = 0; r < 6; ++r) {
+    v4d s = -C[r];
+    for (int c = 0; c < 6; ++c) s -= at(r, c) * lam[c];
+    rhs[r] = s;
+  }
+  // LDL^T, lane-wise.
+  v4d L[6][6], D[6], invD[6];
+  for (int j = 0; j < 6; ++j) {
+    v4d d = A[j][j];
+    for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k] * D[k];
+    D[j] = d;
+    invD[j] = 1.0 / d;
+    for (int i = j + 1; i < 6; ++i) {
+      v4d s = A[i][j];
+      for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k] * D[k];
+      L[i][j] = s * invD[j];
+    }
+  }
+  v4d z[6], y[6];
+  for (int i = 0; i < 6; ++i) {
+    v4d s = rhs[i];
+    for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
+    z[i] = s;
+  }
+  for (int i = 5; i >= 0; --i) {
+    v4d s = z[i] * invD[i];
+    for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
+    y[i] = lambda_scale * s;
+  }
+  // Position corrections: dx_k = w_k sqrt(V0) (F P) b_k.
+  const v4d P[3][3] = {{y[0], y[5], y[4]}, {y[5], y[1], y[3]}, {y[4], y[3], y[2]}};
+  v4d M[3][3];  // M[i][c]: component c of column i of F P
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) M[i][c] = g.f[0][c] * P[0][i] + g.f[1][c] * P[1][i] + g.f[2][c] * P[2][i];
+  v4d b[4][3];
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
+  for (int i = 0; i < 3; ++i) b[3][i] = -(b[0][i] + b[1][i] + b[2][i]);
+  v4d dx[4][3];
+  for (int k = 0; k < 4; ++k) {
+    const v4d s = p.w[k] * p.sqrt_volume;
+    for (int c = 0; c < 3; ++c) dx[k][c] = s * (M[0][c] * b[k][0] + M[1][c] * b[k][1] + M[2][c] * b[k][2]);
+  }
+  // det F before the projection, for the inversion floor.
+  const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
+                  g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
+                  g.f[0][2] * (g.f[1][0] * g.f[2][1] - g.f[1][1] * g.f[2][0]);
+
+  int floor_hits = 0;
+  for (int l = 0; l < p.lanes; ++l) {
+    bool ok = true;
+    for (int r = 0; r < 6; ++r) ok &= std::isfinite(y[r][l]) && D[r][l] > 0;
+    if (!ok) continue;  // not positive definite (cannot happen with alpha~ > 0): skip the tet
+    const int32_t t = p.tet[l];
+    Vec6& dl = dlambda[t];
+    for (int r = 0; r < 6; ++r) dl[r] = y[r][l];
+    lambda[t] += dl;
+    for (int k = 0; k < 4; ++k) {
+      Vec3& q = x[p.v[k][l]];
+      q[0] += dx[k][0][l];
+      q[1] += dx[k][1][l];
+      q[2] += dx[k][2][l];
+    }
+    if (inversion_floor > 0 && det[l] < inversion_floor)
+      floor_hits += enforce_volume_floor(model.tets[t], x, model.inv_mass, inversion_floor);
+  }
+  return floor_hits;
+}
+
+int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor) {
+  PackGeometry g;
+  pack_geometry(p, x, g);
+  const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
+                  g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
+                  g.f[0][2] * (g.f[1][0] * g.f[2][1] - g.f[1][1] * g.f[2][0]);
+  int hits = 0;
+  for (int l = 0; l < p.lanes; ++l)
+    if (det[l] < floor) hits += enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, floor);
+  return hits;
+}
+
+double pack_residual_squared(const TetPack& p, const std::vector<Vec3>& x,
+                             const std::vector<Vec6>& lambda, const Mat6& at) {
+  PackGeometry g;
+  pack_geometry(p, x, g);
+  v4d C[6], lam[6];
+  pack_constraint(p, g, C);
+  gather_lambda(p, lambda, lam);
+  v4d sum = splat(0.0);
+  for (int r = 0; r < 6; ++r) {
+    v4d s = C[r];
+    for (int c = 0; c < 6; ++c) s += at(r, c) * lam[c];
+    sum += s * s;
+  }
+  double total = 0;
+  for (int l = 0; l < p.lanes; ++l) total += sum[l];
+  return total;
+}
+
+}  // namespace pliant::detail

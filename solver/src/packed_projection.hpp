@@ -1,0 +1,50 @@
+// The strain projection four tets at a time. Tets of one colour share no vertex, so a colour
+// is cut into packs of 4 whose rest data is stored lane by lane (structure of arrays); the
+// kernel is the same algebra as projection.cpp written on 4-wide vectors (GCC vector
+// extensions: AVX with -march supporting it, two SSE2 halves otherwise). Padding lanes of the
+// last pack of a colour repeat a real tet and are never written back.
+#pragma once
+
+#include "pliant/model.hpp"
+
+#include <cstdint>
+#include <vector>
+
+namespace pliant::detail {
+
+typedef double v4d __attribute__((vector_size(32), aligned(32)));
+
+struct alignas(32) TetPack {
+  v4d B[9];      // D_m^-1, row major: B[3 * k + i] = B(k, i)
+  v4d volume;    // V0
+  v4d sqrt_volume;
+  v4d Q[6];      // sum_k w_k b_k b_k^T: 00 11 22 01 02 12
+  v4d w[4];      // inverse masses of the corners
+  int32_t tet[4];
+  int32_t v[4][4];  // v[corner][lane]
+  int lanes;        // real lanes (1..4)
+};
+
+struct PackedModel {
+  uint64_t model_id = 0;  // BodyModel::id the packs were built from
+  std::vector<TetPack> packs;
+  std::vector<size_t> colour_begin;  // packs of colour c: [colour_begin[c], colour_begin[c+1])
+};
+
+// (Re)builds the packs when `model` differs from the one they were built for.
+void ensure_packed(PackedModel& packed, const BodyModel& model);
+
+// Gauss-Seidel projection of one pack: x, lambda and dlambda updated for the real lanes.
+// Returns the number of lanes below the inversion floor (handled here, scalar).
+int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
+                 std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
+                 double lambda_scale, double inversion_floor);
+
+// Enforces the inversion floor on the real lanes whose det(F) is below it; returns how many.
+int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor);
+
+// Sum over the real lanes of ||C + alpha~ lambda||^2.
+double pack_residual_squared(const TetPack& p, const std::vector<Vec3>& x,
+                             const std::vector<Vec6>& lambda, const Mat6& alpha_tilde);
+
+}  // namespace pliant::detail

@@ -1,0 +1,184 @@
+// Whole-body physics: static deflection against beam theory and against the Newton reference,
+// recovery from inversion (the thesis's limitation), resting on a floor, and damping that
+// leaves rigid motion alone.
+#include "pliant/builtin_meshes.hpp"
+#include "pliant/experiments.hpp"
+#include "pliant/reference_solver.hpp"
+#include "pliant/stepper.hpp"
+#include "pliant/strain_constraint.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+using namespace pliant;
+
+namespace {
+
+std::shared_ptr<const BodyModel> clamped(const char* name, double young) {
+  TetMesh mesh = *builtin_mesh(name);
+  return build_model(mesh, Material{young, 0.4, 1000}, clamp_below_x(default_clamp_x(mesh.vertices)));
+}
+
+double min_volume_ratio(const BodyModel& m, const std::vector<Vec3>& x) {
+  double lo = 1e300;
+  for (const TetRest& t : m.tets) lo = std::min(lo, volume_ratio(t, gather(x, t.v)));
+  return lo;
+}
+
+}  // namespace
+
+TEST(StaticDeflection, ConvergesToBeamTheoryUnderRefinement) {
+  // Euler-Bernoulli cantilever under its own weight: tip deflection w L^4 / (8 E I). Linear tets
+  // are too stiff in bending (shear locking); the error must shrink as the cubes get smaller
+  // (0.5, 1/3, 0.25 cm), at least linearly in the cube size. Small load: linear range.
+  const double E = 1e7, w = 1000 * 9.81 * 1e-4, I = 1e-8 / 12;
+  double previous_error = 1.0, previous_size = 0;
+  for (auto [name, L, size] : {std::tuple{"beam1", 0.115, 0.5}, std::tuple{"beam2", 0.31 / 3, 1 / 3.0},
+                               std::tuple{"beam3", 0.0975, 0.25}}) {
+    auto model = clamped(name, E);
+    const NewtonResult r = solve_static(*model, model->rest_positions, Vec3(0, -9.81, 0));
+    ASSERT_TRUE(r.converged) << name;
+    const double theory = w * std::pow(L, 4) / (8 * E * I);
+    const double ratio = -tip_displacement(*model, r.x).y() / theory;
+    const double error = 1 - ratio;
+    EXPECT_GT(ratio, 0.6) << name;
+    EXPECT_LT(ratio, 1.0) << name;  // locking makes linear tets stiffer, never softer
+    if (previous_size > 0) {
+      EXPECT_LT(error, previous_error * size / previous_size) << name;
+    }
+    previous_error = error;
+    previous_size = size;
+  }
+  EXPECT_LT(previous_error, 0.15);  // beam3: within 15% of beam theory
+}
+
+TEST(StaticDeflection, XpbdRestStateConvergesToTheNewtonEquilibriumAsIterationsGrow) {
+  // Same substeps, more iterations per substep: the tip at rest approaches the model's exact
+  // equilibrium (Newton) and ends within 2% of it.
+  auto model = clamped("beam1", 1e6);
+  const NewtonResult ref = solve_static(*model, model->rest_positions, Vec3(0, -9.81, 0));
+  ASSERT_TRUE(ref.converged);
+  const double exact = tip_displacement(*model, ref.x).y();
+  double previous = 1e300;
+  for (int iterations : {1, 4, 16}) {
+    SolverSettings s;
+    s.substeps = 64;
+    s.iterations = iterations;
+    s.damping_coefficient = 50;
+    s.record_residuals = false;
+    const RestResult rest = run_to_rest(*model, s, 400, 1e-4);
+    ASSERT_TRUE(rest.at_rest) << iterations;
+    const double error = std::abs(tip_displacement(*model, rest.state.x).y() / exact - 1);
+    EXPECT_LT(error, previous) << iterations;
+    previous = error;
+  }
+  EXPECT_LT(previous, 0.02);
+}
+
+TEST(Inversion, AnInvertedTetRecoversItsRestOrientation) {
+  TetMesh mesh;
+  mesh.vertices = {Vec3(0, 0, 0), Vec3(0.01, 0, 0), Vec3(0, 0.01, 0), Vec3(0, 0, 0.01)};
+  mesh.tets = {{0, 1, 2, 3}};
+  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+  BodyState state = rest_state(*model);
+  state.x[3] = Vec3(0.002, 0.002, -0.004);  // pushed through the opposite face
+  ASSERT_LT(volume_ratio(model->tets[0], gather(state.x, model->tets[0].v)), 0);
+  SolverSettings s;
+  s.gravity.setZero();
+  s.iterations = 4;
+  Stepper stepper;
+  for (int k = 0; k < 120; ++k) stepper.step(*model, state, s);
+  const double J = volume_ratio(model->tets[0], gather(state.x, model->tets[0].v));
+  EXPECT_NEAR(J, 1.0, 0.02);
+  EXPECT_LT(strain_vector(deformation_gradient(model->tets[0], gather(state.x, model->tets[0].v))).norm(), 0.02);
+}
+
+TEST(Inversion, ABodySquashedFlatRecoversWhereTheThesisConstraintCannot) {
+  TetMesh mesh = *builtin_mesh("beam1");
+  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+  auto squash = [&] {
+    BodyState st = rest_state(*model);
+    for (Vec3& p : st.x) p.y() = 0.005 + 1e-4 * (p.y() - 0.005);  // 1% of its height
+    return st;
+  };
+  SolverSettings s;
+  s.gravity.setZero();
+  s.iterations = 4;
+  s.substeps = 16;
+  BodyState state = squash();
+  Stepper stepper;
+  for (int k = 0; k < 120; ++k) stepper.step(*model, state, s);
+  EXPECT_EQ(count_inverted(*model, state.x), 0u);
+  EXPECT_GT(min_volume_ratio(*model, state.x), 0.5);
+  double volume = 0;
+  for (const TetRest& t : model->tets) volume += t.volume * volume_ratio(t, gather(state.x, t.v));
+  EXPECT_NEAR(volume / total_volume(mesh), 1.0, 0.05);
+
+  // Without the volume floor (the thesis's constraint alone) the same squash leaves the body
+  // with inverted tets: Green strain is blind to reflection.
+  SolverSettings thesis = s;
+  thesis.inversion_floor = 0;
+  BodyState flat = squash();
+  Stepper plain;
+  for (int k = 0; k < 120; ++k) plain.step(*model, flat, thesis);
+  EXPECT_GT(count_inverted(*model, flat.x), 0u);
+}
+
+TEST(Contact, ABodyDroppedOnAFloorComesToRestOnIt) {
+  TetMesh mesh = *builtin_mesh("beam1");
+  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+  BodyState state = rest_state(*model);
+  StepInputs inputs;
+  inputs.colliders.push_back(Collider::plane(Vec3(0, -0.02, 0), Vec3(0, 1, 0)));
+  SolverSettings s;
+  s.iterations = 2;
+  s.substeps = 16;
+  s.damping_coefficient = 2;
+  Stepper stepper;
+  StepReport last;
+  for (int k = 0; k < 120; ++k) last = stepper.step(*model, state, s, inputs);
+  double lowest = 1e300, vmax = 0;
+  for (size_t i = 0; i < state.x.size(); ++i) {
+    lowest = std::min(lowest, state.x[i].y());
+    vmax = std::max(vmax, state.v[i].norm());
+  }
+  EXPECT_GT(lowest, -0.02 - 1e-6);   // not through the floor
+  EXPECT_LT(lowest, -0.02 + 1e-3);   // but resting on it (it fell 2 cm)
+  EXPECT_GT(last.contacts, 0);
+  EXPECT_LT(vmax, 0.05);
+  // Friction keeps it from sliding sideways: the centre moved straight down.
+  Vec3 c = Vec3::Zero(), c0 = Vec3::Zero();
+  for (size_t i = 0; i < state.x.size(); ++i) {
+    c += state.x[i] / state.x.size();
+    c0 += model->rest_positions[i] / state.x.size();
+  }
+  EXPECT_LT(std::abs(c.x() - c0.x()), 1e-3);
+  EXPECT_LT(std::abs(c.z() - c0.z()), 1e-3);
+}
+
+TEST(Damping, RigidPreservingDampingKeepsARigidSpin) {
+  // A spinning, undeformed body keeps its angular momentum under the rigid-mode-preserving
+  // damping, while the simple variant slows it down.
+  TetMesh mesh = *builtin_mesh("beam1");
+  auto model = build_model(mesh, Material{1e6, 0.4, 1000});
+  auto spin = [&](Damping d) {
+    BodyState st = rest_state(*model);
+    const Vec3 centre = bounding_box(mesh.vertices).min + 0.5 * bounding_box(mesh.vertices).extent();
+    for (size_t i = 0; i < st.x.size(); ++i) st.v[i] = Vec3(0, 2.0, 0).cross(st.x[i] - centre);
+    SolverSettings s;
+    s.gravity.setZero();
+    s.damping = d;
+    s.damping_coefficient = d == Damping::Simple ? 2.0 : 0.5;
+    Stepper stepper;
+    for (int k = 0; k < 30; ++k) stepper.step(*model, st, s);
+    Vec3 xc = Vec3::Zero();
+    for (size_t i = 0; i < st.x.size(); ++i) xc += model->mass[i] * st.x[i] / model->total_mass();
+    Vec3 L = Vec3::Zero();
+    for (size_t i = 0; i < st.x.size(); ++i) L += model->mass[i] * (st.x[i] - xc).cross(st.v[i]);
+    return L.norm();
+  };
+  const double rigid = spin(Damping::RigidPreserving), none = spin(Damping::None), simple = spin(Damping::Simple);
+  EXPECT_NEAR(rigid / none, 1.0, 0.02);
+  EXPECT_LT(simple / none, 0.7);
+}
