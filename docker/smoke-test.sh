@@ -132,19 +132,22 @@ fi
 [ "${BASE_ONLY:-0}" = 1 ] && { say "base image ready"; exit 0; }
 
 # 4. Build the image. The package layers come before the sources are copied, so after a source change
-#    only the compile step (with its build-dir cache mount) and the final COPY run again.
+#    only the compile step (ccache in a cache mount) and the final COPY run again.
 say "building $IMAGE from $REPO"
-if ! timed build "${P[@]}" build --pull=never --network=host --format docker --layers \
-       -f docker/Dockerfile -t "$IMAGE" . >"$TMPD/build.log" 2>&1; then
+if ! timed build bash -c '"$@" >"$0" 2>&1' "$TMPD/build.log" \
+       "${P[@]}" build --pull=never --network=host --format docker --layers \
+       --iidfile "$TMPD/iid" -f docker/Dockerfile -t "$IMAGE" .; then
   tail -60 "$TMPD/build.log" >&2; cp "$TMPD/build.log" "$CACHE/last-build.log" 2>/dev/null || true
   die "image build failed (whole log: $CACHE/last-build.log)"
 fi
 cp "$TMPD/build.log" "$CACHE/last-build.log" 2>/dev/null || true
+# From here on the image is named by its ID, so a concurrent run retagging $IMAGE cannot swap it.
+IID=$(cat "$TMPD/iid")
 grep -E '^\[[0-9]/[0-9]\] STEP [0-9]+/[0-9]+: (RUN|COPY)|Using cache|^image: ' "$TMPD/build.log" \
   | sed -E 's/^(.{110}).*/\1.../' >&2 || true
 
 # 5. What is in the image: size, user, port, volume, health check, libraries, no compilers.
-inspect() { "${P[@]}" image inspect --format "$1" "$IMAGE"; }
+inspect() { "${P[@]}" image inspect --format "$1" "$IID"; }
 size=$(inspect '{{.Size}}')
 say "image $IMAGE: $(awk -v s="$size" 'BEGIN{printf "%.0f MB", s/1e6}') ($size bytes; base $(
   "${P[@]}" image inspect --format '{{.Size}}' docker.io/library/debian:bookworm-slim | awk '{printf "%.0f MB", $1/1e6}'))"
@@ -152,8 +155,8 @@ user=$(inspect '{{.Config.User}}'); [ -n "$user" ] && [ "${user%%:*}" != 0 ] && 
   || die "image runs as root (USER '$user')"
 inspect '{{json .Config.ExposedPorts}}' | grep -q '"50051/tcp"' || die "image does not expose 50051"
 inspect '{{json .Config.Volumes}}' | grep -q '"/var/lib/pliant"' || die "no VOLUME /var/lib/pliant"
-"${P[@]}" image inspect "$IMAGE" | grep -q '"pliant health' || die "no HEALTHCHECK with pliant health"
-"${P[@]}" run --rm --network=none --entrypoint /bin/sh "$IMAGE" -c '
+"${P[@]}" image inspect "$IID" | grep -q '"pliant health' || die "no HEALTHCHECK with pliant health"
+"${P[@]}" run --rm --network=none --entrypoint /bin/sh "$IID" -c '
   set -e
   # (gcc-12-base is only the shared libraries'' base package, no compiler)
   ls /usr/local/bin
@@ -179,7 +182,7 @@ start_server() {
   # systemd for podman's health timers (podman logs an error about it; harmless).
   "${P[@]}" run -d --name "$NAME" --network=host -v "$VOL:/var/lib/pliant" \
     -e PLIANT_LISTEN="$ADDR" -e PLIANT_TOKEN="$TOKEN" -e PLIANT_LOG_LEVEL=info \
-    "$IMAGE" >>"$TMPD/podman.log" 2>&1 || { cat "$TMPD/podman.log" >&2; die "podman run failed"; }
+    "$IID" >>"$TMPD/podman.log" 2>&1 || { cat "$TMPD/podman.log" >&2; die "podman run failed"; }
 }
 wait_healthy() {  # the image's own HEALTHCHECK (pliant health), up to 60 s
   local i state
@@ -193,7 +196,7 @@ wait_healthy() {  # the image's own HEALTHCHECK (pliant health), up to 60 s
 }
 
 # The host side uses the image's own `pliant` (the same Debian 12 libraries are on the host).
-"${P[@]}" create --name "$NAME-cli" "$IMAGE" >/dev/null
+"${P[@]}" create --name "$NAME-cli" "$IID" >/dev/null
 "${P[@]}" cp "$NAME-cli:/usr/local/bin/pliant" "$TMPD/pliant" && "${P[@]}" rm -v "$NAME-cli" >/dev/null
 cli() { PLIANT_ADDRESS=$ADDR PLIANT_TOKEN=$TOKEN "$TMPD/pliant" "$@"; }
 json() {  # json EXPR < last JSON line of stdin: print EXPR of it (d = the parsed object)
@@ -236,7 +239,7 @@ timed stop "${P[@]}" stop -t 30 "$NAME" >/dev/null 2>>"$TMPD/podman.log"
 code=$("${P[@]}" inspect --format '{{.State.ExitCode}}' "$NAME")
 [ "$code" = 0 ] || die "server exited with $code on SIGTERM"
 "${P[@]}" logs "$NAME" 2>&1 | grep -iE 'snapshot|shut' | tail -3 | sed 's/^/  server: /' >&2 || true
-"${P[@]}" run --rm --network=none -v "$VOL:/data:ro" --entrypoint ls "$IMAGE" -lR /data \
+"${P[@]}" run --rm --network=none -v "$VOL:/data:ro" --entrypoint ls "$IID" -lR /data \
   2>/dev/null | sed 's/^/  volume: /' >&2
 timed restart "${P[@]}" start "$NAME" >/dev/null 2>>"$TMPD/podman.log"
 wait_healthy
@@ -300,7 +303,7 @@ if command -v podman-compose >/dev/null; then
     "${P[@]}" untag localhost/pliant:latest localhost/pliant:latest >/dev/null 2>&1 || true
   }
   trap 'compose_cleanup; cleanup' EXIT
-  "${P[@]}" tag "$IMAGE" localhost/pliant:latest   # compose.yaml's image: pliant:latest, no rebuild
+  "${P[@]}" tag "$IID" localhost/pliant:latest   # compose.yaml's image: pliant:latest, no rebuild
   timed compose-up compose up -d >"$TMPD/compose.log" 2>&1 || { cat "$TMPD/compose.log" >&2; die "compose up failed"; }
   for i in $(seq 1 60); do
     st=$("${P[@]}" inspect --format '{{.State.Status}} {{.State.ExitCode}}' "${PROJ}_demo_1" 2>/dev/null || echo missing)
