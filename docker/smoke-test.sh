@@ -180,7 +180,10 @@ ADDR=127.0.0.1:$PORT
 start_server() {
   # The image's HEALTHCHECK is run on demand below (`podman healthcheck run`): these hosts have no
   # systemd for podman's health timers (podman logs an error about it; harmless).
+  # Locked down as in deploy/k8s: read-only root filesystem (podman adds a tmpfs /tmp), no
+  # capabilities, no privilege escalation; only the volume is writable.
   "${P[@]}" run -d --name "$NAME" --network=host -v "$VOL:/var/lib/pliant" \
+    --read-only --cap-drop=ALL --security-opt=no-new-privileges \
     -e PLIANT_LISTEN="$ADDR" -e PLIANT_TOKEN="$TOKEN" -e PLIANT_LOG_LEVEL=info \
     "$IID" >>"$TMPD/podman.log" 2>&1 || { cat "$TMPD/podman.log" >&2; die "podman run failed"; }
 }
