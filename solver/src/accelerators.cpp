@@ -100,12 +100,16 @@ class MultiplierAcceleration final : public Accelerator {
     bool ready = false;
     switch (form_) {
       case Form::Thesis:
-        if (pushes_ > 0) mixer_.push(d, d - prev_d_);
+        if (pushes_ > 0) {
+          e_.noalias() = d - prev_d_;
+          mixer_.push(d, e_);
+        }
         prev_d_ = d;
         ready = mixer_.ready();
         break;
       case Form::TypeII:
-        mixer_.push(flat(it.lambda) - d, d);
+        e_.noalias() = flat(it.lambda) - d;  // the iterate the sweep started from
+        mixer_.push(e_, d);
         ready = mixer_.ready();
         break;
       case Form::Extrapolation:
@@ -138,7 +142,7 @@ class MultiplierAcceleration final : public Accelerator {
   double omega_;
   int window_;
   AndersonMixer mixer_;
-  Eigen::VectorXd aa_, prev_d_;
+  Eigen::VectorXd aa_, prev_d_, e_;
   std::vector<Vec6> increment_;
   int pushes_ = 0;
 };
@@ -212,10 +216,12 @@ int AndersonMixer::accelerate(Eigen::VectorXd& out) {
   Eigen::VectorXd rhs(cols);
   for (int a = 0; a < cols; ++a) rhs[a] = dr_[slot(a)].dot(r_);
   Eigen::VectorXd theta = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(A).solve(rhs);
-  out = y_ + beta_ * r_;
+  if (beta_ != 0) out.noalias() = y_ + beta_ * r_;
+  else out = y_;
   if (!theta.allFinite()) return dropped;
   for (int a = 0; a < cols; ++a) {
-    out.noalias() -= theta[a] * (dy_[slot(a)] + beta_ * dr_[slot(a)]);
+    out.noalias() -= theta[a] * dy_[slot(a)];
+    if (beta_ != 0) out.noalias() -= (theta[a] * beta_) * dr_[slot(a)];
     theta_[a] = theta[a];
   }
   columns_used_ = cols;

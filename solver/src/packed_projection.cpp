@@ -99,6 +99,22 @@ inline void gather_lambda(const TetPack& p, const std::vector<Vec6>& lambda, v4d
   }
 }
 
+// dx_k = w_k sqrt(V0) (F P) b_k, P the symmetric 3x3 of the increment y.
+inline void pack_corrections(const TetPack& p, const PackGeometry& g, const v4d y[6], v4d dx[4][3]) {
+  const v4d P[3][3] = {{y[0], y[5], y[4]}, {y[5], y[1], y[3]}, {y[4], y[3], y[2]}};
+  v4d M[3][3];  // M[i][c]: component c of column i of F P
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) M[i][c] = g.f[0][c] * P[0][i] + g.f[1][c] * P[1][i] + g.f[2][c] * P[2][i];
+  v4d b[4][3];
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
+  for (int i = 0; i < 3; ++i) b[3][i] = -(b[0][i] + b[1][i] + b[2][i]);
+  for (int k = 0; k < 4; ++k) {
+    const v4d s = p.w[k] * p.sqrt_volume;
+    for (int c = 0; c < 3; ++c) dx[k][c] = s * (M[0][c] * b[k][0] + M[1][c] * b[k][1] + M[2][c] * b[k][2]);
+  }
+}
+
 }  // namespace
 
 int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
@@ -166,20 +182,8 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
     for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
     y[i] = lambda_scale * s;
   }
-  // Position corrections: dx_k = w_k sqrt(V0) (F P) b_k.
-  const v4d P[3][3] = {{y[0], y[5], y[4]}, {y[5], y[1], y[3]}, {y[4], y[3], y[2]}};
-  v4d M[3][3];  // M[i][c]: component c of column i of F P
-  for (int i = 0; i < 3; ++i)
-    for (int c = 0; c < 3; ++c) M[i][c] = g.f[0][c] * P[0][i] + g.f[1][c] * P[1][i] + g.f[2][c] * P[2][i];
-  v4d b[4][3];
-  for (int k = 0; k < 3; ++k)
-    for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
-  for (int i = 0; i < 3; ++i) b[3][i] = -(b[0][i] + b[1][i] + b[2][i]);
   v4d dx[4][3];
-  for (int k = 0; k < 4; ++k) {
-    const v4d s = p.w[k] * p.sqrt_volume;
-    for (int c = 0; c < 3; ++c) dx[k][c] = s * (M[0][c] * b[k][0] + M[1][c] * b[k][1] + M[2][c] * b[k][2]);
-  }
+  pack_corrections(p, g, y, dx);
   // det F before the projection, for the inversion floor.
   const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
                   g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
@@ -204,6 +208,22 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
       floor_hits += enforce_volume_floor(model.tets[t], x, model.inv_mass, inversion_floor);
   }
   return floor_hits;
+}
+
+void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl) {
+  PackGeometry g;
+  pack_geometry(p, x, g);
+  v4d y[6];
+  gather_lambda(p, dl, y);
+  v4d dx[4][3];
+  pack_corrections(p, g, y, dx);
+  for (int l = 0; l < p.lanes; ++l)
+    for (int k = 0; k < 4; ++k) {
+      Vec3& q = x[p.v[k][l]];
+      q[0] += dx[k][0][l];
+      q[1] += dx[k][1][l];
+      q[2] += dx[k][2][l];
+    }
 }
 
 int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor) {

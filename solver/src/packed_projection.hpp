@@ -40,6 +40,9 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
                  std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
                  double lambda_scale, double inversion_floor);
 
+// x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update).
+void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl);
+
 // Enforces the inversion floor on the real lanes whose det(F) is below it; returns how many.
 int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor);
 

@@ -170,10 +170,13 @@ struct Stepper::Impl {
   }
 
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
-    for (const auto& colour : m.colours)
-      tp.parallel_for(colour.size(), [&](int, size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) detail::apply_increment(m.tets[colour[i]], x, m.inv_mass, dl[colour[i]]);
-      });
+    detail::ensure_packed(packed, m);
+    for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
+      const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
+      tp.parallel_for(count, [&](int, size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) detail::pack_apply_increment(packed.packs[first + i], x, dl);
+      }, 32);
+    }
   }
 
   int contacts(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec3>& x_start,
@@ -250,7 +253,8 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
     double r = 0;
     const bool proposes = s.method == Method::Anderson || s.method == Method::AndersonSor ||
                           s.method == Method::Extrapolation;
-    if (s.record_residuals) {
+    // Position-space accelerators move x after the sweep: their residual is taken after that.
+    if (s.record_residuals && (proposes || !accel->needs_previous())) {
       PhaseTimer t{rep.times.residual_ms};
       r = I.residual(m, x, lambda, params.alpha_tilde, tp);
     }
