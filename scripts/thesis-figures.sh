@@ -40,6 +40,8 @@ for E in 1e5 1e7; do
 done
 
 # 4. Static equilibrium of beam3 against the Newton reference (same mesh, same model).
+#    The slow part (minutes); SKIP_STATIC=1 keeps the previous data.
+if [ "${SKIP_STATIC:-0}" != 1 ]; then
 : > "$D/static_beam3.jsonl"
 for E in 1e7 1e5; do
   say "static beam3 E=$E (XPBD)"
@@ -47,6 +49,7 @@ for E in 1e7 1e5; do
   say "static beam3 E=$E (Newton reference)"
   "$SIM" reference --mesh beam3 --young "$E" --steps 10 | tail -n 1 >> "$D/static_beam3.jsonl" || true
 done
+fi
 
 # 5. Plots.
 if command -v gnuplot >/dev/null; then

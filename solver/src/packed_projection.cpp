@@ -2,6 +2,7 @@
 
 #include "projection.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace pliant::detail {
@@ -17,7 +18,12 @@ void ensure_packed(PackedModel& pm, const BodyModel& m) {
   pm.model_id = m.id;
   pm.packs.clear();
   pm.colour_begin.assign(1, 0);
-  for (const auto& colour : m.colours) {
+  for (const auto& unsorted : m.colours) {
+    // Within a colour the order is free: sort by lowest vertex index so that neighbouring packs
+    // touch nearby memory (the thesis armadillo's numbering is otherwise scattered).
+    std::vector<int32_t> colour = unsorted;
+    auto lowest = [&](int32_t t) { return *std::min_element(m.tets[t].v.begin(), m.tets[t].v.end()); };
+    std::sort(colour.begin(), colour.end(), [&](int32_t a, int32_t b) { return lowest(a) < lowest(b); });
     for (size_t start = 0; start < colour.size(); start += 4) {
       TetPack p{};
       p.lanes = int(std::min<size_t>(4, colour.size() - start));
