@@ -17,6 +17,10 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+// End-of-substep passes of the inversion floor: each pass only projects tets below the floor,
+// so passes after the first cost a determinant per tet.
+constexpr int kVolumePasses = 20;
+
 double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
@@ -321,9 +325,9 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
   }
   if (s.inversion_floor > 0) {
     // Neighbours projected later in a pass can push an earlier tet back under the floor:
-    // repeat (a few times at most) until a pass finds nothing to do.
+    // repeat (kVolumePasses at most) until a pass finds nothing to do.
     PhaseTimer t{rep.times.other_ms};
-    for (int pass = 0; pass < 4; ++pass) {
+    for (int pass = 0; pass < kVolumePasses; ++pass) {
       const int hits = I.volume_pass(m, x, s.inversion_floor, tp);
       rep.volume_corrections += hits;
       if (hits == 0) break;
