@@ -23,11 +23,11 @@ struct Case {
   bool require_no_inversion;
 };
 
+void PrintTo(const Case& c, std::ostream* os) { *os << c.mesh; }
+
 class Robustness : public ::testing::TestWithParam<std::tuple<Case, double>> {};
 
 }  // namespace
-
-void PrintTo(const Case& c, std::ostream* os) { *os << c.mesh; }
 
 TEST_P(Robustness, StaysStableAtSixtyHertz) {
   const auto [c, young] = GetParam();
