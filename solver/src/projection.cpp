@@ -143,29 +143,6 @@ bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::v
   return true;
 }
 
-bool project_tet(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
-                 Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda_out) {
-  const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-  const double w[4] = {inv_mass[tet.v[0]], inv_mass[tet.v[1]], inv_mass[tet.v[2]], inv_mass[tet.v[3]]};
-  Vec3 dx[4];
-  double det_f;
-  strain_increment(tet, p, w, lambda_t, params, dlambda_out, dx, &det_f);
-  for (int k = 0; k < 4; ++k) x[tet.v[k]] += dx[k];
-  lambda_t += dlambda_out;
-  if (params.inversion_floor > 0 && det_f < params.inversion_floor) return enforce_volume_floor(tet, x, inv_mass, params.inversion_floor);
-  return false;
-}
-
-void apply_increment(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
-                     const Vec6& dlambda) {
-  const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-  const double w[4] = {inv_mass[tet.v[0]], inv_mass[tet.v[1]], inv_mass[tet.v[2]], inv_mass[tet.v[3]]};
-  Vec3 f[3], b[4], dx[4];
-  geometry(tet, p, f, b);
-  position_corrections(tet, f, b, w, dlambda, dx);
-  for (int k = 0; k < 4; ++k) x[tet.v[k]] += dx[k];
-}
-
 double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Vec6& lambda_t,
                         const Mat6& alpha_tilde) {
   const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};

@@ -32,21 +32,10 @@ void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w
                       const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda,
                       Vec3 dx[4], double* det_f = nullptr);
 
-// Gauss-Seidel projection of one tet in place: x and lambda updated. When det(F) was below
-// the inversion floor before the projection, the volume floor is enforced after it; returns
-// true then. (A tet the projection itself pushes below the floor is caught by the next sweep
-// or by the end-of-substep volume pass.)
-bool project_tet(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
-                 Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda_out);
-
 // Unilateral volume constraint det(F) >= floor for one tet, solved as a hard constraint.
 // Returns true if it acted.
 bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
                           double floor);
-
-// x += M^-1 grad C(x)^T dlambda for one tet (gradient at the current x).
-void apply_increment(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
-                     const Vec6& dlambda);
 
 // r_t = C_t(x) + alpha~ lambda_t, squared norm.
 double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Vec6& lambda_t,
