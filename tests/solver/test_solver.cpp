@@ -152,3 +152,26 @@ TEST(Reference, NewtonStaticSolveSatisfiesEquilibrium) {
   const double slope = (energy(d) - energy(-d)) / (2 * d);
   EXPECT_LT(std::abs(slope), 1e-6 * model->total_mass() * 9.81);
 }
+
+TEST(StopRules, ToleranceAndTimeBudgetEndIterationsEarly) {
+  auto model = clamped_beam("beam1", 1e3);
+  BodyState state = rest_state(*model);
+  Stepper stepper;
+  // Tolerance: a soft beam reaches 1e-3 long before 1000 iterations.
+  SolverSettings tol;
+  tol.substeps = 1;
+  tol.iterations = 1000;
+  tol.tolerance = 1e-3;
+  StepReport r = stepper.step(*model, state, tol);
+  EXPECT_TRUE(r.stopped_by_tolerance);
+  EXPECT_LT(r.iterations, 1000);
+  EXPECT_LE(r.residual_final, 1e-3 * r.residual_initial);
+  // Budget: a budget no iteration can fit still runs one iteration per substep, then stops.
+  SolverSettings budget;
+  budget.substeps = 4;
+  budget.iterations = 50;
+  budget.time_budget_ms = 1e-9;
+  r = stepper.step(*model, state, budget);
+  EXPECT_TRUE(r.stopped_by_budget);
+  EXPECT_EQ(r.iterations, 4);
+}
