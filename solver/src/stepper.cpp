@@ -241,6 +241,8 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
   rep.residual_initial = rep.residual_final = r0;
   rep.residuals.reserve(s.iterations);
   double hook_ms = 0;  // time spent in the experiment hook, excluded from the report
+  const bool proposes = s.method == Method::Anderson || s.method == Method::AndersonSor ||
+                        s.method == Method::Extrapolation;
 
   for (int it = 0; it < s.iterations; ++it) {
     if (accel->needs_previous()) I.x_before = x;
@@ -255,8 +257,6 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
       rep.contacts = I.contacts(m, x, x_prev, inputs.colliders);
     }
     double r = 0;
-    const bool proposes = s.method == Method::Anderson || s.method == Method::AndersonSor ||
-                          s.method == Method::Extrapolation;
     // Position-space accelerators move x after the sweep: their residual is taken after that.
     if (s.record_residuals && (proposes || !accel->needs_previous())) {
       PhaseTimer t{rep.times.residual_ms};
@@ -291,8 +291,10 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
       }
     } else {
       detail::SweepResult sr{x, lambda, I.dlambda, I.x_before, it};
-      PhaseTimer t{rep.times.update_ms};
-      accel->after_sweep(sr, services);
+      {
+        PhaseTimer t{rep.times.update_ms};
+        accel->after_sweep(sr, services);
+      }
       if (accel->needs_previous() && s.record_residuals) {
         PhaseTimer tr{rep.times.residual_ms};
         r = I.residual(m, x, lambda, params.alpha_tilde, tp);
