@@ -1,9 +1,12 @@
 #include "pliant/client/haptic.hpp"
 
+#include <pthread.h>
+#include <sched.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <sstream>
 
 namespace pliant::haptic {
@@ -180,6 +183,15 @@ void HapticBridge::loop_thread() {
   // The last stretch before a deadline is spun, not slept: sleeping alone wakes late by up to
   // scheduler granularity. The spin is short so the loop leaves the cores to the server.
   const auto spin = std::chrono::microseconds(100);
+  if (opt_.realtime_priority) {
+    // Best effort: a real-time priority keeps the server's tick thread (and everything else
+    // on a small machine) from delaying a period. Needs CAP_SYS_NICE; without it the loop
+    // runs at normal priority and says so once.
+    sched_param sp{};
+    sp.sched_priority = std::max(1, sched_get_priority_max(SCHED_FIFO) / 2);
+    if (int e = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp); e != 0)
+      spdlog::info("pliant-haptic: device loop at normal priority (SCHED_FIFO refused: {})", std::strerror(e));
+  }
   ForceRenderer renderer(opt_.limits);
   const auto t0 = Clock::now();
   auto next = t0;

@@ -40,6 +40,7 @@ const char* kUsage = R"(usage: pliant-haptic [flags]
   --duration S           stop after S seconds (default: until Ctrl-C)
   --json                 end with one JSON line of statistics on stdout
   --quiet                no live statistics line
+  --no-realtime          do not ask for SCHED_FIFO for the device loop
 )";
 
 std::atomic<bool> g_stop{false};
@@ -115,6 +116,7 @@ int main(int argc, char** argv) {
     else if (a == "--duration") duration = number(0, 1e7);
     else if (a == "--json") json = true;
     else if (a == "--quiet") quiet = true;
+    else if (a == "--no-realtime") opt.realtime_priority = false;
     else {
       std::cerr << "pliant-haptic: unknown flag '" << a << "'\n" << kUsage;
       return 2;

@@ -120,6 +120,7 @@ struct BridgeOptions {
   double tool_radius = 0.005;
   SafetyLimits limits;
   std::chrono::milliseconds reconnect_delay{200};
+  bool realtime_priority = true;  // try SCHED_FIFO for the device loop (falls back quietly)
 };
 
 struct BridgeStats {
