@@ -256,8 +256,8 @@ bool HapticBridge::ensure_scene(client::Client& c) {
   box->mutable_max()->set_z(1);
   s->mutable_material()->set_young_modulus(opt_.create_young);
   s->mutable_gravity()->set_y(0);
-  s->mutable_solver()->set_substeps(4);
-  s->mutable_solver()->set_iterations(2);
+  s->mutable_solver()->set_substeps(opt_.create_substeps);
+  s->mutable_solver()->set_iterations(opt_.create_iterations);
   s->mutable_solver()->set_damping_coefficient(20);
   s->mutable_tick()->set_dt(1.0 / opt_.create_tick_hz);
   s->mutable_tick()->set_mode(v1::TICK_MODE_REALTIME);

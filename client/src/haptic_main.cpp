@@ -28,6 +28,7 @@ const char* kUsage = R"(usage: pliant-haptic [flags]
                          (default beam1, clamped at x = 0; "" never creates)
   --tick-hz HZ           tick rate of a scene it creates (default 1000)
   --young PA             Young's modulus of a scene it creates (default 5e7; gravity off)
+  --substeps N --iterations N   solver of a scene it creates (default 4 x 2)
   --rate HZ              device loop rate (default 1000)
   --script press|stroke  simulated device motion (default press)
   --start X,Y,Z          simulated handle start, m (default 0.1,0.025,0.005: over beam1's tip)
@@ -92,6 +93,8 @@ int main(int argc, char** argv) {
     else if (a == "--create") opt.create_builtin = value();
     else if (a == "--tick-hz") opt.create_tick_hz = number(1, 10000);
     else if (a == "--young") opt.create_young = number(1, 1e12);
+    else if (a == "--substeps") opt.create_substeps = static_cast<int>(number(1, 10000));
+    else if (a == "--iterations") opt.create_iterations = static_cast<int>(number(1, 10000));
     else if (a == "--rate") opt.loop_hz = number(10, 10000);
     else if (a == "--script") {
       const std::string s = value();

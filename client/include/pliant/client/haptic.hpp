@@ -116,6 +116,10 @@ struct BridgeOptions {
   // Material of a created scene: a stiff rubber (the default beam1 at 1 MPa pushes back with
   // millinewtons); gravity is off so the scripted device finds the surface where it expects.
   double create_young = 5e7;
+  // Solver of a created scene. 4 x 2 is cheap enough for 1 kHz on two cores but feels far
+  // softer than the material (docs/haptics.md); more substeps converge to the elastic force.
+  int create_substeps = 4;
+  int create_iterations = 2;
   double loop_hz = 1000;
   double tool_radius = 0.005;
   SafetyLimits limits;
