@@ -15,6 +15,7 @@
 #include <condition_variable>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <sstream>
 #include <thread>
 
@@ -240,7 +241,12 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
     std::atomic<bool> done{false};
     std::mutex err_mu;
     Error writer_error;
+    std::promise<void> writer_exited;
     std::thread writer([&] {
+      struct Exit {
+        std::promise<void>& p;
+        ~Exit() { p.set_value(); }
+      } on_exit{writer_exited};
       auto latest = scene->latest_frame();
       uint64_t after = latest ? latest->seq : 0;
       v1::ToolFeedback msg;
@@ -306,6 +312,8 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
       scene->set_tool(tool_id, tool, pose.seq(), pose.client_time_ns());
     }
     done = true;
+    // A client that stops reading leaves the writer blocked in Write: cancel the call then.
+    if (writer_exited.get_future().wait_for(std::chrono::seconds(1)) != std::future_status::ready) c->TryCancel();
     writer.join();
     scene->remove_tool(tool_id);
     spdlog::debug("HapticStream: {} detached tool {} from '{}'", c->peer(), tool_id, scene->id());
