@@ -1,5 +1,6 @@
-// End to end: the real pliant-server binary, driven by the real pliant CLI, through a restart.
-// Paths to both come from CMake (PLIANT_SERVER_BIN, PLIANT_CLI_BIN).
+// End to end: the real pliant-server binary, driven by the real pliant CLI (through a restart;
+// grab / move-grab / release) and by pliant-haptic. Paths come from CMake (PLIANT_SERVER_BIN,
+// PLIANT_CLI_BIN, PLIANT_HAPTIC_BIN).
 #include <gtest/gtest.h>
 
 #include <algorithm>
