@@ -7,6 +7,7 @@
 #include "pliant/experiments.hpp"
 #include "pliant/interaction.hpp"
 #include "pliant/stepper.hpp"
+#include "pliant/strain_constraint.hpp"
 
 #include <gtest/gtest.h>
 
@@ -191,6 +192,23 @@ TEST(ToolContact, AtRestTheToolForceIsTheExternalLoadThatHoldsTheSameShape) {
   ASSERT_TRUE(b.at_rest);
   const Vec3 tip_held = tip_displacement(*m, a.state.x), tip_loaded = tip_displacement(*m, b.state.x);
   const Vec3 tip_free = tip_displacement(*m, settle(*m, s, StepInputs{}).state.x);
+  // Global balance from independent multipliers: the strain multipliers give the force the
+  // body puts on its clamped vertices (f_c = sum of grad C^T lambda / h^2 there); at rest
+  // contact + gravity on the free part + clamp reaction (-f_c) = 0, so the force on the tool
+  // (minus the contact force on the body) is M_free g - f_c.
+  Vec3 f_clamp = Vec3::Zero(), weight_free = Vec3::Zero();
+  const double h2 = a.state.lambda_h * a.state.lambda_h;
+  for (size_t t = 0; t < m->tet_count(); ++t) {
+    const TetRest& tet = m->tets[t];
+    const Vec12 g = strain_jacobian(tet, gather(a.state.x, tet.v)).transpose() * a.state.lambda[t];
+    for (int k = 0; k < 4; ++k)
+      if (m->fixed[tet.v[k]]) f_clamp += g.segment<3>(3 * k) / h2;
+  }
+  for (size_t i = 0; i < m->vertex_count(); ++i)
+    if (!m->fixed[i]) weight_free += m->mass[i] * s.gravity;
+  const Vec3 expected = weight_free - f_clamp;
+  EXPECT_NEAR((tool.force - expected).norm(), 0, 0.03 * tool.force.norm())
+      << "tool " << tool.force.transpose() << " balance " << expected.transpose();
   // The tool lifts the tip visibly above its sag under gravity alone.
   EXPECT_GT(tip_held.y(), tip_free.y() + 0.0005);
   EXPECT_NEAR(tip_loaded.y(), tip_held.y(), 0.03 * std::abs(tip_held.y() - tip_free.y()));
