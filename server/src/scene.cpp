@@ -51,6 +51,10 @@ struct Scene::TickState {
     RigidTool tool;
     uint64_t seq = 0;
     int64_t client_ns = 0;
+    // The position the previous tick used: the tick sweeps the tool from there (velocity =
+    // displacement / dt), so friction sees its motion and a fast move is no teleport.
+    Vec3 used_position = Vec3::Zero();
+    bool used = false;
   };
   std::map<uint64_t, PosedTool> tools;
   // Realtime schedule: tick k is due at anchor + k * period.
@@ -256,7 +260,10 @@ uint64_t Scene::new_tool_id() {
 
 bool Scene::set_tool(uint64_t tool_id, const RigidTool& tool, uint64_t pose_seq, int64_t pose_client_ns) {
   return post([this, tool_id, tool, pose_seq, pose_client_ns] {
-    ts_->tools[tool_id] = TickState::PosedTool{tool, pose_seq, pose_client_ns};
+    auto& pt = ts_->tools[tool_id];
+    pt.tool = tool;
+    pt.seq = pose_seq;
+    pt.client_ns = pose_client_ns;
   });
 }
 
@@ -505,7 +512,13 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   inputs.attachments.reserve(t.grabs.size());
   for (const auto& [id, a] : t.grabs) inputs.attachments.push_back(a);
   inputs.tools.reserve(t.tools.size());
-  for (const auto& [id, pt] : t.tools) inputs.tools.push_back(pt.tool);
+  for (auto& [id, pt] : t.tools) {
+    RigidTool tool = pt.tool;
+    tool.velocity = pt.used ? Vec3((tool.position - pt.used_position) / t.settings.dt) : Vec3::Zero();
+    pt.used_position = tool.position;
+    pt.used = true;
+    inputs.tools.push_back(tool);
+  }
 
   t.last_good = t.state;  // copy-assign reuses the buffers
   StepReport report;

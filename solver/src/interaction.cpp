@@ -124,6 +124,10 @@ std::string validate_interaction(const std::vector<Attachment>& attachments,
       os << "tools[" << i << "].orientation is not a rotation (norm " << t.orientation.norm() << ")";
       return os.str();
     }
+    if (!finite(t.velocity)) {
+      os << "tools[" << i << "].velocity is not finite";
+      return os.str();
+    }
     if (!(t.radius > 0) || !std::isfinite(t.radius)) {
       os << "tools[" << i << "].radius = " << t.radius << " must be > 0";
       return os.str();

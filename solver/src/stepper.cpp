@@ -185,6 +185,9 @@ struct Stepper::Impl {
     std::vector<int32_t> touched;
   };
   std::vector<ToolScratch> tool_scratch;
+  // Time of the current substep's end relative to the end of the step (<= 0): tools with a
+  // velocity are at position + velocity * offset.
+  double tool_time_offset = 0;
   std::vector<Vec3> attachment_lambda;
   // Step accumulators (sums over substeps) for the per-contact report.
   struct ToolAccumulator {
@@ -231,7 +234,10 @@ struct Stepper::Impl {
     }
     int n = 0;
     for (size_t t = 0; t < inputs.tools.size(); ++t) {
-      const RigidTool& tool = inputs.tools[t];
+      // The tool where it is in this substep, and how far it moved during it.
+      RigidTool tool = inputs.tools[t];
+      tool.position += tool.velocity * tool_time_offset;
+      const Vec3 tool_motion = tool.velocity * h;
       ToolScratch& ts = tool_scratch[t];
       for (size_t i = 0; i < x.size(); ++i) {
         if (m.inv_mass[i] == 0) continue;
@@ -240,7 +246,7 @@ struct Stepper::Impl {
         if (!tool_contact(tool, x[i], q, normal, depth)) continue;
         const Vec3 before = x[i];
         x[i] += depth * normal;
-        const Vec3 dx = x[i] - x_start[i];
+        const Vec3 dx = x[i] - x_start[i] - tool_motion;  // relative to the tool's surface
         const Vec3 tangential = dx - dx.dot(normal) * normal;
         const double tn = tangential.norm();
         if (tn < tool.static_friction * depth) x[i] -= tangential;
@@ -267,7 +273,7 @@ struct Stepper::Impl {
       for (int32_t v : ts.touched) {
         const Vec3 f_tool = -ts.lambda[v] * inv_h2;
         r.force += f_tool;
-        r.torque += (x[v] - inputs.tools[t].position).cross(f_tool);
+        r.torque += (x[v] - (inputs.tools[t].position + inputs.tools[t].velocity * tool_time_offset)).cross(f_tool);
         r.contacts.push_back(ToolContact{v, x[v], ts.normal[v], f_tool});
       }
     }
@@ -496,6 +502,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     if (s.time_budget_ms > 0) budget = std::max(0.0, (s.time_budget_ms - ms_since(t_start)) / (n - sub));
     // The report carries the residual history of the last substep only; earlier substeps
     // compute residuals only when the method or a tolerance needs them.
+    I.tool_time_offset = (sub + 1 - n) * h;
     StepReport r = solve_substep_budgeted(m, I.v_prev, state.x, state.lambda, h, sub + 1 == n ? s : quiet,
                                           inputs, s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
 
@@ -538,6 +545,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
       for (size_t j = 0; j < r.attachment_forces.size(); ++j) total.attachment_forces[j] += r.attachment_forces[j];
     }
   }
+  I.tool_time_offset = 0;  // solve_substep on its own: tools at their pose
   if (interacting) {
     // Averages over the substeps: the impulse delivered during the step divided by dt.
     for (size_t t = 0; t < total.tools.size(); ++t) {

@@ -239,6 +239,40 @@ TEST(ToolContact, NewtonsThirdLawTheBodyGainsMinusTheToolImpulse) {
   }
 }
 
+TEST(ToolContact, FrictionDragsTheSurfaceWithASlidingTool) {
+  // A sphere pressed 1 mm into the top face slides along +x at 2 cm/s (its velocity given, so
+  // friction sees the motion relative to the tool). With friction the body pulls the tool
+  // back (F_x < 0) and the touched vertices are dragged along +x; without, neither.
+  auto m = clamped_beam(1e6);
+  SolverSettings s = quiet_settings(false);
+  auto slide = [&](double mu, double* dragged) {
+    BodyState st = rest_state(*m);
+    Stepper stepper;
+    StepInputs in;
+    in.tools.push_back(RigidTool::sphere(Vec3(0.04, 0.02 - 0.001, 0.005), 0.01));
+    in.tools[0].static_friction = in.tools[0].dynamic_friction = mu;
+    in.tools[0].velocity = Vec3(0.02, 0, 0);
+    double fx = 0;
+    *dragged = 0;
+    for (int i = 0; i < 60; ++i) {
+      in.tools[0].position.x() = 0.04 + 0.02 * s.dt * (i + 1);
+      const StepReport r = stepper.step(*m, st, s, in);
+      if (i >= 30) {
+        fx += r.tools[0].force.x() / 30;
+        for (const ToolContact& c : r.tools[0].contacts)
+          *dragged += (st.x[c.vertex].x() - m->rest_positions[c.vertex].x()) / (30.0 * r.tools[0].contacts.size());
+      }
+    }
+    return fx;
+  };
+  double drag_friction = 0, drag_free = 0;
+  const double fx_friction = slide(1.0, &drag_friction), fx_free = slide(0.0, &drag_free);
+  EXPECT_LT(fx_friction, 0);
+  EXPECT_LT(fx_friction, fx_free - 0.2 * std::abs(fx_friction));
+  EXPECT_GT(drag_friction, drag_free);
+  EXPECT_GT(drag_friction, 0);
+}
+
 TEST(ToolContact, TorqueIsLeverArmCrossForce) {
   // A capsule lying across the beam, touching it off its centre: torque = r x F about the pose.
   auto m = clamped_beam(1e6);

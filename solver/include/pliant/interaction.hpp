@@ -44,6 +44,10 @@ struct RigidTool {
   double half_length = 0.0;  // capsule only
   double static_friction = 0.5;
   double dynamic_friction = 0.4;
+  // Linear velocity (m/s). The pose is where the tool is at the END of the step; with a
+  // velocity the step moves it there from position - velocity * dt over the substeps, and
+  // friction acts on the vertices' motion relative to the tool's.
+  Eigen::Vector3d velocity{0, 0, 0};
 
   static RigidTool sphere(const Eigen::Vector3d& centre, double radius);
   static RigidTool capsule(const Eigen::Vector3d& centre, const Eigen::Quaterniond& orientation,
@@ -63,7 +67,8 @@ struct ToolContact {
 };
 
 // The reaction on one tool. force/torque are the averages over the substeps of the step, i.e.
-// the impulse delivered during the tick divided by dt; torque is about tool.position.
+// the impulse delivered during the tick divided by dt; torque is about the tool's position in
+// each substep (tool.position at the end of the step for a tool without velocity).
 // Normal and friction multipliers both count: f_tool = -sum over contacts of lambda / h^2.
 struct ToolReaction {
   Eigen::Vector3d force{0, 0, 0};
