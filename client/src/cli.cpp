@@ -43,6 +43,10 @@ Commands:
   pause ID | resume ID               stop / restart a realtime or as-fast-as-possible scene
   step ID [N]                        advance N ticks (default 1; lockstep or paused scenes)
   force ID --vertices I,J,.. --force FX,FY,FZ [--ticks N]   push vertices for N ticks
+  grab ID (--vertex I | --tet T --barycentric B0,B1,B2,B3) [--target X,Y,Z] [--compliance C]
+                                     attach a point to a target (default: where it is now)
+  move-grab ID GRAB --target X,Y,Z   move a grab's target
+  release ID GRAB                    let go
   watch ID [--duration S] [--every N] [--max-rate HZ]
                                      live line: tick, sim time, ticks/s, iterations, residual,
                                      late ticks; ends with a summary (one JSON line with --json)
@@ -446,6 +450,58 @@ int cmd_force(Client& c, Args& a, bool json) {
   return kExitOk;
 }
 
+int cmd_grab(Client& c, Args& a, bool json) {
+  if (a.positional.empty()) throw Usage("grab needs a scene ID");
+  v1::GrabRequest req;
+  req.set_scene_id(a.positional[0]);
+  auto v = a.get("vertex");
+  auto t = a.get("tet");
+  if (!v == !t) throw Usage("grab needs --vertex I, or --tet T with --barycentric B0,B1,B2,B3");
+  if (v) req.set_vertex(to_int("vertex", *v));
+  if (t) {
+    req.mutable_tet_point()->set_tet(to_int("tet", *t));
+    auto b = a.get("barycentric");
+    if (!b) throw Usage("grab --tet needs --barycentric B0,B1,B2,B3");
+    for (double x : to_doubles("barycentric", *b, 4)) req.mutable_tet_point()->add_barycentric(x);
+  }
+  if (auto g = a.get("target")) set_vec(req.mutable_target(), to_doubles("target", *g, 3));
+  if (auto k = a.get("compliance")) req.set_compliance(to_double("compliance", *k));
+  a.check_all_used();
+  auto r = c.grab(req);
+  if (!r.ok()) return fail(r.status, c.options());
+  if (json) std::printf("%s\n", json_of(*r).c_str());
+  else std::printf("grab %llu from tick %llu\n", static_cast<unsigned long long>(r->grab_id()),
+                   static_cast<unsigned long long>(r->first_tick()));
+  return kExitOk;
+}
+
+int cmd_move_grab(Client& c, Args& a, bool json) {
+  if (a.positional.size() < 2) throw Usage("move-grab needs a scene ID and a grab id");
+  v1::MoveGrabRequest req;
+  req.set_scene_id(a.positional[0]);
+  req.set_grab_id(static_cast<uint64_t>(to_int("grab id", a.positional[1])));
+  auto g = a.get("target");
+  if (!g) throw Usage("move-grab needs --target X,Y,Z");
+  set_vec(req.mutable_target(), to_doubles("target", *g, 3));
+  a.check_all_used();
+  auto r = c.move_grab(req);
+  if (!r.ok()) return fail(r.status, c.options());
+  if (json) std::printf("%s\n", json_of(*r).c_str());
+  else std::printf("target moved from tick %llu (last force on the body %.6g %.6g %.6g N)\n",
+                   static_cast<unsigned long long>(r->first_tick()), r->force().x(), r->force().y(), r->force().z());
+  return kExitOk;
+}
+
+int cmd_release(Client& c, Args& a, bool json) {
+  if (a.positional.size() < 2) throw Usage("release needs a scene ID and a grab id");
+  a.check_all_used();
+  auto st = c.release(a.positional[0], static_cast<uint64_t>(to_int("grab id", a.positional[1])));
+  if (!st.ok()) return fail(st, c.options());
+  if (json) std::printf("{}\n");
+  else std::printf("released\n");
+  return kExitOk;
+}
+
 std::atomic<bool> g_interrupted{false};
 extern "C" void on_sigint(int) { g_interrupted = true; }
 
@@ -679,6 +735,9 @@ int main(int argc, char** argv) {
     if (command == "resume") return cmd_pause_resume(c, args, json, false);
     if (command == "step") return cmd_step(c, args, json);
     if (command == "force") return cmd_force(c, args, json);
+    if (command == "grab") return cmd_grab(c, args, json);
+    if (command == "move-grab") return cmd_move_grab(c, args, json);
+    if (command == "release") return cmd_release(c, args, json);
     if (command == "watch") return cmd_watch(c, args, json);
     if (command == "snapshot") return cmd_snapshot(c, args, json);
     if (command == "health") return cmd_health(c, args, json);

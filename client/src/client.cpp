@@ -7,6 +7,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include <fstream>
+#include <mutex>
 #include <sstream>
 
 namespace pliant::client {
@@ -44,6 +45,7 @@ struct Client::Impl {
   std::unique_ptr<v1::SceneService::Stub> scenes;
   std::unique_ptr<v1::FrameService::Stub> frames;
   std::unique_ptr<v1::SnapshotService::Stub> snapshots;
+  std::unique_ptr<v1::InteractionService::Stub> interaction;
   std::unique_ptr<grpc::health::v1::Health::Stub> health;
 
   void prepare(grpc::ClientContext& ctx, std::chrono::milliseconds timeout) const {
@@ -93,6 +95,46 @@ Status FrameStream::finish() {
   return impl_->status;
 }
 
+struct HapticStream::Impl {
+  grpc::ClientContext ctx;
+  std::unique_ptr<grpc::ClientReaderWriter<v1::ToolPose, v1::ToolFeedback>> stream;
+  std::mutex write_mu;
+  bool closed = false;
+  bool finished = false;
+  Status status;
+};
+
+HapticStream::HapticStream(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+HapticStream::~HapticStream() {
+  if (impl_ && !impl_->finished) {
+    impl_->ctx.TryCancel();
+    finish();
+  }
+}
+bool HapticStream::send(const v1::ToolPose& pose) {
+  std::lock_guard lk(impl_->write_mu);
+  if (impl_->closed) return false;
+  return impl_->stream->Write(pose);
+}
+bool HapticStream::next(v1::ToolFeedback* feedback) { return !impl_->finished && impl_->stream->Read(feedback); }
+void HapticStream::close() {
+  std::lock_guard lk(impl_->write_mu);
+  if (!impl_->closed) impl_->stream->WritesDone();
+  impl_->closed = true;
+}
+void HapticStream::cancel() { impl_->ctx.TryCancel(); }
+Status HapticStream::finish() {
+  if (!impl_->finished) {
+    close();
+    v1::ToolFeedback f;
+    while (impl_->stream->Read(&f)) {
+    }
+    impl_->status = from_grpc(impl_->stream->Finish());
+    impl_->finished = true;
+  }
+  return impl_->status;
+}
+
 Client::Client(ConnectOptions options) : impl_(std::make_unique<Impl>()) {
   impl_->options = std::move(options);
   const auto& o = impl_->options;
@@ -114,6 +156,7 @@ Client::Client(ConnectOptions options) : impl_(std::make_unique<Impl>()) {
   impl_->scenes = v1::SceneService::NewStub(impl_->channel);
   impl_->frames = v1::FrameService::NewStub(impl_->channel);
   impl_->snapshots = v1::SnapshotService::NewStub(impl_->channel);
+  impl_->interaction = v1::InteractionService::NewStub(impl_->channel);
   impl_->health = grpc::health::v1::Health::NewStub(impl_->channel);
 }
 Client::~Client() = default;
@@ -177,6 +220,27 @@ Result<v1::StepResponse> Client::step(const std::string& id, uint32_t ticks) {
 }
 Result<v1::ApplyForceResponse> Client::apply_force(const v1::ApplyForceRequest& r) {
   return impl_->unary<v1::ApplyForceRequest, v1::ApplyForceResponse>(impl_->scenes.get(), &SS::ApplyForce, r);
+}
+
+using IS = v1::InteractionService::Stub;
+
+Result<v1::GrabResponse> Client::grab(const v1::GrabRequest& r) {
+  return impl_->unary<v1::GrabRequest, v1::GrabResponse>(impl_->interaction.get(), &IS::Grab, r);
+}
+Result<v1::MoveGrabResponse> Client::move_grab(const v1::MoveGrabRequest& r) {
+  return impl_->unary<v1::MoveGrabRequest, v1::MoveGrabResponse>(impl_->interaction.get(), &IS::MoveGrab, r);
+}
+Status Client::release(const std::string& scene_id, uint64_t grab_id) {
+  v1::ReleaseRequest r;
+  r.set_scene_id(scene_id);
+  r.set_grab_id(grab_id);
+  return impl_->unary<v1::ReleaseRequest, v1::ReleaseResponse>(impl_->interaction.get(), &IS::Release, r).status;
+}
+std::unique_ptr<HapticStream> Client::haptic_stream() {
+  auto impl = std::make_unique<HapticStream::Impl>();
+  impl_->prepare(impl->ctx, std::chrono::milliseconds(0));
+  impl->stream = impl_->interaction->HapticStream(&impl->ctx);
+  return std::unique_ptr<HapticStream>(new HapticStream(std::move(impl)));
 }
 
 Result<v1::Topology> Client::topology(const std::string& id) {

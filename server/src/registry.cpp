@@ -702,6 +702,135 @@ Error SceneRegistry::apply_force(const v1::ApplyForceRequest& req, v1::ApplyForc
   return {};
 }
 
+Error SceneRegistry::grab(const v1::GrabRequest& req, v1::GrabResponse* out) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
+  auto m = s->model();
+  const auto nv = static_cast<int64_t>(m->vertex_count());
+  const auto nt = static_cast<int64_t>(m->tet_count());
+  Attachment a;
+  switch (req.point_case()) {
+    case v1::GrabRequest::kVertex:
+      if (req.vertex() < 0 || req.vertex() >= nv)
+        return invalid(fmt::format("vertex = {} is out of range [0, {})", req.vertex(), nv));
+      a = Attachment::vertex(req.vertex(), Vec3::Zero());
+      break;
+    case v1::GrabRequest::kTetPoint: {
+      const auto& tp = req.tet_point();
+      if (tp.tet() < 0 || tp.tet() >= nt)
+        return invalid(fmt::format("tet_point.tet = {} is out of range [0, {})", tp.tet(), nt));
+      if (tp.barycentric_size() != 4)
+        return invalid(fmt::format("tet_point.barycentric must hold 4 values, got {}", tp.barycentric_size()));
+      std::array<double, 4> b{};
+      double sum = 0;
+      for (int k = 0; k < 4; ++k) {
+        b[k] = tp.barycentric(k);
+        if (!std::isfinite(b[k]) || b[k] < -1e-9 || b[k] > 1 + 1e-9)
+          return invalid(fmt::format("tet_point.barycentric[{}] = {} must be in [0, 1]", k, b[k]));
+        sum += b[k];
+      }
+      if (std::abs(sum - 1) > 1e-6)
+        return invalid(fmt::format("tet_point.barycentric must sum to 1, got {}", sum));
+      a = Attachment::in_tet(m->tets[tp.tet()].v, b, Vec3::Zero());
+      break;
+    }
+    default:
+      return invalid("point is not set: give vertex or tet_point");
+  }
+  if (req.has_target()) {
+    a.target = to_vec(req.target());
+    if (!a.target.allFinite())
+      return invalid(fmt::format("target must be finite, got ({}, {}, {})", a.target.x(), a.target.y(), a.target.z()));
+  } else {
+    // Hold the point where it is now (the latest frame; the rest shape before the first tick).
+    std::vector<Vec3> x = m->rest_positions;
+    if (auto f = s->latest_frame(); f && f->positions.size() == 3 * x.size())
+      for (size_t i = 0; i < x.size(); ++i) x[i] = Vec3(f->positions[3 * i], f->positions[3 * i + 1], f->positions[3 * i + 2]);
+    a.target = a.point(x);
+  }
+  if (req.has_compliance()) {
+    if (!std::isfinite(req.compliance()) || req.compliance() < 0)
+      return invalid(fmt::format("compliance must be finite and >= 0, got {}", req.compliance()));
+    a.compliance = req.compliance();
+  }
+  if (std::string msg = validate_interaction({a}, {}, *m); !msg.empty()) return invalid(msg);
+  uint64_t id = 0, first = 0;
+  if (Error e = s->grab(a, &id, &first); !e.ok()) return e;
+  out->set_grab_id(id);
+  out->set_first_tick(first);
+  return {};
+}
+
+Error SceneRegistry::move_grab(const v1::MoveGrabRequest& req, v1::MoveGrabResponse* out) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
+  if (!req.has_target()) return invalid("target is not set");
+  const Vec3 t = to_vec(req.target());
+  if (!t.allFinite()) return invalid(fmt::format("target must be finite, got ({}, {}, {})", t.x(), t.y(), t.z()));
+  uint64_t first = 0;
+  Vec3 force = Vec3::Zero();
+  if (Error e = s->move_grab(req.grab_id(), t, &first, &force); !e.ok()) return e;
+  out->set_first_tick(first);
+  out->mutable_force()->set_x(force.x());
+  out->mutable_force()->set_y(force.y());
+  out->mutable_force()->set_z(force.z());
+  return {};
+}
+
+Error SceneRegistry::release(const v1::ReleaseRequest& req) {
+  std::shared_ptr<Scene> s;
+  if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
+  return s->release(req.grab_id());
+}
+
+Error SceneRegistry::parse_tool_pose(const v1::ToolPose& p, const RigidTool* previous, RigidTool* out) {
+  RigidTool t;
+  if (previous) t = *previous;
+  else {
+    t.radius = 0.005;
+    t.half_length = 0.02;
+  }
+  switch (p.shape()) {
+    case v1::TOOL_SHAPE_CAPSULE: t.shape = RigidTool::Shape::Capsule; break;
+    case v1::TOOL_SHAPE_SPHERE: t.shape = RigidTool::Shape::Sphere; break;
+    case v1::TOOL_SHAPE_UNSPECIFIED: if (!previous) t.shape = RigidTool::Shape::Sphere; break;
+    default: return invalid(fmt::format("shape = {} is not a ToolShape", static_cast<int>(p.shape())));
+  }
+  if (!p.has_position()) return invalid(fmt::format("pose seq {}: position is not set", p.seq()));
+  t.position = to_vec(p.position());
+  if (!t.position.allFinite())
+    return invalid(fmt::format("position must be finite, got ({}, {}, {})", t.position.x(), t.position.y(), t.position.z()));
+  if (p.has_orientation()) {
+    const auto& q = p.orientation();
+    Eigen::Quaterniond o(q.w(), q.x(), q.y(), q.z());
+    const double n = o.norm();
+    if (!std::isfinite(n) || n < 1e-6)
+      return invalid(fmt::format("orientation ({}, {}, {}, {}) is not a rotation (norm {})", q.w(), q.x(), q.y(), q.z(), n));
+    t.orientation = o.normalized();
+  }
+  if (p.has_radius()) {
+    if (!std::isfinite(p.radius()) || p.radius() <= 0) return invalid(fmt::format("radius must be > 0, got {}", p.radius()));
+    t.radius = p.radius();
+  }
+  if (p.has_half_length()) {
+    if (!std::isfinite(p.half_length()) || p.half_length() < 0)
+      return invalid(fmt::format("half_length must be >= 0, got {}", p.half_length()));
+    t.half_length = p.half_length();
+  }
+  if (p.has_static_friction()) {
+    if (!std::isfinite(p.static_friction()) || p.static_friction() < 0)
+      return invalid(fmt::format("static_friction must be >= 0, got {}", p.static_friction()));
+    t.static_friction = p.static_friction();
+  }
+  if (p.has_dynamic_friction()) {
+    if (!std::isfinite(p.dynamic_friction()) || p.dynamic_friction() < 0)
+      return invalid(fmt::format("dynamic_friction must be >= 0, got {}", p.dynamic_friction()));
+    t.dynamic_friction = p.dynamic_friction();
+  }
+  *out = t;
+  return {};
+}
+
 Error SceneRegistry::topology(const std::string& id, v1::Topology* out) const {
   std::shared_ptr<Scene> s;
   if (Error e = find(id, &s); !e.ok()) return e;

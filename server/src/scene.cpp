@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <future>
+#include <map>
 #include <set>
 
 namespace pliant::server {
@@ -42,6 +43,20 @@ struct Scene::TickState {
   uint64_t tick = 0;
   std::deque<StepJob> steps;
   std::vector<ActiveForce> forces;
+  // Interaction, by id (ordered, so a tick's inputs are deterministic).
+  std::map<uint64_t, Attachment> grabs;
+  std::map<uint64_t, Vec3> grab_forces;  // last tick's force per grab
+  uint64_t next_grab_id = 1;
+  struct PosedTool {
+    RigidTool tool;
+    uint64_t seq = 0;
+    int64_t client_ns = 0;
+    // The position the previous tick used: the tick sweeps the tool from there (velocity =
+    // displacement / dt), so friction sees its motion and a fast move is no teleport.
+    Vec3 used_position = Vec3::Zero();
+    bool used = false;
+  };
+  std::map<uint64_t, PosedTool> tools;
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
   Clock::time_point anchor;
@@ -177,6 +192,85 @@ Error Scene::call(std::function<Error()> fn, Clock::time_point deadline) {
   }
 }
 
+bool Scene::post(Command fn) {
+  {
+    std::lock_guard lk(mu_);
+    if (stop_) return false;
+    commands_.push_back(std::move(fn));
+  }
+  cv_.notify_all();
+  return true;
+}
+
+Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
+                  std::chrono::milliseconds timeout) {
+  auto id = std::make_shared<uint64_t>(0), first = std::make_shared<uint64_t>(0);
+  Error e = call(
+      [this, attachment, id, first] {
+        *id = ts_->next_grab_id++;
+        ts_->grabs[*id] = attachment;
+        *first = ts_->tick + 1;
+        return Error{};
+      },
+      Clock::now() + timeout);
+  if (e.ok()) {
+    if (grab_id) *grab_id = *id;
+    if (first_tick) *first_tick = *first;
+  }
+  return e;
+}
+
+Error Scene::move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tick, Vec3* last_force,
+                       std::chrono::milliseconds timeout) {
+  auto first = std::make_shared<uint64_t>(0);
+  auto force = std::make_shared<Vec3>(Vec3::Zero());
+  Error e = call(
+      [this, grab_id, target, first, force] {
+        auto it = ts_->grabs.find(grab_id);
+        if (it == ts_->grabs.end())
+          return Error::make(Code::NotFound, "grab_id " + std::to_string(grab_id) + " is not a grab of scene '" + id_ + "'");
+        it->second.target = target;
+        if (auto f = ts_->grab_forces.find(grab_id); f != ts_->grab_forces.end()) *force = f->second;
+        *first = ts_->tick + 1;
+        return Error{};
+      },
+      Clock::now() + timeout);
+  if (e.ok()) {
+    if (first_tick) *first_tick = *first;
+    if (last_force) *last_force = *force;
+  }
+  return e;
+}
+
+Error Scene::release(uint64_t grab_id, std::chrono::milliseconds timeout) {
+  return call(
+      [this, grab_id] {
+        if (ts_->grabs.erase(grab_id) == 0)
+          return Error::make(Code::NotFound, "grab_id " + std::to_string(grab_id) + " is not a grab of scene '" + id_ + "'");
+        ts_->grab_forces.erase(grab_id);
+        return Error{};
+      },
+      Clock::now() + timeout);
+}
+
+uint64_t Scene::new_tool_id() {
+  std::lock_guard lk(mu_);
+  return next_tool_id_++;
+}
+
+bool Scene::set_tool(uint64_t tool_id, const RigidTool& tool, uint64_t pose_seq, int64_t pose_client_ns) {
+  return post([this, tool_id, tool, pose_seq, pose_client_ns] {
+    auto& pt = ts_->tools[tool_id];
+    pt.tool = tool;
+    pt.seq = pose_seq;
+    pt.client_ns = pose_client_ns;
+  });
+}
+
+void Scene::remove_tool(uint64_t tool_id) {
+  post([this, tool_id] { ts_->tools.erase(tool_id); });
+}
+
 Error Scene::pause(std::chrono::milliseconds timeout) {
   return call(
       [this] {
@@ -214,6 +308,8 @@ Error Scene::reset(std::chrono::milliseconds timeout) {
         ts_->last_good = ts_->state;
         ts_->tick = 0;
         ts_->forces.clear();
+        ts_->grabs.clear();
+        ts_->grab_forces.clear();
         ts_->schedule_valid = false;
         ts_->consecutive_rollbacks = 0;
         publish_status();
@@ -413,6 +509,16 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     for (auto& f : t.forces) --f.remaining;
     std::erase_if(t.forces, [](const ActiveForce& f) { return f.remaining == 0; });
   }
+  inputs.attachments.reserve(t.grabs.size());
+  for (const auto& [id, a] : t.grabs) inputs.attachments.push_back(a);
+  inputs.tools.reserve(t.tools.size());
+  for (auto& [id, pt] : t.tools) {
+    RigidTool tool = pt.tool;
+    tool.velocity = pt.used ? Vec3((tool.position - pt.used_position) / t.settings.dt) : Vec3::Zero();
+    pt.used_position = tool.position;
+    pt.used = true;
+    inputs.tools.push_back(tool);
+  }
 
   t.last_good = t.state;  // copy-assign reuses the buffers
   StepReport report;
@@ -502,6 +608,24 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   frame->rollback_reason = failure;
   frame->running = t.running && t.mode != TickMode::Lockstep;
   frame->mode = t.mode;
+  // Reactions: none after a rollback (the tick's contacts were undone with it).
+  {
+    size_t k = 0;
+    for (const auto& [id, pt] : t.tools) {
+      FrameTool ft{id, pt.seq, pt.client_ns, {}};
+      if (!rolled_back && k < report.tools.size()) ft.reaction = std::move(report.tools[k]);
+      frame->tools.push_back(std::move(ft));
+      ++k;
+    }
+    k = 0;
+    t.grab_forces.clear();
+    for (const auto& [id, a] : t.grabs) {
+      const Vec3 f = !rolled_back && k < report.attachment_forces.size() ? report.attachment_forces[k] : Vec3::Zero();
+      t.grab_forces[id] = f;
+      frame->grab_forces.emplace_back(id, f);
+      ++k;
+    }
+  }
 
   publish_status();
   {

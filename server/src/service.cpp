@@ -11,9 +11,11 @@
 #include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
+#include <atomic>
 #include <condition_variable>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <sstream>
 #include <thread>
 
@@ -204,6 +206,125 @@ class FrameServiceImpl final : public v1::FrameService::Service {
   ServiceContext sc_;
 };
 
+class InteractionServiceImpl final : public v1::InteractionService::Service {
+ public:
+  explicit InteractionServiceImpl(ServiceContext sc) : sc_(std::move(sc)) {}
+  grpc::Status Grab(grpc::ServerContext* c, const v1::GrabRequest* r, v1::GrabResponse* o) override {
+    return guarded(sc_, "Grab", c, [&] { return sc_.registry->grab(*r, o); });
+  }
+  grpc::Status MoveGrab(grpc::ServerContext* c, const v1::MoveGrabRequest* r, v1::MoveGrabResponse* o) override {
+    return guarded(sc_, "MoveGrab", c, [&] { return sc_.registry->move_grab(*r, o); });
+  }
+  grpc::Status Release(grpc::ServerContext* c, const v1::ReleaseRequest* r, v1::ReleaseResponse*) override {
+    return guarded(sc_, "Release", c, [&] { return sc_.registry->release(*r); });
+  }
+  grpc::Status HapticStream(grpc::ServerContext* c,
+                            grpc::ServerReaderWriter<v1::ToolFeedback, v1::ToolPose>* stream) override {
+    return guarded(sc_, "HapticStream", c, [&] { return haptic(c, stream); });
+  }
+
+ private:
+  // The handler thread reads poses and posts them to the scene (never waiting for the tick);
+  // a writer thread sends one feedback message per published tick. The tool lives as long
+  // as the stream.
+  Error haptic(grpc::ServerContext* c, grpc::ServerReaderWriter<v1::ToolFeedback, v1::ToolPose>* stream) {
+    v1::ToolPose pose;
+    if (!stream->Read(&pose)) return {};
+    std::shared_ptr<Scene> scene;
+    if (Error e = sc_.registry->find(pose.scene_id(), &scene); !e.ok()) return e;
+    RigidTool tool;
+    if (Error e = SceneRegistry::parse_tool_pose(pose, nullptr, &tool); !e.ok()) return e;
+    const uint64_t tool_id = scene->new_tool_id();
+    scene->set_tool(tool_id, tool, pose.seq(), pose.client_time_ns());
+    spdlog::debug("HapticStream: {} attached tool {} to '{}'", c->peer(), tool_id, scene->id());
+
+    std::atomic<bool> done{false};
+    std::mutex err_mu;
+    Error writer_error;
+    std::promise<void> writer_exited;
+    std::thread writer([&] {
+      struct Exit {
+        std::promise<void>& p;
+        ~Exit() { p.set_value(); }
+      } on_exit{writer_exited};
+      auto latest = scene->latest_frame();
+      uint64_t after = latest ? latest->seq : 0;
+      v1::ToolFeedback msg;
+      while (!done.load()) {
+        auto frame = scene->wait_frame(after, Clock::now() + std::chrono::milliseconds(50));
+        if (!frame) {
+          Error e;
+          if (sc_.registry->shutting_down()) e = Error::make(Code::Unavailable, "the server is shutting down");
+          else if (scene->stopped()) e = Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", scene->id()));
+          if (!e.ok()) {
+            std::lock_guard lk(err_mu);
+            writer_error = e;
+            done = true;
+            c->TryCancel();  // wakes the reader; the client sees the stream end
+            return;
+          }
+          continue;
+        }
+        const uint64_t skipped = after > 0 && frame->seq > after + 1 ? frame->seq - after - 1 : 0;
+        after = frame->seq;
+        const FrameTool* ft = nullptr;
+        for (const FrameTool& t : frame->tools)
+          if (t.tool_id == tool_id) ft = &t;
+        if (!ft) continue;  // the tool's first pose is not in a tick yet
+        msg.Clear();
+        msg.set_tick(frame->tick);
+        msg.set_sim_time(frame->sim_time);
+        msg.set_pose_seq(ft->pose_seq);
+        msg.set_pose_client_time_ns(ft->pose_client_ns);
+        auto set = [](v1::Vec3* v, const Vec3& x) { v->set_x(x.x()); v->set_y(x.y()); v->set_z(x.z()); };
+        set(msg.mutable_force(), ft->reaction.force);
+        set(msg.mutable_torque(), ft->reaction.torque);
+        for (const ToolContact& tc : ft->reaction.contacts) {
+          auto* cp = msg.add_contacts();
+          cp->set_vertex(tc.vertex);
+          set(cp->mutable_point(), tc.point);
+          set(cp->mutable_normal(), tc.normal);
+          set(cp->mutable_force(), tc.force);
+        }
+        msg.set_skipped_ticks(skipped);
+        msg.set_server_time_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                   std::chrono::system_clock::now().time_since_epoch()).count());
+        if (!stream->Write(msg)) {
+          done = true;
+          return;
+        }
+      }
+    });
+
+    Error result;
+    while (!done.load() && stream->Read(&pose)) {
+      if (!pose.scene_id().empty() && pose.scene_id() != scene->id()) {
+        result = Error::make(Code::InvalidArgument, fmt::format("scene_id '{}' differs from the stream's scene '{}'",
+                                                                pose.scene_id(), scene->id()));
+        break;
+      }
+      RigidTool next;
+      if (Error e = SceneRegistry::parse_tool_pose(pose, &tool, &next); !e.ok()) {
+        result = e;
+        break;
+      }
+      tool = next;
+      scene->set_tool(tool_id, tool, pose.seq(), pose.client_time_ns());
+    }
+    done = true;
+    // A client that stops reading leaves the writer blocked in Write: cancel the call then.
+    if (writer_exited.get_future().wait_for(std::chrono::seconds(1)) != std::future_status::ready) c->TryCancel();
+    writer.join();
+    scene->remove_tool(tool_id);
+    spdlog::debug("HapticStream: {} detached tool {} from '{}'", c->peer(), tool_id, scene->id());
+    std::lock_guard lk(err_mu);
+    if (!writer_error.ok()) return writer_error;
+    return result;
+  }
+
+  ServiceContext sc_;
+};
+
 class SnapshotServiceImpl final : public v1::SnapshotService::Service {
  public:
   explicit SnapshotServiceImpl(ServiceContext sc) : sc_(std::move(sc)) {}
@@ -238,7 +359,8 @@ Error read_file(const std::string& flag, const std::string& path, std::string* o
   return {};
 }
 
-const char* kServices[] = {"pliant.v1.SceneService", "pliant.v1.FrameService", "pliant.v1.SnapshotService"};
+const char* kServices[] = {"pliant.v1.SceneService", "pliant.v1.FrameService", "pliant.v1.SnapshotService",
+                           "pliant.v1.InteractionService"};
 
 }  // namespace
 
@@ -248,6 +370,7 @@ struct PliantServer::Impl {
   std::unique_ptr<SceneServiceImpl> scenes;
   std::unique_ptr<FrameServiceImpl> frames;
   std::unique_ptr<SnapshotServiceImpl> snapshots;
+  std::unique_ptr<InteractionServiceImpl> interaction;
   std::unique_ptr<grpc::Server> server;
   int port = 0;
   std::mutex mu;
@@ -304,6 +427,7 @@ Error PliantServer::start() {
   impl_->scenes = std::make_unique<SceneServiceImpl>(sc);
   impl_->frames = std::make_unique<FrameServiceImpl>(sc);
   impl_->snapshots = std::make_unique<SnapshotServiceImpl>(sc);
+  impl_->interaction = std::make_unique<InteractionServiceImpl>(sc);
   grpc::ServerBuilder builder;
   builder.AddListeningPort(o.listen, creds, &impl_->port);
   builder.SetMaxReceiveMessageSize(o.max_message_mb * 1024 * 1024);
@@ -311,6 +435,7 @@ Error PliantServer::start() {
   builder.RegisterService(impl_->scenes.get());
   builder.RegisterService(impl_->frames.get());
   builder.RegisterService(impl_->snapshots.get());
+  builder.RegisterService(impl_->interaction.get());
   impl_->server = builder.BuildAndStart();
   if (!impl_->server || impl_->port == 0)
     return Error::make(Code::Unavailable, fmt::format("--listen '{}': cannot bind (address in use or invalid)", o.listen));

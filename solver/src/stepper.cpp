@@ -183,6 +183,111 @@ struct Stepper::Impl {
     }
   }
 
+  // Interaction scratch: per tool, the contact multiplier of each vertex in this substep
+  // (lambda as a vector, normal and friction together; Delta x = w * Delta lambda) and the
+  // vertices touched; per attachment, its 3-vector multiplier.
+  struct ToolScratch {
+    std::vector<Vec3> lambda, normal;
+    std::vector<uint8_t> touching;
+    std::vector<int32_t> touched;
+  };
+  std::vector<ToolScratch> tool_scratch;
+  // Time of the current substep's end relative to the end of the step (<= 0): tools with a
+  // velocity are at position + velocity * offset.
+  double tool_time_offset = 0;
+  std::vector<Vec3> attachment_lambda;
+  // Step accumulators (sums over substeps) for the per-contact report.
+  struct ToolAccumulator {
+    std::vector<Vec3> force, normal;
+    std::vector<uint8_t> seen;
+    std::vector<int32_t> vertices;
+  };
+  std::vector<ToolAccumulator> tool_accumulators;
+
+  void begin_interaction(size_t nv, const StepInputs& inputs) {
+    tool_scratch.resize(inputs.tools.size());
+    for (ToolScratch& ts : tool_scratch) {
+      if (ts.lambda.size() != nv) {
+        ts.lambda.assign(nv, Vec3::Zero());
+        ts.normal.assign(nv, Vec3::Zero());
+        ts.touching.assign(nv, 0);
+        ts.touched.clear();
+      }
+      for (int32_t v : ts.touched) {
+        ts.lambda[v].setZero();
+        ts.touching[v] = 0;
+      }
+      ts.touched.clear();
+    }
+    attachment_lambda.assign(inputs.attachments.size(), Vec3::Zero());
+  }
+
+  // Attachments (compliant XPBD, 3 rows each), then tool contacts (hard, position-level
+  // friction as for the static colliders). Returns the number of tool contacts found.
+  int interact(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec3>& x_start,
+               const StepInputs& inputs, double h) {
+    for (size_t j = 0; j < inputs.attachments.size(); ++j) {
+      const Attachment& a = inputs.attachments[j];
+      double wsum = 0;
+      for (int k = 0; k < 4; ++k)
+        if (a.vertices[k] >= 0) wsum += a.weights[k] * a.weights[k] * m.inv_mass[a.vertices[k]];
+      if (wsum <= 0) continue;  // only fixed vertices: nothing can move
+      const double at = a.compliance / (h * h);
+      const Vec3 c = a.point(x) - a.target;
+      const Vec3 dl = (-c - at * attachment_lambda[j]) / (wsum + at);
+      for (int k = 0; k < 4; ++k)
+        if (a.vertices[k] >= 0) x[a.vertices[k]] += m.inv_mass[a.vertices[k]] * a.weights[k] * dl;
+      attachment_lambda[j] += dl;
+    }
+    int n = 0;
+    for (size_t t = 0; t < inputs.tools.size(); ++t) {
+      // The tool where it is in this substep, and how far it moved during it.
+      RigidTool tool = inputs.tools[t];
+      tool.position += tool.velocity * tool_time_offset;
+      const Vec3 tool_motion = tool.velocity * h;
+      ToolScratch& ts = tool_scratch[t];
+      for (size_t i = 0; i < x.size(); ++i) {
+        if (m.inv_mass[i] == 0) continue;
+        Vec3 q, normal;
+        double depth;
+        if (!tool_contact(tool, x[i], q, normal, depth)) continue;
+        const Vec3 before = x[i];
+        x[i] += depth * normal;
+        const Vec3 dx = x[i] - x_start[i] - tool_motion;  // relative to the tool's surface
+        const Vec3 tangential = dx - dx.dot(normal) * normal;
+        const double tn = tangential.norm();
+        if (tn < tool.static_friction * depth) x[i] -= tangential;
+        else if (tn > 0) x[i] -= tangential * std::min(tool.dynamic_friction * depth / tn, 1.0);
+        ts.lambda[i] += m.mass[i] * (x[i] - before);
+        ts.normal[i] = normal;
+        if (!ts.touching[i]) {
+          ts.touching[i] = 1;
+          ts.touched.push_back(int32_t(i));
+        }
+        ++n;
+      }
+    }
+    return n;
+  }
+
+  // The substep's reactions from the multipliers: f = lambda / h^2.
+  void finish_interaction(const std::vector<Vec3>& x, const StepInputs& inputs, double h, StepReport& rep) {
+    const double inv_h2 = 1.0 / (h * h);
+    rep.tools.assign(inputs.tools.size(), ToolReaction{});
+    for (size_t t = 0; t < inputs.tools.size(); ++t) {
+      ToolScratch& ts = tool_scratch[t];
+      ToolReaction& r = rep.tools[t];
+      for (int32_t v : ts.touched) {
+        const Vec3 f_tool = -ts.lambda[v] * inv_h2;
+        r.force += f_tool;
+        r.torque += (x[v] - (inputs.tools[t].position + inputs.tools[t].velocity * tool_time_offset)).cross(f_tool);
+        r.contacts.push_back(ToolContact{v, x[v], ts.normal[v], f_tool});
+      }
+    }
+    rep.attachment_forces.resize(inputs.attachments.size());
+    for (size_t j = 0; j < inputs.attachments.size(); ++j) rep.attachment_forces[j] = attachment_lambda[j] * inv_h2;
+  }
+
   int contacts(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec3>& x_start,
                const std::vector<Collider>& colliders) {
     if (colliders.empty()) return 0;
@@ -225,6 +330,8 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
   params.inversion_floor = s.inversion_floor;
   I.dlambda.resize(m.tet_count());
   lambda.resize(m.tet_count(), Vec6::Zero());
+  const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();
+  if (interacting) I.begin_interaction(m.vertex_count(), inputs);
 
   detail::AcceleratorServices services;
   services.report = &rep;
@@ -243,6 +350,7 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
   double hook_ms = 0;  // time spent in the experiment hook, excluded from the report
   const bool proposes = s.method == Method::Anderson || s.method == Method::AndersonSor ||
                         s.method == Method::Extrapolation;
+  double r_reference = r0;  // what the divergence test compares against
 
   for (int it = 0; it < s.iterations; ++it) {
     if (accel->needs_previous()) I.x_before = x;
@@ -255,6 +363,12 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
     if (!inputs.colliders.empty()) {
       PhaseTimer t{rep.times.other_ms};
       rep.contacts = I.contacts(m, x, x_prev, inputs.colliders);
+    }
+    if (interacting) {
+      PhaseTimer t{rep.times.other_ms};
+      const int n = I.interact(m, x, x_prev, inputs, h);
+      if (inputs.colliders.empty()) rep.contacts = n;
+      else rep.contacts += n;
     }
     double r = 0;
     // Position-space accelerators move x after the sweep: their residual is taken after that.
@@ -311,7 +425,11 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
       hook_ms += ms_since(th);
     }
     if (s.record_residuals) {
-      if (!std::isfinite(r) || r > 1e8 * std::max(r0, 1e-300)) {
+      // Tools and grabs move vertices after the sweep, so the first iteration's residual can
+      // exceed r0 by any factor (r0 is exactly 0 for an undisturbed body without gravity):
+      // with them, the blow-up test compares against the larger of r0 and that first residual.
+      if (interacting && it == 0) r_reference = std::max(r0, r);
+      if (!std::isfinite(r) || r > 1e8 * std::max(r_reference, 1e-300)) {
         rep.diverged = true;
         break;
       }
@@ -335,6 +453,7 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
       if (hits == 0) break;
     }
   }
+  if (interacting) I.finish_interaction(x, inputs, h, rep);
   rep.wall_ms = ms_since(t_start) - hook_ms;
   return rep;
 }
@@ -352,6 +471,25 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   SolverSettings quiet = s;
   quiet.record_residuals = s.record_residuals && (s.tolerance > 0 || s.method == Method::Anderson ||
                                                   s.method == Method::AndersonSor || s.method == Method::Extrapolation);
+  const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();
+  if (interacting) {
+    I.tool_accumulators.resize(inputs.tools.size());
+    for (auto& acc : I.tool_accumulators) {
+      if (acc.force.size() != nv) {
+        acc.force.assign(nv, Vec3::Zero());
+        acc.normal.assign(nv, Vec3::Zero());
+        acc.seen.assign(nv, 0);
+        acc.vertices.clear();
+      }
+      for (int32_t v : acc.vertices) {
+        acc.force[v].setZero();
+        acc.seen[v] = 0;
+      }
+      acc.vertices.clear();
+    }
+    total.tools.assign(inputs.tools.size(), ToolReaction{});
+    total.attachment_forces.assign(inputs.attachments.size(), Vec3::Zero());
+  }
   for (int sub = 0; sub < n; ++sub) {
     const auto t_other = Clock::now();
     I.v_prev = state.x;  // positions at the start of the substep
@@ -374,6 +512,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     if (s.time_budget_ms > 0) budget = std::max(0.0, (s.time_budget_ms - ms_since(t_start)) / (n - sub));
     // The report carries the residual history of the last substep only; earlier substeps
     // compute residuals only when the method or a tolerance needs them.
+    I.tool_time_offset = (sub + 1 - n) * h;
     StepReport r = solve_substep_budgeted(m, I.v_prev, state.x, state.lambda, h, sub + 1 == n ? s : quiet,
                                           inputs, s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
 
@@ -399,6 +538,35 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     total.residuals = std::move(r.residuals);
     total.residual_initial = r.residual_initial;
     total.residual_final = r.residual_final;
+    if (interacting) {
+      for (size_t t = 0; t < r.tools.size(); ++t) {
+        auto& acc = I.tool_accumulators[t];
+        total.tools[t].force += r.tools[t].force;
+        total.tools[t].torque += r.tools[t].torque;
+        for (const ToolContact& c : r.tools[t].contacts) {
+          acc.force[c.vertex] += c.force;
+          acc.normal[c.vertex] = c.normal;
+          if (!acc.seen[c.vertex]) {
+            acc.seen[c.vertex] = 1;
+            acc.vertices.push_back(c.vertex);
+          }
+        }
+      }
+      for (size_t j = 0; j < r.attachment_forces.size(); ++j) total.attachment_forces[j] += r.attachment_forces[j];
+    }
+  }
+  I.tool_time_offset = 0;  // solve_substep on its own: tools at their pose
+  if (interacting) {
+    // Averages over the substeps: the impulse delivered during the step divided by dt.
+    for (size_t t = 0; t < total.tools.size(); ++t) {
+      ToolReaction& r = total.tools[t];
+      r.force /= n;
+      r.torque /= n;
+      const auto& acc = I.tool_accumulators[t];
+      r.contacts.reserve(acc.vertices.size());
+      for (int32_t v : acc.vertices) r.contacts.push_back(ToolContact{v, state.x[v], acc.normal[v], acc.force[v] / n});
+    }
+    for (Vec3& f : total.attachment_forces) f /= n;
   }
   total.substeps = n;
   state.time += s.dt;

@@ -1,7 +1,9 @@
-// End to end: the real pliant-server binary, driven by the real pliant CLI, through a restart.
-// Paths to both come from CMake (PLIANT_SERVER_BIN, PLIANT_CLI_BIN).
+// End to end: the real pliant-server binary, driven by the real pliant CLI (through a restart;
+// grab / move-grab / release) and by pliant-haptic. Paths come from CMake (PLIANT_SERVER_BIN,
+// PLIANT_CLI_BIN, PLIANT_HAPTIC_BIN).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
@@ -157,5 +159,51 @@ TEST(EndToEnd, ServerAndCliThroughARestart) {
     EXPECT_EQ(del.exit_code, 0) << del.out;
     EXPECT_EQ(server.stop(), 0);
   }
+  fs::remove_all(dir);
+}
+
+TEST(EndToEnd, GrabFromTheCliAndTheHapticBridgeAgainstTheServer) {
+  fs::path dir = fs::temp_directory_path() / ("pliant_e2e_haptic_" + std::to_string(getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  ServerProcess server(dir / "data", dir / "server.log");
+  ASSERT_GT(server.port(), 0) << server.log();
+  const std::string addr = "--address 127.0.0.1:" + std::to_string(server.port());
+
+  auto c = run(addr + " scenes create g --mesh beam1 --fix-x-below 0.001 --mode lockstep");
+  ASSERT_EQ(c.exit_code, 0) << c.out;
+  auto g = run(addr + " grab g --vertex 215 --target 0.115,0.013,0.01");
+  EXPECT_EQ(g.exit_code, 0) << g.out;
+  EXPECT_NE(g.out.find("grab 1 from tick 1"), std::string::npos) << g.out;
+  EXPECT_EQ(run(addr + " step g 10").exit_code, 0);
+  auto m = run(addr + " --json move-grab g 1 --target 0.115,0.008,0.01");
+  EXPECT_EQ(m.exit_code, 0) << m.out;
+  EXPECT_NE(m.out.find("\"first_tick\":\"11\""), std::string::npos) << m.out;
+  EXPECT_EQ(run(addr + " release g 1").exit_code, 0);
+  auto again = run(addr + " release g 1");
+  EXPECT_EQ(again.exit_code, 4) << again.out;
+  EXPECT_NE(again.out.find("grab_id 1"), std::string::npos) << again.out;
+  auto bad = run(addr + " grab g --vertex 99999");
+  EXPECT_EQ(bad.exit_code, 1) << bad.out;
+  EXPECT_NE(bad.out.find("vertex = 99999"), std::string::npos) << bad.out;
+
+  // The bridge creates its 1 kHz scene, presses for 3 s and ends with one JSON line on stdout.
+  const std::string cmd = std::string(PLIANT_HAPTIC_BIN) + " " + addr + " --duration 3 --json --quiet 2>/dev/null";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  std::string out;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
+  const int status = pclose(p);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+  for (const char* field : {"\"loop_hz\":", "\"period_p99_us\":", "\"rtt_p50_ms\":", "\"rtt_p99_ms\":",
+                            "\"rtt_max_ms\":", "\"max_force_n\":", "\"connected\":true"})
+    EXPECT_NE(out.find(field), std::string::npos) << field << " in " << out;
+  const auto at = out.find("\"max_force_n\":");
+  ASSERT_NE(at, std::string::npos);
+  EXPECT_GT(std::stod(out.substr(at + 14)), 0.0) << out;
+  EXPECT_EQ(std::count(out.begin(), out.end(), '\n'), 1) << out;
+  server.stop();
   fs::remove_all(dir);
 }

@@ -5,6 +5,7 @@
 #pragma once
 
 #include "pliant/colliders.hpp"
+#include "pliant/interaction.hpp"
 #include "pliant/model.hpp"
 #include "pliant/settings.hpp"
 #include "pliant/state.hpp"
@@ -38,15 +39,25 @@ struct StepReport {
   bool stopped_by_budget = false;
   int contacts = 0;                    // active contacts at the end of the step
   int volume_corrections = 0;          // inversion-floor projections in the last iteration
+  // One per StepInputs::tools, same order: force/torque on the tool averaged over the substeps
+  // of the step (= impulse during the step / dt), and the vertices that touched it.
+  std::vector<ToolReaction> tools;
+  // One per StepInputs::attachments: the force the attachment puts ON THE BODY (lambda / h^2,
+  // averaged over the substeps); the force on whatever holds the target is minus this.
+  std::vector<Vec3> attachment_forces;
   PhaseTimes times;
   double wall_ms = 0;
 };
 
-// Per-step inputs that are not part of the body: external forces (N, per vertex; empty for none)
-// and static colliders.
+// Per-step inputs that are not part of the body: external forces (N, per vertex; empty for none),
+// static colliders, attachments (grabs) and rigid tools (posed by the caller, fixed during the
+// step). Attachments and tools are projected inside every iteration, after the strain sweep,
+// like the colliders. Check them with validate_interaction before stepping.
 struct StepInputs {
   std::vector<Vec3> external_forces;
   std::vector<Collider> colliders;
+  std::vector<Attachment> attachments;
+  std::vector<RigidTool> tools;
 };
 
 class Stepper {

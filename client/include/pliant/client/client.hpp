@@ -61,6 +61,25 @@ class FrameStream {
   std::unique_ptr<Impl> impl_;
 };
 
+// The bidirectional haptic stream (InteractionService.HapticStream): send() tool poses from
+// one thread while another reads feedback with next(). close() half-closes; cancel() may be
+// called from any thread; finish() gives the server's status.
+class HapticStream {
+ public:
+  ~HapticStream();  // cancels a stream still open
+  bool send(const v1::ToolPose& pose);
+  bool next(v1::ToolFeedback* feedback);
+  void close();
+  void cancel();
+  Status finish();
+
+ private:
+  friend class Client;
+  struct Impl;
+  explicit HapticStream(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
 class Client {
  public:
   explicit Client(ConnectOptions options);
@@ -93,6 +112,12 @@ class Client {
   Result<v1::SaveSnapshotResponse> save_snapshot(const v1::SaveSnapshotRequest& request);
   Result<v1::Scene> restore_snapshot(const v1::RestoreSnapshotRequest& request);
   Result<std::vector<std::string>> list_snapshots();
+
+  // InteractionService.
+  Result<v1::GrabResponse> grab(const v1::GrabRequest& request);
+  Result<v1::MoveGrabResponse> move_grab(const v1::MoveGrabRequest& request);
+  Status release(const std::string& scene_id, uint64_t grab_id);
+  std::unique_ptr<HapticStream> haptic_stream();
 
   // grpc.health.v1.Health/Check; service "" is the whole server.
   Result<Health> health(const std::string& service = "");

@@ -51,6 +51,14 @@ class SceneRegistry {
   Error apply_force(const v1::ApplyForceRequest& request, v1::ApplyForceResponse* out);
   Error topology(const std::string& id, v1::Topology* out) const;
 
+  // InteractionService: grabs (validated here, applied by the scene's tick).
+  Error grab(const v1::GrabRequest& request, v1::GrabResponse* out);
+  Error move_grab(const v1::MoveGrabRequest& request, v1::MoveGrabResponse* out);
+  Error release(const v1::ReleaseRequest& request);
+  // A haptic pose as a tool; `previous` supplies the shape for fields the pose leaves unset
+  // (null on the first pose: server defaults). Errors name the field and the value.
+  static Error parse_tool_pose(const v1::ToolPose& pose, const RigidTool* previous, RigidTool* out);
+
   Error save_snapshot(const v1::SaveSnapshotRequest& request, v1::SaveSnapshotResponse* out);
   Error restore_snapshot(const v1::RestoreSnapshotRequest& request, v1::Scene* out);
   Error list_snapshots(v1::ListSnapshotsResponse* out) const;

@@ -3,6 +3,7 @@
 // latest immutable Frame, published atomically after every tick. No gRPC in here.
 #pragma once
 
+#include "pliant/interaction.hpp"
 #include "pliant/model.hpp"
 #include "pliant/settings.hpp"
 #include "pliant/state.hpp"
@@ -58,6 +59,14 @@ struct SceneConfig {
   TickMode mode = TickMode::Realtime;
 };
 
+// A tool's reaction in a tick, with the pose that produced it.
+struct FrameTool {
+  uint64_t tool_id = 0;
+  uint64_t pose_seq = 0;        // the client's pose number the tick used
+  int64_t pose_client_ns = 0;   // echoed client timestamp of that pose
+  ToolReaction reaction;
+};
+
 // What a tick produced. Immutable once published; shared by every reader.
 struct Frame {
   uint64_t seq = 0;        // publication number (monotonic for the scene's lifetime)
@@ -85,6 +94,8 @@ struct Frame {
   std::chrono::steady_clock::time_point published;  // for in-process latency figures
   bool running = false;
   TickMode mode = TickMode::Realtime;
+  std::vector<FrameTool> tools;                        // every tool in the scene, by id
+  std::vector<std::pair<uint64_t, Vec3>> grab_forces;  // force on the body per grab id
 };
 
 struct SceneStatus {
@@ -157,6 +168,19 @@ class Scene {
   // run are dropped.
   Error step(uint32_t ticks, std::chrono::steady_clock::time_point deadline, StepResult* out,
              const std::function<bool()>& cancelled = {});
+  // Interaction. Grabs are validated by the caller (validate_interaction) and wait for the
+  // tick like the other commands; first_tick is the first tick they act in.
+  Error grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
+             std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  Error move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tick, Vec3* last_force,
+                  std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  Error release(uint64_t grab_id, std::chrono::milliseconds timeout = std::chrono::seconds(10));
+  // Tools are posed at up to 1 kHz from a stream: these post the change and return at once
+  // (the tick applies it at its next start). false when the scene is stopping.
+  uint64_t new_tool_id();
+  bool set_tool(uint64_t tool_id, const RigidTool& tool, uint64_t pose_seq, int64_t pose_client_ns);
+  void remove_tool(uint64_t tool_id);
+
   // The full state at a tick boundary.
   Error snapshot(SceneSnapshot* out, std::chrono::milliseconds timeout = std::chrono::seconds(10));
   // Snapshot of a stopped scene (after stop(); no tick thread to ask).
@@ -181,6 +205,8 @@ class Scene {
   };
 
   Error call(std::function<Error()> fn, std::chrono::steady_clock::time_point deadline);
+  // Queues a command without waiting for it; false when the scene is stopping.
+  bool post(Command fn);
   void run();
   void tick_once(bool scheduled, std::chrono::steady_clock::time_point due);
   void publish_status();
@@ -193,6 +219,7 @@ class Scene {
   std::condition_variable cv_;
   std::deque<Command> commands_;
   bool stop_ = false;
+  uint64_t next_tool_id_ = 1;
   std::thread thread_;
 
   // Readable copies for other threads (under info_mu_).

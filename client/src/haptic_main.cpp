@@ -1,0 +1,158 @@
+// pliant-haptic: the haptic-device bridge. Runs the device loop at 1 kHz on its own thread,
+// streams tool poses to a Pliant scene and renders the contact force it gets back, with local
+// force extrapolation between server updates and safety limits. Uses a scripted simulated
+// device by default. Prints a live statistics line every second; with --json it ends with
+// one JSON line (loop_hz, period_p99_us, rtt_p50_ms, rtt_p99_ms, rtt_max_ms, max_force_n, ...).
+// Exit codes: 0 ok; 2 usage error; 3 never connected to the server.
+#include "pliant/client/haptic.hpp"
+
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <atomic>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <iostream>
+#include <string>
+#include <thread>
+
+namespace {
+
+const char* kUsage = R"(usage: pliant-haptic [flags]
+
+  --address HOST:PORT    server (default $PLIANT_ADDRESS or localhost:50051)
+  --token TOKEN          access token (default $PLIANT_TOKEN)
+  --scene ID             scene to touch (default "haptic")
+  --create MESH          create the scene from this builtin mesh when it does not exist
+                         (default beam1, clamped at x = 0; "" never creates)
+  --tick-hz HZ           tick rate of a scene it creates (default 1000)
+  --young PA             Young's modulus of a scene it creates (default 5e7; gravity off)
+  --substeps N --iterations N   solver of a scene it creates (default 4 x 2)
+  --rate HZ              device loop rate (default 1000)
+  --script press|stroke  simulated device motion (default press)
+  --start X,Y,Z          simulated handle start, m (default 0.1,0.025,0.005: over beam1's tip)
+  --surface-y Y          height where contact starts, m (default 0.01: beam1's top)
+  --depth M              press depth below the surface, m (default 0.003)
+  --radius M             tool sphere radius, m (default 0.005)
+  --max-force N          force clamp, N (default 8)
+  --max-force-rate N/S   force slew limit, N/s (default 2000)
+  --stale-ms MS          no feedback for this long cuts the force (default 100)
+  --duration S           stop after S seconds (default: until Ctrl-C)
+  --json                 end with one JSON line of statistics on stdout
+  --quiet                no live statistics line
+  --no-realtime          do not ask for SCHED_FIFO for the device loop
+)";
+
+std::atomic<bool> g_stop{false};
+void on_signal(int) { g_stop = true; }
+
+bool parse_vec(const std::string& s, pliant::haptic::Vec3* out) {
+  double x, y, z;
+  if (std::sscanf(s.c_str(), "%lf,%lf,%lf", &x, &y, &z) != 3) return false;
+  *out = pliant::haptic::Vec3(x, y, z);
+  return true;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace pliant::haptic;
+  BridgeOptions opt;
+  opt.connect.address = std::getenv("PLIANT_ADDRESS") ? std::getenv("PLIANT_ADDRESS") : "localhost:50051";
+  if (const char* t = std::getenv("PLIANT_TOKEN")) opt.connect.token = t;
+  opt.connect.timeout = std::chrono::seconds(5);
+  SimulatedDevice::Params dev;
+  double duration = 0;
+  bool json = false, quiet = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::cerr << "pliant-haptic: " << a << " needs a value\n" << kUsage;
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    auto number = [&](double lo, double hi) {
+      const std::string v = value();
+      char* end = nullptr;
+      const double d = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0' || !(d >= lo && d <= hi)) {
+        std::cerr << "pliant-haptic: " << a << " must be a number in [" << lo << ", " << hi << "], got '" << v << "'\n";
+        std::exit(2);
+      }
+      return d;
+    };
+    if (a == "--help" || a == "-h") {
+      std::cout << kUsage;
+      return 0;
+    } else if (a == "--address") opt.connect.address = value();
+    else if (a == "--token") opt.connect.token = value();
+    else if (a == "--scene") opt.scene_id = value();
+    else if (a == "--create") opt.create_builtin = value();
+    else if (a == "--tick-hz") opt.create_tick_hz = number(1, 10000);
+    else if (a == "--young") opt.create_young = number(1, 1e12);
+    else if (a == "--substeps") opt.create_substeps = static_cast<int>(number(1, 10000));
+    else if (a == "--iterations") opt.create_iterations = static_cast<int>(number(1, 10000));
+    else if (a == "--rate") opt.loop_hz = number(10, 10000);
+    else if (a == "--script") {
+      const std::string s = value();
+      if (s == "press") dev.script = SimulatedDevice::Script::Press;
+      else if (s == "stroke") dev.script = SimulatedDevice::Script::Stroke;
+      else {
+        std::cerr << "pliant-haptic: --script must be press or stroke, got '" << s << "'\n";
+        return 2;
+      }
+    } else if (a == "--start") {
+      const std::string s = value();
+      if (!parse_vec(s, &dev.start)) {
+        std::cerr << "pliant-haptic: --start must be X,Y,Z, got '" << s << "'\n";
+        return 2;
+      }
+    } else if (a == "--surface-y") dev.surface_y = number(-1e3, 1e3);
+    else if (a == "--depth") dev.depth = number(0, 1);
+    else if (a == "--radius") dev.radius = opt.tool_radius = number(1e-5, 1);
+    else if (a == "--max-force") opt.limits.max_force = number(0, 1e4);
+    else if (a == "--max-force-rate") opt.limits.max_force_rate = number(0, 1e7);
+    else if (a == "--stale-ms") opt.limits.stale_ms = number(1, 1e5);
+    else if (a == "--duration") duration = number(0, 1e7);
+    else if (a == "--json") json = true;
+    else if (a == "--quiet") quiet = true;
+    else if (a == "--no-realtime") opt.realtime_priority = false;
+    else {
+      std::cerr << "pliant-haptic: unknown flag '" << a << "'\n" << kUsage;
+      return 2;
+    }
+  }
+  // Logs go to stderr so that stdout holds only the JSON line.
+  spdlog::set_default_logger(spdlog::stderr_color_mt("pliant-haptic"));
+  std::signal(SIGINT, on_signal);
+  std::signal(SIGTERM, on_signal);
+
+  auto device = std::make_shared<SimulatedDevice>(dev);
+  HapticBridge bridge(opt, device);
+  spdlog::info("device {}, loop {} Hz, server {}, scene '{}'", device->name(), opt.loop_hz, opt.connect.address,
+               opt.scene_id);
+  bridge.start();
+  const auto t0 = std::chrono::steady_clock::now();
+  auto next_print = t0 + std::chrono::seconds(1);
+  bool ever_connected = false;
+  while (!g_stop.load()) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    const auto now = std::chrono::steady_clock::now();
+    ever_connected |= bridge.connected();
+    if (duration > 0 && now - t0 >= std::chrono::duration<double>(duration)) break;
+    if (!quiet && now >= next_print) {
+      next_print += std::chrono::seconds(1);
+      const BridgeStats s = bridge.stats();
+      spdlog::info("loop {:.0f} Hz  period p99 {:.0f} us  rtt p50 {:.2f} / p99 {:.2f} / max {:.2f} ms  force {:.3f} N (max {:.3f})  {}",
+                   s.loop_hz, s.period_p99_us, s.rtt_p50_ms, s.rtt_p99_ms, s.rtt_max_ms, s.force_n, s.max_force_n,
+                   s.connected ? "connected" : "NOT CONNECTED");
+    }
+  }
+  const BridgeStats s = bridge.stats();
+  bridge.stop();
+  if (json) std::cout << s.to_json() << std::endl;
+  return ever_connected ? 0 : 3;
+}

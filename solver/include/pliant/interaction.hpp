@@ -1,0 +1,84 @@
+// Interaction inputs to a step: attachments (grab a vertex, or a point inside a tet by
+// barycentric weights, and pull it to a moving target through a compliant constraint) and
+// rigid tools (sphere, capsule) posed by the caller that the body's vertices collide with.
+// The reactions come from the XPBD multipliers (f = lambda / h^2), not from a made-up spring.
+#pragma once
+
+#include "pliant/material.hpp"
+#include "pliant/mesh.hpp"
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <array>
+#include <string>
+#include <vector>
+
+namespace pliant {
+
+struct BodyModel;
+
+// C = sum_k b_k x_{v_k} - target (3 rows), compliance alpha (m/N; 0 = hard). A vertex grab uses
+// one vertex with weight 1; a point inside a tet uses its four vertices and barycentric weights.
+struct Attachment {
+  std::array<int32_t, 4> vertices{-1, -1, -1, -1};  // -1: unused slot
+  std::array<double, 4> weights{0, 0, 0, 0};
+  Eigen::Vector3d target{0, 0, 0};
+  double compliance = 0.0;
+
+  static Attachment vertex(int32_t v, const Eigen::Vector3d& target, double compliance = 0.0);
+  static Attachment in_tet(const Tet& tet, const std::array<double, 4>& barycentric,
+                           const Eigen::Vector3d& target, double compliance = 0.0);
+  // The attached point at positions x.
+  Eigen::Vector3d point(const std::vector<Eigen::Vector3d>& x) const;
+};
+
+// A rigid tool driven by a pose. Sphere: centre = position. Capsule: the segment
+// position +- half_length * (orientation * z) swept by radius.
+struct RigidTool {
+  enum class Shape { Sphere, Capsule };
+  Shape shape = Shape::Sphere;
+  Eigen::Vector3d position{0, 0, 0};
+  Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
+  double radius = 0.01;
+  double half_length = 0.0;  // capsule only
+  double static_friction = 0.5;
+  double dynamic_friction = 0.4;
+  // Linear velocity (m/s). The pose is where the tool is at the END of the step; with a
+  // velocity the step moves it there from position - velocity * dt over the substeps, and
+  // friction acts on the vertices' motion relative to the tool's.
+  Eigen::Vector3d velocity{0, 0, 0};
+
+  static RigidTool sphere(const Eigen::Vector3d& centre, double radius);
+  static RigidTool capsule(const Eigen::Vector3d& centre, const Eigen::Quaterniond& orientation,
+                           double radius, double half_length);
+};
+
+// If p is inside the tool: the closest surface point q, the outward normal and the depth.
+bool tool_contact(const RigidTool& tool, const Eigen::Vector3d& p, Eigen::Vector3d& q,
+                  Eigen::Vector3d& normal, double& depth);
+
+// One vertex in contact with a tool during the step.
+struct ToolContact {
+  int32_t vertex = -1;
+  Eigen::Vector3d point{0, 0, 0};   // the vertex position at the end of the step (on the surface)
+  Eigen::Vector3d normal{0, 0, 0};  // tool's outward normal there (last substep in contact)
+  Eigen::Vector3d force{0, 0, 0};   // force ON THE TOOL from this contact, N (tick average)
+};
+
+// The reaction on one tool. force/torque are the averages over the substeps of the step, i.e.
+// the impulse delivered during the tick divided by dt; torque is about the tool's position in
+// each substep (tool.position at the end of the step for a tool without velocity).
+// Normal and friction multipliers both count: f_tool = -sum over contacts of lambda / h^2.
+struct ToolReaction {
+  Eigen::Vector3d force{0, 0, 0};
+  Eigen::Vector3d torque{0, 0, 0};
+  std::vector<ToolContact> contacts;
+};
+
+// Empty when valid, else a message naming the bad field and its value (e.g.
+// "attachments[2].vertices[0] = 99 is out of range (model has 50 vertices)").
+std::string validate_interaction(const std::vector<Attachment>& attachments,
+                                 const std::vector<RigidTool>& tools, const BodyModel& model);
+
+}  // namespace pliant

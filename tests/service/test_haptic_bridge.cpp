@@ -1,0 +1,138 @@
+// The haptic bridge: the force renderer's safety limits and extrapolation (no server), and the
+// bridge against an in-process server: it feels the beam, cuts the force to zero within one
+// loop period when the server goes away, and reconnects when it comes back. Waits are
+// "eventually" bounds, never timing assertions.
+#include "pliant/client/haptic.hpp"
+#include "pliant/server/server.hpp"
+
+#include <gtest/gtest.h>
+#include <spdlog/spdlog.h>
+
+#include <thread>
+
+using namespace pliant;
+using namespace pliant::haptic;
+
+namespace {
+
+const bool quiet_logs = [] {
+  spdlog::set_level(spdlog::level::warn);
+  return true;
+}();
+
+ServerForce at(uint64_t tick, const Vec3& force, const Vec3& pose) {
+  ServerForce s;
+  s.valid = true;
+  s.tick = tick;
+  s.force = force;
+  s.pose = pose;
+  s.received = Clock::now();
+  return s;
+}
+
+// Polls `done` every 10 ms for up to `limit`.
+bool eventually(const std::function<bool()>& done, std::chrono::seconds limit) {
+  const auto end = Clock::now() + limit;
+  while (Clock::now() < end) {
+    if (done()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return done();
+}
+
+}  // namespace
+
+TEST(ForceRenderer, ClampsMagnitudeAndRateAndCutsAtOnceWhenLost) {
+  SafetyLimits lim;
+  lim.max_force = 3;
+  lim.max_force_rate = 1000;  // 1 N per 1 ms period
+  ForceRenderer r(lim);
+  const Vec3 p(0, 0, 0);
+  Vec3 f = r.update(p, at(1, Vec3(0, 10, 0), p), false, 1e-3);
+  EXPECT_NEAR(f.y(), 1.0, 1e-12);  // rate limited from 0
+  for (int i = 0; i < 10; ++i) f = r.update(p, at(1, Vec3(0, 10, 0), p), false, 1e-3);
+  EXPECT_NEAR(f.norm(), 3.0, 1e-12);  // clamped
+  f = r.update(p, at(1, Vec3(0, 10, 0), p), true, 1e-3);
+  EXPECT_EQ(f, Vec3::Zero());  // lost: zero in this very period
+}
+
+TEST(ForceRenderer, ExtrapolatesWithTheLearnedStiffnessBetweenUpdates) {
+  SafetyLimits lim;
+  lim.max_force_rate = 1e9;
+  ForceRenderer r(lim);
+  // Stiffness 1000 N/m along +y.
+  // Updates alternate between 1 N at y = 0 and 2 N at y = -1 mm.
+  for (int i = 0; i < 40; ++i) {
+    const double y = i % 2 ? -0.001 : 0.0;
+    r.update(Vec3(0, y, 0), at(1 + i, Vec3(0, i % 2 ? 2 : 1, 0), Vec3(0, y, 0)), false, 1e-3);
+  }
+  EXPECT_GT(r.stiffness(), 500);
+  EXPECT_LT(r.stiffness(), 1001);
+  // No new update while the handle goes 0.5 mm deeper: the force follows the handle.
+  const ServerForce last = at(1000, Vec3(0, 2, 0), Vec3(0, -0.001, 0));
+  const Vec3 f0 = r.update(Vec3(0, -0.001, 0), last, false, 1e-3);
+  const Vec3 f1 = r.update(Vec3(0, -0.0015, 0), last, false, 1e-3);
+  EXPECT_NEAR(f0.y(), 2.0, 1e-9);
+  EXPECT_NEAR(f1.y() - f0.y(), 0.0005 * r.stiffness(), 1e-9);
+  // Pulled out past the surface: never a pulling force.
+  const Vec3 f2 = r.update(Vec3(0, 0.01, 0), last, false, 1e-3);
+  EXPECT_GE(f2.y(), 0);
+}
+
+TEST(SimulatedDevice, PressesBelowTheSurfaceAndComesBack) {
+  SimulatedDevice::Params p;
+  p.ramp_s = 0.5;
+  p.period_s = 2;
+  SimulatedDevice d(p);
+  EXPECT_NEAR(d.position(0).y(), p.start.y(), 1e-12);
+  EXPECT_NEAR(d.position(1.0).y() - p.radius, p.surface_y - p.depth, 1e-12);  // tool bottom at depth
+  EXPECT_NEAR(d.position(2.0 - 1e-9).y(), p.start.y(), 1e-6);
+}
+
+TEST(HapticBridge, FeelsTheBeamCutsToZeroWhenTheServerGoesAndReconnects) {
+  server::ServerOptions so;
+  so.listen = "127.0.0.1:0";
+  auto srv = std::make_unique<server::PliantServer>(so);
+  ASSERT_TRUE(srv->start().ok());
+  const int port = srv->port();
+
+  SimulatedDevice::Params dp;
+  dp.ramp_s = 0.2;
+  dp.period_s = 1e6;  // press and hold
+  auto device = std::make_shared<SimulatedDevice>(dp);
+  BridgeOptions bo;
+  bo.connect.address = "127.0.0.1:" + std::to_string(port);
+  bo.connect.timeout = std::chrono::seconds(5);
+  bo.scene_id = "bridge";
+  bo.create_builtin = "beam1";
+  bo.create_tick_hz = 500;  // two busy 1 kHz threads on a shared 2-core machine would be unfair to the rest
+  bo.reconnect_delay = std::chrono::milliseconds(50);
+  HapticBridge bridge(bo, device);
+  bridge.start();
+
+  ASSERT_TRUE(eventually([&] { return device->last_force().y() > 0.005; }, std::chrono::seconds(30)))
+      << bridge.stats().to_json();
+  const BridgeStats pressed = bridge.stats();
+  EXPECT_GT(pressed.feedback, 0u);
+  EXPECT_GT(pressed.max_force_n, 0.005);
+
+  // The server goes away: the force is zero from the loop period after the loss on.
+  srv->shutdown();
+  srv.reset();
+  ASSERT_TRUE(eventually([&] { return !bridge.connected(); }, std::chrono::seconds(10)));
+  ASSERT_TRUE(eventually([&] { return bridge.zero_rendered_at_loop() >= bridge.loss_flagged_at_loop(); },
+                         std::chrono::seconds(5)));
+  EXPECT_LE(bridge.zero_rendered_at_loop() - bridge.loss_flagged_at_loop(), 1u);
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(device->last_force(), Vec3::Zero());
+
+  // It comes back on the same port (a fresh server: the bridge creates the scene again).
+  so.listen = "127.0.0.1:" + std::to_string(port);
+  srv = std::make_unique<server::PliantServer>(so);
+  ASSERT_TRUE(srv->start().ok());
+  ASSERT_TRUE(eventually([&] { return bridge.connected() && device->last_force().y() > 0.005; }, std::chrono::seconds(30)))
+      << bridge.stats().to_json();
+  EXPECT_GE(bridge.stats().reconnects, 1u);
+  bridge.stop();
+  srv->shutdown();
+}

@@ -1,0 +1,304 @@
+// InteractionService over an in-process server on 127.0.0.1 port 0: grab / move / release in a
+// lockstep scene, the haptic stream's feedback (tick id, echoed pose, force and contacts), and
+// errors that name the field and the value. No timing assertions (bench/ measures latency).
+#include "pliant/client/client.hpp"
+#include "pliant/server/server.hpp"
+
+#include <gtest/gtest.h>
+#include <spdlog/spdlog.h>
+
+#include <atomic>
+#include <cmath>
+#include <mutex>
+#include <thread>
+
+using namespace pliant;
+using client::Client;
+
+namespace {
+
+const bool quiet_logs = [] {
+  spdlog::set_level(spdlog::level::warn);
+  return true;
+}();
+
+constexpr int kInvalidArgument = 3, kNotFound = 5;
+
+struct Server {
+  std::unique_ptr<server::PliantServer> server;
+  std::string address;
+  Server() {
+    server::ServerOptions o;
+    o.listen = "127.0.0.1:0";
+    server = std::make_unique<server::PliantServer>(o);
+    auto e = server->start();
+    EXPECT_TRUE(e.ok()) << e.message;
+    address = "127.0.0.1:" + std::to_string(server->port());
+  }
+  Client client() const {
+    client::ConnectOptions c;
+    c.address = address;
+    c.timeout = std::chrono::seconds(30);
+    return Client(c);
+  }
+};
+
+// beam1 (11.5 x 1 x 1 cm) clamped at x = 0, gravity off so grabs and tools are the only loads.
+v1::CreateSceneRequest beam(const std::string& id) {
+  v1::CreateSceneRequest r;
+  r.set_scene_id(id);
+  auto* s = r.mutable_spec();
+  s->mutable_mesh()->set_builtin("beam1");
+  auto* box = s->mutable_fixed()->add_boxes();
+  box->mutable_min()->set_x(-1);
+  box->mutable_min()->set_y(-1);
+  box->mutable_min()->set_z(-1);
+  box->mutable_max()->set_x(1e-3);
+  box->mutable_max()->set_y(10);
+  box->mutable_max()->set_z(10);
+  s->mutable_gravity()->set_y(0);
+  // 16 substeps: with 8 x 2 a hard grab pulling one vertex of this coarse, soft beam tangles it.
+  s->mutable_solver()->set_substeps(16);
+  s->mutable_solver()->set_iterations(1);
+  s->mutable_solver()->set_damping_coefficient(20);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+  s->mutable_tick()->set_dt(1.0 / 60);
+  return r;
+}
+
+v1::Vec3 vec(double x, double y, double z) {
+  v1::Vec3 v;
+  v.set_x(x);
+  v.set_y(y);
+  v.set_z(z);
+  return v;
+}
+
+// Position of vertex i from a snapshot.
+std::array<double, 3> vertex_position(Client& c, const std::string& id, int i) {
+  v1::SaveSnapshotRequest r;
+  r.set_scene_id(id);
+  auto s = c.save_snapshot(r);
+  EXPECT_TRUE(s.ok()) << s.status.to_string();
+  return {s->snapshot().x(3 * i), s->snapshot().x(3 * i + 1), s->snapshot().x(3 * i + 2)};
+}
+
+// The vertex nearest to p in the rest shape.
+int nearest(Client& c, const std::string& id, double x, double y, double z) {
+  auto t = c.topology(id);
+  EXPECT_TRUE(t.ok());
+  int best = 0;
+  double bd = 1e300;
+  for (uint32_t i = 0; i < t->vertex_count(); ++i) {
+    const double dx = t->rest_positions(3 * i) - x, dy = t->rest_positions(3 * i + 1) - y,
+                 dz = t->rest_positions(3 * i + 2) - z;
+    if (dx * dx + dy * dy + dz * dz < bd) {
+      bd = dx * dx + dy * dy + dz * dz;
+      best = int(i);
+    }
+  }
+  return best;
+}
+
+}  // namespace
+
+TEST(InteractionService, GrabMoveReleaseDragsAVertex) {
+  Server s;
+  Client c = s.client();
+  ASSERT_TRUE(c.create_scene(beam("g")).ok());
+  const int tip = nearest(c, "g", 0.115, 0.01, 0.01);
+  const auto rest = vertex_position(c, "g", tip);
+
+  v1::GrabRequest g;
+  g.set_scene_id("g");
+  g.set_vertex(tip);
+  *g.mutable_target() = vec(rest[0], rest[1] + 0.003, rest[2]);
+  auto grabbed = c.grab(g);
+  ASSERT_TRUE(grabbed.ok()) << grabbed.status.to_string();
+  EXPECT_EQ(grabbed->first_tick(), 1u);
+  ASSERT_TRUE(c.step("g", 120).ok());
+  auto p = vertex_position(c, "g", tip);
+  EXPECT_NEAR(p[1], rest[1] + 0.003, 1e-4);
+
+  // Move the target down: the vertex follows; the reply carries the force of the lift.
+  v1::MoveGrabRequest m;
+  m.set_scene_id("g");
+  m.set_grab_id(grabbed->grab_id());
+  *m.mutable_target() = vec(rest[0], rest[1] - 0.003, rest[2]);
+  auto moved = c.move_grab(m);
+  ASSERT_TRUE(moved.ok()) << moved.status.to_string();
+  EXPECT_EQ(moved->first_tick(), 121u);
+  EXPECT_GT(moved->force().y(), 0);  // holding the tip up pulls the body up
+  ASSERT_TRUE(c.step("g", 120).ok());
+  p = vertex_position(c, "g", tip);
+  EXPECT_NEAR(p[1], rest[1] - 0.003, 1e-4);
+
+  // A second grab at once, inside the last tet, held where it is.
+  v1::GrabRequest g2;
+  g2.set_scene_id("g");
+  g2.mutable_tet_point()->set_tet(0);
+  for (int k = 0; k < 4; ++k) g2.mutable_tet_point()->add_barycentric(0.25);
+  auto second = c.grab(g2);
+  ASSERT_TRUE(second.ok()) << second.status.to_string();
+  EXPECT_NE(second->grab_id(), grabbed->grab_id());
+
+  // Release: the beam springs back towards its rest shape (no gravity).
+  ASSERT_TRUE(c.release("g", grabbed->grab_id()).ok());
+  ASSERT_TRUE(c.release("g", second->grab_id()).ok());
+  ASSERT_TRUE(c.step("g", 240).ok());
+  p = vertex_position(c, "g", tip);
+  EXPECT_NEAR(p[1], rest[1], 1e-3);
+  EXPECT_EQ(c.release("g", grabbed->grab_id()).code, kNotFound);
+}
+
+TEST(InteractionService, BadGrabsNameFieldAndValue) {
+  Server s;
+  Client c = s.client();
+  ASSERT_TRUE(c.create_scene(beam("e")).ok());
+  v1::GrabRequest g;
+  g.set_scene_id("nope");
+  g.set_vertex(0);
+  auto r = c.grab(g);
+  EXPECT_EQ(r.status.code, kNotFound);
+  EXPECT_NE(r.status.message.find("nope"), std::string::npos) << r.status.message;
+
+  g.set_scene_id("e");
+  g.set_vertex(99999);
+  r = c.grab(g);
+  EXPECT_EQ(r.status.code, kInvalidArgument);
+  EXPECT_NE(r.status.message.find("vertex = 99999"), std::string::npos) << r.status.message;
+
+  g.clear_vertex();
+  r = c.grab(g);
+  EXPECT_EQ(r.status.code, kInvalidArgument);
+  EXPECT_NE(r.status.message.find("point is not set"), std::string::npos) << r.status.message;
+
+  g.mutable_tet_point()->set_tet(0);
+  g.mutable_tet_point()->add_barycentric(1.0);
+  r = c.grab(g);
+  EXPECT_EQ(r.status.code, kInvalidArgument);
+  EXPECT_NE(r.status.message.find("tet_point.barycentric must hold 4 values, got 1"), std::string::npos)
+      << r.status.message;
+
+  g.set_vertex(0);
+  g.set_compliance(-1);
+  r = c.grab(g);
+  EXPECT_EQ(r.status.code, kInvalidArgument);
+  EXPECT_NE(r.status.message.find("compliance must be finite and >= 0, got -1"), std::string::npos)
+      << r.status.message;
+
+  v1::MoveGrabRequest m;
+  m.set_scene_id("e");
+  m.set_grab_id(4242);
+  *m.mutable_target() = vec(0, 0, 0);
+  auto mr = c.move_grab(m);
+  EXPECT_EQ(mr.status.code, kNotFound);
+  EXPECT_NE(mr.status.message.find("grab_id 4242"), std::string::npos) << mr.status.message;
+}
+
+TEST(InteractionService, HapticStreamAnswersEveryTickWithTheToolForce) {
+  Server s;
+  Client c = s.client();
+  ASSERT_TRUE(c.create_scene(beam("h")).ok());
+  auto stream = c.haptic_stream();
+  std::mutex mu;
+  std::vector<v1::ToolFeedback> got;
+  std::thread reader([&] {
+    v1::ToolFeedback f;
+    while (stream->next(&f)) {
+      std::lock_guard lk(mu);
+      got.push_back(f);
+    }
+  });
+  // A 1 cm sphere lowered from 1 mm above the top face near the tip to 2 mm into it over 60
+  // ticks (one pose per tick), then held. The poses reach the tick asynchronously.
+  v1::ToolPose pose;
+  pose.set_scene_id("h");
+  pose.set_shape(v1::TOOL_SHAPE_SPHERE);
+  pose.set_radius(0.01);
+  uint64_t seq = 0;
+  for (int i = 0; i < 120; ++i) {
+    const double depth = -0.001 + 0.003 * std::min(1.0, i / 60.0);
+    pose.set_seq(++seq);
+    pose.set_client_time_ns(1000 + int64_t(seq));
+    *pose.mutable_position() = vec(0.1, 0.01 + 0.01 - depth, 0.005);
+    ASSERT_TRUE(stream->send(pose));
+    pose.clear_scene_id();
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    ASSERT_TRUE(c.step("h", 1).ok());
+  }
+  // Let the last pose reach a tick, then a few more ticks.
+  size_t n = 0;
+  for (int i = 0; i < 500; ++i) {
+    ASSERT_TRUE(c.step("h", 1).ok());
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    std::lock_guard lk(mu);
+    if (!got.empty() && got.back().pose_seq() == seq && ++n > 10) break;
+  }
+  stream->close();
+  reader.join();
+  EXPECT_TRUE(stream->finish().ok());
+  ASSERT_GE(got.size(), 100u);
+  for (size_t i = 1; i < got.size(); ++i) {
+    EXPECT_GT(got[i].tick(), got[i - 1].tick());
+    EXPECT_GE(got[i].pose_seq(), got[i - 1].pose_seq());
+  }
+  const v1::ToolFeedback& last = got.back();
+  EXPECT_EQ(last.pose_seq(), seq);
+  EXPECT_EQ(last.pose_client_time_ns(), int64_t(1000 + seq));
+  EXPECT_GT(last.force().y(), 0);  // the beam pushes the tool up
+  ASSERT_GT(last.contacts_size(), 0);
+  double sum = 0;
+  for (const auto& cp : last.contacts()) {
+    sum += cp.force().y();
+    // Contact points lie on the sphere's surface.
+    const double dx = cp.point().x() - 0.1, dy = cp.point().y() - 0.018, dz = cp.point().z() - 0.005;
+    EXPECT_NEAR(std::sqrt(dx * dx + dy * dy + dz * dz), 0.01, 1e-4);
+  }
+  EXPECT_NEAR(sum, last.force().y(), 1e-9 + 1e-9 * std::abs(sum));
+
+  // The tool goes with the stream: later ticks see no contact.
+  auto after = c.step("h", 30);
+  ASSERT_TRUE(after.ok());
+}
+
+TEST(InteractionService, HapticStreamRejectsBadPoses) {
+  Server s;
+  Client c = s.client();
+  ASSERT_TRUE(c.create_scene(beam("b")).ok());
+  {
+    auto stream = c.haptic_stream();
+    v1::ToolPose pose;
+    pose.set_scene_id("missing");
+    *pose.mutable_position() = vec(0, 0, 0);
+    stream->send(pose);
+    auto st = stream->finish();
+    EXPECT_EQ(st.code, kNotFound);
+    EXPECT_NE(st.message.find("missing"), std::string::npos) << st.message;
+  }
+  {
+    auto stream = c.haptic_stream();
+    v1::ToolPose pose;
+    pose.set_scene_id("b");
+    pose.set_radius(-0.5);
+    *pose.mutable_position() = vec(0, 0, 0);
+    stream->send(pose);
+    auto st = stream->finish();
+    EXPECT_EQ(st.code, kInvalidArgument);
+    EXPECT_NE(st.message.find("radius must be > 0, got -0.5"), std::string::npos) << st.message;
+  }
+  {
+    // A good first pose, then a bad one: the stream ends with the bad one's error.
+    auto stream = c.haptic_stream();
+    v1::ToolPose pose;
+    pose.set_scene_id("b");
+    *pose.mutable_position() = vec(0.5, 0.5, 0.5);
+    stream->send(pose);
+    pose.clear_scene_id();
+    pose.mutable_orientation()->set_w(0);
+    stream->send(pose);
+    auto st = stream->finish();
+    EXPECT_EQ(st.code, kInvalidArgument);
+    EXPECT_NE(st.message.find("orientation"), std::string::npos) << st.message;
+  }
+}
