@@ -2,14 +2,14 @@
 # Build stage of docker/Dockerfile: a Release build (ninja, ccache) of the programs the image ships,
 # staged under $OUT as they will lie in the image (/usr/local/bin, /usr/share/pliant/meshes).
 #   build-programs.sh [OUT=/out]
-# Env: PLIANT_REQUIRED  programs the image cannot do without (default "pliant-server pliant");
+# Env: PLIANT_REQUIRED  programs the image cannot do without (default "pliant-server pliant pliant-haptic");
 #      JOBS             parallel jobs (default: nproc).
 # Only the targets pliant-server, pliant and pliant-haptic are built (no tests, benchmarks, tools);
 # those the tree does not have yet are skipped, the required ones must exist.
 set -eu
 OUT=${1:-/out}
 BUILD=/tmp/pliant-build     # not in the image layer: only $OUT is kept
-REQUIRED=${PLIANT_REQUIRED-pliant-server pliant}
+REQUIRED=${PLIANT_REQUIRED-pliant-server pliant pliant-haptic}
 
 cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release \
   -DCMAKE_CXX_COMPILER_LAUNCHER=ccache \
