@@ -25,13 +25,7 @@ v1::CreateSceneRequest beam_scene(const std::string& id, double hz, int substeps
   v1::CreateSceneRequest r;
   r.set_scene_id(id);
   auto* s = r.mutable_spec();
-  auto* box = s->mutable_fixed()->add_boxes();
-  box->mutable_min()->set_x(-1);
-  box->mutable_min()->set_y(-1);
-  box->mutable_min()->set_z(-1);
-  box->mutable_max()->set_x(1e-3);
-  box->mutable_max()->set_y(10);
-  box->mutable_max()->set_z(10);
+  client::clamp_below_x(*s, 1e-3);
   s->mutable_material()->set_young_modulus(5e7);
   s->mutable_gravity()->set_y(0);
   s->mutable_solver()->set_substeps(substeps);

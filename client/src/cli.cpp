@@ -342,10 +342,7 @@ int cmd_scenes(Client& c, Args& a, bool json) {
       set_vec(box->mutable_max(), {b[3], b[4], b[5]});
     }
     if (auto v = a.get("fix-x-below")) {
-      double x = to_double("fix-x-below", *v);
-      auto* box = spec->mutable_fixed()->add_boxes();
-      set_vec(box->mutable_min(), {-1e9, -1e9, -1e9});
-      set_vec(box->mutable_max(), {x, 1e9, 1e9});
+      client::clamp_below_x(*spec, to_double("fix-x-below", *v));
     }
     spec->set_start_paused(a.has("paused"));
     a.check_all_used();

@@ -12,6 +12,17 @@
 
 namespace pliant::client {
 
+void clamp_below_x(v1::SceneSpec& spec, double x_max) {
+  auto* box = spec.mutable_fixed()->add_boxes();
+  box->mutable_min()->set_x(-1e9);
+  box->mutable_min()->set_y(-1e9);
+  box->mutable_min()->set_z(-1e9);
+  box->mutable_max()->set_x(x_max);
+  box->mutable_max()->set_y(1e9);
+  box->mutable_max()->set_z(1e9);
+}
+
+
 namespace {
 
 const char* kCodeNames[] = {"OK", "CANCELLED", "UNKNOWN", "INVALID_ARGUMENT", "DEADLINE_EXCEEDED",

@@ -247,13 +247,7 @@ bool HapticBridge::ensure_scene(client::Client& c) {
   r.set_scene_id(opt_.scene_id);
   auto* s = r.mutable_spec();
   s->mutable_mesh()->set_builtin(opt_.create_builtin);
-  auto* box = s->mutable_fixed()->add_boxes();  // clamp the end at x = 0 (the beams start there)
-  box->mutable_min()->set_x(-1);
-  box->mutable_min()->set_y(-1);
-  box->mutable_min()->set_z(-1);
-  box->mutable_max()->set_x(1e-3);
-  box->mutable_max()->set_y(1);
-  box->mutable_max()->set_z(1);
+  client::clamp_below_x(*s, 1e-3);  // the beams start at x = 0
   s->mutable_material()->set_young_modulus(opt_.create_young);
   s->mutable_gravity()->set_y(0);
   s->mutable_solver()->set_substeps(opt_.create_substeps);

@@ -20,11 +20,6 @@ struct ProjectionParams {
   double inversion_floor = 0;
 };
 
-struct TetGeometry {
-  Vec3 f[3];          // columns of F
-  Eigen::Vector3d b[4];  // rows of D_m^-1 and b3 = -(b0 + b1 + b2)
-};
-
 // Computes the multiplier increment of one tet at positions x (does not move anything).
 // Returns the increment in dlambda and the per-vertex corrections in dx (already scaled by
 // inverse masses); lambda_t is read, not written.

@@ -186,39 +186,45 @@ struct Stepper::Impl {
   // Interaction scratch: per tool, the contact multiplier of each vertex in this substep
   // (lambda as a vector, normal and friction together; Delta x = w * Delta lambda) and the
   // vertices touched; per attachment, its 3-vector multiplier.
-  struct ToolScratch {
-    std::vector<Vec3> lambda, normal;
-    std::vector<uint8_t> touching;
-    std::vector<int32_t> touched;
+  // Per-vertex vectors that only the few vertices in contact touch: a value and a normal per
+  // vertex, the list of vertices touched, and a reset that clears only those.
+  struct SparseVertexVectors {
+    std::vector<Vec3> value, normal;
+    std::vector<uint8_t> marked;
+    std::vector<int32_t> vertices;
+    void reset(size_t nv) {
+      if (value.size() != nv) {
+        value.assign(nv, Vec3::Zero());
+        normal.assign(nv, Vec3::Zero());
+        marked.assign(nv, 0);
+      } else {
+        for (int32_t v : vertices) {
+          value[v].setZero();
+          marked[v] = 0;
+        }
+      }
+      vertices.clear();
+    }
+    void mark(int32_t v) {
+      if (!marked[v]) {
+        marked[v] = 1;
+        vertices.push_back(v);
+      }
+    }
   };
-  std::vector<ToolScratch> tool_scratch;
+  // Per tool: contact multipliers of the current substep (value = lambda).
+  std::vector<SparseVertexVectors> tool_scratch;
   // Time of the current substep's end relative to the end of the step (<= 0): tools with a
   // velocity are at position + velocity * offset.
   double tool_time_offset = 0;
   std::vector<Vec3> attachment_lambda;
   // Step accumulators (sums over substeps) for the per-contact report.
-  struct ToolAccumulator {
-    std::vector<Vec3> force, normal;
-    std::vector<uint8_t> seen;
-    std::vector<int32_t> vertices;
-  };
-  std::vector<ToolAccumulator> tool_accumulators;
+  // Per tool: contact forces summed over the substeps of a step (value = force).
+  std::vector<SparseVertexVectors> tool_accumulators;
 
   void begin_interaction(size_t nv, const StepInputs& inputs) {
     tool_scratch.resize(inputs.tools.size());
-    for (ToolScratch& ts : tool_scratch) {
-      if (ts.lambda.size() != nv) {
-        ts.lambda.assign(nv, Vec3::Zero());
-        ts.normal.assign(nv, Vec3::Zero());
-        ts.touching.assign(nv, 0);
-        ts.touched.clear();
-      }
-      for (int32_t v : ts.touched) {
-        ts.lambda[v].setZero();
-        ts.touching[v] = 0;
-      }
-      ts.touched.clear();
-    }
+    for (SparseVertexVectors& ts : tool_scratch) ts.reset(nv);
     attachment_lambda.assign(inputs.attachments.size(), Vec3::Zero());
   }
 
@@ -245,7 +251,7 @@ struct Stepper::Impl {
       RigidTool tool = inputs.tools[t];
       tool.position += tool.velocity * tool_time_offset;
       const Vec3 tool_motion = tool.velocity * h;
-      ToolScratch& ts = tool_scratch[t];
+      SparseVertexVectors& ts = tool_scratch[t];
       for (size_t i = 0; i < x.size(); ++i) {
         if (m.inv_mass[i] == 0) continue;
         Vec3 q, normal;
@@ -258,12 +264,9 @@ struct Stepper::Impl {
         const double tn = tangential.norm();
         if (tn < tool.static_friction * depth) x[i] -= tangential;
         else if (tn > 0) x[i] -= tangential * std::min(tool.dynamic_friction * depth / tn, 1.0);
-        ts.lambda[i] += m.mass[i] * (x[i] - before);
+        ts.value[i] += m.mass[i] * (x[i] - before);
         ts.normal[i] = normal;
-        if (!ts.touching[i]) {
-          ts.touching[i] = 1;
-          ts.touched.push_back(int32_t(i));
-        }
+        ts.mark(int32_t(i));
         ++n;
       }
     }
@@ -275,10 +278,10 @@ struct Stepper::Impl {
     const double inv_h2 = 1.0 / (h * h);
     rep.tools.assign(inputs.tools.size(), ToolReaction{});
     for (size_t t = 0; t < inputs.tools.size(); ++t) {
-      ToolScratch& ts = tool_scratch[t];
+      const SparseVertexVectors& ts = tool_scratch[t];
       ToolReaction& r = rep.tools[t];
-      for (int32_t v : ts.touched) {
-        const Vec3 f_tool = -ts.lambda[v] * inv_h2;
+      for (int32_t v : ts.vertices) {
+        const Vec3 f_tool = -ts.value[v] * inv_h2;
         r.force += f_tool;
         r.torque += (x[v] - (inputs.tools[t].position + inputs.tools[t].velocity * tool_time_offset)).cross(f_tool);
         r.contacts.push_back(ToolContact{v, x[v], ts.normal[v], f_tool});
@@ -474,19 +477,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();
   if (interacting) {
     I.tool_accumulators.resize(inputs.tools.size());
-    for (auto& acc : I.tool_accumulators) {
-      if (acc.force.size() != nv) {
-        acc.force.assign(nv, Vec3::Zero());
-        acc.normal.assign(nv, Vec3::Zero());
-        acc.seen.assign(nv, 0);
-        acc.vertices.clear();
-      }
-      for (int32_t v : acc.vertices) {
-        acc.force[v].setZero();
-        acc.seen[v] = 0;
-      }
-      acc.vertices.clear();
-    }
+    for (auto& acc : I.tool_accumulators) acc.reset(nv);
     total.tools.assign(inputs.tools.size(), ToolReaction{});
     total.attachment_forces.assign(inputs.attachments.size(), Vec3::Zero());
   }
@@ -544,12 +535,9 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
         total.tools[t].force += r.tools[t].force;
         total.tools[t].torque += r.tools[t].torque;
         for (const ToolContact& c : r.tools[t].contacts) {
-          acc.force[c.vertex] += c.force;
+          acc.value[c.vertex] += c.force;
           acc.normal[c.vertex] = c.normal;
-          if (!acc.seen[c.vertex]) {
-            acc.seen[c.vertex] = 1;
-            acc.vertices.push_back(c.vertex);
-          }
+          acc.mark(c.vertex);
         }
       }
       for (size_t j = 0; j < r.attachment_forces.size(); ++j) total.attachment_forces[j] += r.attachment_forces[j];
@@ -564,7 +552,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
       r.torque /= n;
       const auto& acc = I.tool_accumulators[t];
       r.contacts.reserve(acc.vertices.size());
-      for (int32_t v : acc.vertices) r.contacts.push_back(ToolContact{v, state.x[v], acc.normal[v], acc.force[v] / n});
+      for (int32_t v : acc.vertices) r.contacts.push_back(ToolContact{v, state.x[v], acc.normal[v], acc.value[v] / n});
     }
     for (Vec3& f : total.attachment_forces) f /= n;
   }

@@ -49,13 +49,7 @@ v1::CreateSceneRequest beam(const std::string& id) {
   r.set_scene_id(id);
   auto* s = r.mutable_spec();
   s->mutable_mesh()->set_builtin("beam1");
-  auto* box = s->mutable_fixed()->add_boxes();
-  box->mutable_min()->set_x(-1);
-  box->mutable_min()->set_y(-1);
-  box->mutable_min()->set_z(-1);
-  box->mutable_max()->set_x(1e-3);
-  box->mutable_max()->set_y(10);
-  box->mutable_max()->set_z(10);
+  client::clamp_below_x(*s, 1e-3);
   s->mutable_gravity()->set_y(0);
   // 16 substeps: with 8 x 2 a hard grab pulling one vertex of this coarse, soft beam tangles it.
   s->mutable_solver()->set_substeps(16);

@@ -65,13 +65,7 @@ v1::CreateSceneRequest beam_request(const std::string& id, v1::TickMode mode = v
   r.set_scene_id(id);
   auto* s = r.mutable_spec();
   s->mutable_mesh()->set_builtin("beam1");
-  auto* box = s->mutable_fixed()->add_boxes();
-  box->mutable_min()->set_x(-1);
-  box->mutable_min()->set_y(-1);
-  box->mutable_min()->set_z(-1);
-  box->mutable_max()->set_x(1e-3);
-  box->mutable_max()->set_y(10);
-  box->mutable_max()->set_z(10);
+  client::clamp_below_x(*s, 1e-3);
   s->mutable_solver()->set_substeps(2);
   s->mutable_solver()->set_iterations(4);
   s->mutable_tick()->set_mode(mode);

@@ -56,11 +56,6 @@ struct BodyModel {
   double total_mass() const;
 };
 
-struct ModelError {
-  std::string field;    // e.g. "material.poisson", "mesh.tets[12]"
-  std::string message;  // full sentence naming the value
-};
-
 // Builds the model; throws std::invalid_argument with a message naming field and value on a
 // bad material, an empty mesh, an out-of-range index, or a tet with non-positive volume.
 std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material& material,

@@ -13,6 +13,11 @@
 
 namespace pliant::client {
 
+// Adds one box to spec.fixed holding every vertex with x <= x_max (a cantilever's clamp; the
+// builtin beams start at x = 0).
+void clamp_below_x(v1::SceneSpec& spec, double x_max);
+
+
 // A gRPC status: code 0 is OK; otherwise grpc::StatusCode values (3 INVALID_ARGUMENT,
 // 5 NOT_FOUND, 14 UNAVAILABLE, 16 UNAUTHENTICATED, ...) and the server's message.
 struct Status {
