@@ -53,6 +53,9 @@ common options:
   --rho R --gamma G --delay D   Chebyshev parameters
   --tolerance T       stop a substep when ||r||/||r0|| < T
   --threads N         worker threads (default 1)
+  --inversion-floor F volume floor det F >= F (default 0.2; 0: the thesis's behaviour)
+  --no-line-search    take each tet's full projection step, as the thesis (default: halve it
+                      until that tet's residual does not grow)
   --log-level L       trace | debug | info | warn | error (default warn)
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
@@ -65,7 +68,7 @@ const std::set<std::string> kValued = {
     "substeps", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
     "steps", "out", "every", "inversion-floor"};
-const std::set<std::string> kFlags = {"help", "progress"};
+const std::set<std::string> kFlags = {"help", "progress", "no-line-search"};
 
 // A JSON object written field by field, numbers in full precision, nan/inf as null.
 class JsonLine {
@@ -140,6 +143,7 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   s.tolerance = a.number("tolerance", s.tolerance);
   s.threads = int(a.integer("threads", s.threads, 1, 256));
   s.inversion_floor = a.number("inversion-floor", s.inversion_floor);
+  if (a.has("no-line-search")) s.line_search = false;
 
   if (std::string err = validate(s); !err.empty()) throw cli::UsageError(err);
   return s;

@@ -121,11 +121,69 @@ inline void pack_corrections(const TetPack& p, const PackGeometry& g, const v4d 
   }
 }
 
+// ||C + alpha~ lambda||^2 per lane.
+inline v4d lane_residual_squared(const v4d C[6], const v4d lam[6], const Mat6& at) {
+  v4d sum = splat(0.0);
+  for (int r = 0; r < 6; ++r) {
+    v4d s = C[r];
+    for (int c = 0; c < 6; ++c) s += at(r, c) * lam[c];
+    sum += s * s;
+  }
+  return sum;
+}
+
+// Step length along the projection's increment (y for lambda, dx for the corners), per lane:
+// see kMaxHalvings in projection.hpp.
+v4d residual_decreasing_step(const TetPack& p, const PackGeometry& g, const v4d C[6], const v4d lam[6],
+                             const v4d y[6], const v4d dx[4][3], const Mat6& at) {
+  const v4d before = lane_residual_squared(C, lam, at);
+  // dF[i][c]: change of column i, component c of F for the full step.
+  v4d dd[3][3];
+  for (int k = 0; k < 3; ++k)
+    for (int c = 0; c < 3; ++c) dd[k][c] = dx[k][c] - dx[3][c];
+  v4d dF[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) dF[i][c] = dd[0][c] * p.B[i] + dd[1][c] * p.B[3 + i] + dd[2][c] * p.B[6 + i];
+  v4d step = splat(1.0);
+  v4d trial = splat(1.0);
+  // Lanes whose full step changes F by less than kSmallStep keep it.
+  int pending = 0;
+  for (int l = 0; l < p.lanes; ++l) {
+    double n2 = 0;
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) n2 += dF[i][c][l] * dF[i][c][l];
+    if (n2 > kSmallStep * kSmallStep) pending |= 1 << l;
+  }
+  for (int h = 0; h <= kMaxHalvings && pending; ++h) {
+    PackGeometry n;
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) n.f[i][c] = g.f[i][c] + trial * dF[i][c];
+    auto dot = [&](int i, int j) { return n.f[i][0] * n.f[j][0] + n.f[i][1] * n.f[j][1] + n.f[i][2] * n.f[j][2]; };
+    n.S00 = dot(0, 0);
+    n.S11 = dot(1, 1);
+    n.S22 = dot(2, 2);
+    n.S01 = dot(0, 1);
+    n.S02 = dot(0, 2);
+    n.S12 = dot(1, 2);
+    v4d Cn[6], ln[6];
+    pack_constraint(p, n, Cn);
+    for (int r = 0; r < 6; ++r) ln[r] = lam[r] + trial * y[r];
+    const v4d after = lane_residual_squared(Cn, ln, at);
+    for (int l = 0; l < p.lanes; ++l) {
+      if (!(pending & (1 << l))) continue;
+      step[l] = trial[l];
+      if (after[l] <= before[l]) pending &= ~(1 << l);
+    }
+    trial *= 0.5;
+  }
+  return step;
+}
+
 }  // namespace
 
 int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                  std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& at,
-                 double lambda_scale, double inversion_floor) {
+                 double lambda_scale, double inversion_floor, bool line_search) {
   PackGeometry g;
   pack_geometry(p, x, g);
   v4d C[6], lam[6];
@@ -190,6 +248,8 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   }
   v4d dx[4][3];
   pack_corrections(p, g, y, dx);
+  v4d step = splat(1.0);
+  if (line_search) step = residual_decreasing_step(p, g, C, lam, y, dx, at);
   // det F before the projection, for the inversion floor.
   const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
                   g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
@@ -201,14 +261,15 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
     for (int r = 0; r < 6; ++r) ok &= std::isfinite(y[r][l]) && D[r][l] > 0;
     if (!ok) continue;  // not positive definite (cannot happen with alpha~ > 0): skip the tet
     const int32_t t = p.tet[l];
+    const double a = step[l];
     Vec6& dl = dlambda[t];
-    for (int r = 0; r < 6; ++r) dl[r] = y[r][l];
+    for (int r = 0; r < 6; ++r) dl[r] = a * y[r][l];
     lambda[t] += dl;
     for (int k = 0; k < 4; ++k) {
       Vec3& q = x[p.v[k][l]];
-      q[0] += dx[k][0][l];
-      q[1] += dx[k][1][l];
-      q[2] += dx[k][2][l];
+      q[0] += a * dx[k][0][l];
+      q[1] += a * dx[k][1][l];
+      q[2] += a * dx[k][2][l];
     }
     if (inversion_floor > 0 && det[l] < inversion_floor)
       floor_hits += enforce_volume_floor(model.tets[t], x, model.inv_mass, inversion_floor);

@@ -35,10 +35,11 @@ struct PackedModel {
 void ensure_packed(PackedModel& packed, const BodyModel& model);
 
 // Gauss-Seidel projection of one pack: x, lambda and dlambda updated for the real lanes.
-// Returns the number of lanes below the inversion floor (handled here, scalar).
+// Returns the number of lanes below the inversion floor (handled here, scalar). With
+// line_search, each tet's step is shortened until its own residual does not grow.
 int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                  std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
-                 double lambda_scale, double inversion_floor);
+                 double lambda_scale, double inversion_floor, bool line_search);
 
 // x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update).
 void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl);

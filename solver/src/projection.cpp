@@ -64,6 +64,30 @@ inline void position_corrections(const TetRest& tet, const Vec3 f[3], const Vec3
   }
 }
 
+// Step length for one tet's increment (see kMaxHalvings in projection.hpp).
+double residual_decreasing_step(const TetRest& tet, const Vec3 f[3], const Vec6& C, const Vec6& lambda_t,
+                                const Vec6& dlambda, const Vec3 dx[4], const Mat6& at) {
+  const Mat3& B = tet.dm_inv;
+  const Vec3 d0 = dx[0] - dx[3], d1 = dx[1] - dx[3], d2 = dx[2] - dx[3];
+  Vec3 dF[3];
+  double n2 = 0;
+  for (int i = 0; i < 3; ++i) {
+    dF[i] = d0 * B(0, i) + d1 * B(1, i) + d2 * B(2, i);
+    n2 += dF[i].squaredNorm();
+  }
+  if (n2 <= kSmallStep * kSmallStep) return 1.0;
+  const double before = (C + at * lambda_t).squaredNorm();
+  double a = 1.0;
+  for (int h = 0; h <= kMaxHalvings; ++h) {
+    const Vec3 fn[3] = {f[0] + a * dF[0], f[1] + a * dF[1], f[2] + a * dF[2]};
+    double S[3][3];
+    const Vec6 r = tet.sqrt_volume * strain_from_columns(fn, S) + at * (lambda_t + a * dlambda);
+    if (r.squaredNorm() <= before || h == kMaxHalvings) break;
+    a *= 0.5;
+  }
+  return a;
+}
+
 }  // namespace
 
 void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w[4],
@@ -120,6 +144,13 @@ void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w
   }
   for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
   position_corrections(tet, f, b, w, dlambda, dx);
+  if (params.line_search) {
+    const double a = residual_decreasing_step(tet, f, C, lambda_t, dlambda, dx, params.alpha_tilde);
+    if (a != 1.0) {
+      dlambda *= a;
+      for (int k = 0; k < 4; ++k) dx[k] *= a;
+    }
+  }
 }
 
 bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,

@@ -18,7 +18,19 @@ struct ProjectionParams {
   Mat6 alpha_tilde;          // compliance / h^2
   double lambda_scale = 1;   // over-relaxation of the increment (lambda-SOR), 1 otherwise
   double inversion_floor = 0;
+  bool line_search = false;  // shorten a tet's step until its residual does not grow
 };
+
+// Line search of one tet's projection (both kernels): the step is halved at most kMaxHalvings
+// times until the tet's own residual ||C + alpha~ lambda|| does not grow. Steps that change F by
+// less than kSmallStep (Frobenius) are taken whole: their quadratic remainder is below
+// kSmallStep^2 / 2 in strain, and testing them would only compare round-off near convergence.
+// Why: the Green strain is quadratic in x, so the linearised step overshoots when a tet is
+// compressed (correcting a singular value s costs (1 - s^2) / 2s: 2.4 rest heights for a tet
+// squashed to 20%), and in a Gauss-Seidel sweep that overshoot reaches the neighbours as
+// velocity. Near rest the full step passes and nothing changes.
+constexpr int kMaxHalvings = 5;
+constexpr double kSmallStep = 0.1;
 
 // Computes the multiplier increment of one tet at positions x (does not move anything).
 // Returns the increment in dlambda and the per-vertex corrections in dx (already scaled by

@@ -116,7 +116,7 @@ struct Stepper::Impl {
         int hits = 0;
         for (size_t i = b; i < e; ++i)
           hits += detail::project_pack(packed.packs[first + i], x, lambda, dlambda, m, params.alpha_tilde,
-                                       params.lambda_scale, params.inversion_floor);
+                                       params.lambda_scale, params.inversion_floor, params.line_search);
         floor_hits[chunk] += hits;
       }, 32);
     }
@@ -331,6 +331,7 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
   params.alpha_tilde = m.compliance / (h * h);
   params.lambda_scale = accel->increment_scale();
   params.inversion_floor = s.inversion_floor;
+  params.line_search = s.line_search;
   I.dlambda.resize(m.tet_count());
   lambda.resize(m.tet_count(), Vec6::Zero());
   const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();

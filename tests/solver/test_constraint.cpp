@@ -193,7 +193,7 @@ TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
   const Mat6 at = model->compliance * 3600.0;
   std::vector<Vec3> xp = x;
   std::vector<Vec6> lp = lambda;
-  detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0);
+  detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0, false);
   for (int t = 0; t < 3; ++t) {
     const TetRest& tet = model->tets[t];
     const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
@@ -208,5 +208,64 @@ TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
     EXPECT_LT((lp[t] - lambda[t] - expected).norm(), 1e-12 * (1 + expected.norm())) << t;
     for (int k = 0; k < 4; ++k)
       EXPECT_LT((xp[tet.v[k]] - x[tet.v[k]] - dx[k]).norm(), 1e-12 * (1 + dx[k].norm())) << t << "," << k;
+  }
+}
+
+TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
+  // A tet squashed to 20% of its height: the linearised Green-strain step stretches it far past
+  // its rest shape (the correction of a singular value s is (1 - s^2) / 2s = 2.4) and its own
+  // residual grows. With the line search the step is shortened until that residual does not
+  // grow; a mildly strained tet (step below kSmallStep) is projected exactly as before. Both
+  // kernels (SIMD pack and scalar) must agree.
+  TetMesh mesh;
+  const double squash[3] = {0.2, 0.5, 0.97};
+  const std::array<Vec3, 4> X = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1)};
+  for (int t = 0; t < 3; ++t) {
+    for (const Vec3& p : X) mesh.vertices.push_back(p + Vec3(3.0 * t, 0, 0));
+    mesh.tets.push_back({4 * t, 4 * t + 1, 4 * t + 2, 4 * t + 3});
+  }
+  auto model = build_model(mesh, Material{1e9, 0.3, 1000});  // stiff: the constraint dominates
+  detail::PackedModel packed;
+  detail::ensure_packed(packed, *model);
+  ASSERT_EQ(packed.packs.size(), 1u);
+  std::vector<Vec3> x = mesh.vertices;
+  for (int t = 0; t < 3; ++t)
+    for (int k = 0; k < 4; ++k) x[4 * t + k].z() *= squash[t];
+  const Mat6 at = model->compliance * 3600.0;
+  const std::vector<Vec6> lambda(3, Vec6::Zero());
+  auto det_f = [&](const std::vector<Vec3>& y, int t) {
+    return signed_tet_volume(y[4 * t], y[4 * t + 1], y[4 * t + 2], y[4 * t + 3]) / model->tets[t].volume;
+  };
+  std::vector<Vec3> with = x, without = x;
+  std::vector<Vec6> lw = lambda, lo = lambda, dl(3, Vec6::Zero());
+  detail::project_pack(packed.packs[0], with, lw, dl, *model, at, 1.0, 0.0, true);
+  detail::project_pack(packed.packs[0], without, lo, dl, *model, at, 1.0, 0.0, false);
+  for (int t = 0; t < 3; ++t) {
+    const TetRest& tet = model->tets[t];
+    const double before = detail::residual_squared(tet, x, lambda[t], at);
+    const double after_with = detail::residual_squared(tet, with, lw[t], at);
+    const double after_without = detail::residual_squared(tet, without, lo[t], at);
+    EXPECT_LE(after_with, before) << t;
+    if (t == 0) {
+      EXPECT_GT(after_without, before) << "the full step should overshoot here, or the test shows nothing";
+      EXPECT_GT(det_f(without, 0), 2.0);
+      EXPECT_GT(det_f(with, 0), 0.2);
+      EXPECT_LT(det_f(with, 0), 1.5);
+    }
+    if (t == 2)
+      for (int k = 0; k < 4; ++k) EXPECT_EQ(with[tet.v[k]], without[tet.v[k]]);
+    // The scalar kernel (Jacobi sweep) takes the same shortened step.
+    const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+    const double w[4] = {model->inv_mass[tet.v[0]], model->inv_mass[tet.v[1]], model->inv_mass[tet.v[2]],
+                         model->inv_mass[tet.v[3]]};
+    detail::ProjectionParams params;
+    params.alpha_tilde = at;
+    params.line_search = true;
+    Vec6 inc;
+    Vec3 dx[4];
+    detail::strain_increment(tet, p, w, lambda[t], params, inc, dx);
+    EXPECT_LT((lw[t] - lambda[t] - inc).norm(), 1e-10 * (1 + inc.norm())) << t;
+    for (int k = 0; k < 4; ++k)
+      EXPECT_LT((with[tet.v[k]] - x[tet.v[k]] - dx[k]).norm(), 1e-10 * (1 + dx[k].norm())) << t << "," << k;
   }
 }

@@ -60,6 +60,10 @@ struct SolverSettings {
   // Inversion safety: tets whose volume ratio det(F) falls below this are pushed back by a
   // unilateral volume constraint (0 disables it; see docs/solver.md).
   double inversion_floor = 0.2;
+  // Each tet's projection step is shortened (halved, at most 5 times) until that tet's own
+  // residual ||C + alpha~ lambda|| does not grow: the Green strain's linearisation overshoots
+  // on compressed tets (see docs/solver.md). false: the thesis's full step.
+  bool line_search = true;
   int threads = 1;          // worker threads for the sweeps (1: all on the calling thread)
   bool record_residuals = true;  // compute ||r|| after every iteration (needed by Anderson)
 };
