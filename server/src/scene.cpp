@@ -105,6 +105,15 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
   publish_status();
 }
 
+Scene::Scene(SceneSnapshot snapshot, std::string id)
+    : Scene(id.empty() ? snapshot.id : std::move(id), std::move(snapshot.config), snapshot.model,
+            std::move(snapshot.state), snapshot.tick, snapshot.paused) {
+  uint64_t next = std::max<uint64_t>(snapshot.next_grab_id, 1);
+  for (const auto& [gid, a] : snapshot.grabs) next = std::max(next, gid + 1);
+  ts_->grabs = std::move(snapshot.grabs);
+  ts_->next_grab_id = next;
+}
+
 Scene::~Scene() { stop(); }
 
 void Scene::start() {
@@ -415,6 +424,8 @@ Error Scene::snapshot(SceneSnapshot* out, std::chrono::milliseconds timeout) {
         result->state = ts_->state;
         result->tick = ts_->tick;
         result->paused = !ts_->running;
+        result->grabs = ts_->grabs;
+        result->next_grab_id = ts_->next_grab_id;
         return Error{};
       },
       Clock::now() + timeout);
@@ -430,6 +441,8 @@ SceneSnapshot Scene::snapshot_stopped() const {
   out.state = ts_->state;
   out.tick = ts_->tick;
   out.paused = !ts_->running;
+  out.grabs = ts_->grabs;
+  out.next_grab_id = ts_->next_grab_id;
   return out;
 }
 

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -124,6 +125,9 @@ struct SceneSnapshot {
   BodyState state;
   uint64_t tick = 0;
   bool paused = false;
+  // Grabs by id (tools are not saved: they live only while their stream is open).
+  std::map<uint64_t, Attachment> grabs;
+  uint64_t next_grab_id = 1;  // always > every id in grabs
 };
 
 // A live change of settings; unset parts are kept.
@@ -140,6 +144,8 @@ class Scene {
 
   Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel> model,
         BodyState state, uint64_t tick, bool paused);
+  // A scene recreated from a snapshot, its grabs included (same ids).
+  explicit Scene(SceneSnapshot snapshot, std::string id = {});
   ~Scene();
   Scene(const Scene&) = delete;
   Scene& operator=(const Scene&) = delete;
