@@ -70,6 +70,12 @@ struct Scene::TickState {
   uint64_t rate_window_ticks = 0;
   double ticks_per_second = 0;
   Clock::time_point last_tick_end;
+  struct TickProfile {
+    uint64_t ticks = 0;
+    double step_ms = 0, tick_ms = 0, gap_ms = 0, late_ms = 0;
+    int64_t volume_corrections = 0;
+    Clock::time_point window_start, last_start;
+  } profile;
 
   Clock::duration period() const {
     return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(settings.dt));
@@ -641,6 +647,26 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   }
 
   publish_status();
+  // Where the tick time goes, logged at debug level every 10 s: the solver step, the tick's
+  // own work around it (state copy, frame, status), the time between tick starts, lateness.
+  {
+    auto& p = t.profile;
+    p.step_ms += report.wall_ms;
+    p.tick_ms += std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+    if (p.ticks > 0) p.gap_ms += std::chrono::duration<double, std::milli>(start - p.last_start).count();
+    p.late_ms += lateness_ms;
+    p.volume_corrections += report.volume_corrections;
+    p.last_start = start;
+    if (++p.ticks == 1) p.window_start = start;
+    if (start - p.window_start >= std::chrono::seconds(10)) {
+      const double n = double(p.ticks);
+      spdlog::debug("scene '{}': {} ticks, per tick: step {:.2f} ms, tick {:.2f} ms (outside the step {:.2f} ms), "
+                    "{:.2f} ms between starts, late {:.2f} ms, {:.0f} volume corrections, {} contacts",
+                    id_, p.ticks, p.step_ms / n, p.tick_ms / n, (p.tick_ms - p.step_ms) / n,
+                    p.gap_ms / std::max(1.0, n - 1), p.late_ms / n, double(p.volume_corrections) / n, report.contacts);
+      p = {};
+    }
+  }
   {
     std::lock_guard lk(frame_mu_);
     frame->seq = ++seq_;
