@@ -191,12 +191,14 @@ void Scene::publish_status() {
 Error Scene::call(std::function<Error()> fn, Clock::time_point deadline) {
   auto promise = std::make_shared<std::promise<Error>>();
   auto future = promise->get_future();
+  bool wake = false;
   {
     std::lock_guard lk(mu_);
     if (stop_) return Error::make(Code::Unavailable, "scene '" + id_ + "' is shutting down");
     commands_.push_back([promise, fn = std::move(fn)] { promise->set_value(fn()); });
+    wake = waiting_for_commands_;
   }
-  cv_.notify_all();
+  if (wake) cv_.notify_all();
   if (future.wait_until(deadline) != std::future_status::ready)
     return Error::make(Code::DeadlineExceeded,
                        "scene '" + id_ + "' did not reach a tick boundary in time");
@@ -208,12 +210,17 @@ Error Scene::call(std::function<Error()> fn, Clock::time_point deadline) {
 }
 
 bool Scene::post(Command fn) {
+  // Only a tick thread idle until the next command is woken: one waiting for its next
+  // scheduled tick runs the command then anyway, and at 1 kHz of tool poses the wake-ups
+  // would be 1000 useless context switches a second per stream.
+  bool wake = false;
   {
     std::lock_guard lk(mu_);
     if (stop_) return false;
     commands_.push_back(std::move(fn));
+    wake = waiting_for_commands_;
   }
-  cv_.notify_all();
+  if (wake) cv_.notify_all();
   return true;
 }
 
@@ -487,7 +494,9 @@ void Scene::run() {
       // Commands wait for the tick boundary; only stop wakes us early.
       cv_.wait_until(lk, due, [&] { return stop_; });
     } else if (!afap && t.steps.empty()) {
+      waiting_for_commands_ = true;
       cv_.wait(lk, [&] { return stop_ || !commands_.empty(); });
+      waiting_for_commands_ = false;
     }
     if (stop_) break;
     std::deque<Command> commands;

@@ -225,6 +225,9 @@ class Scene {
   std::condition_variable cv_;
   std::deque<Command> commands_;
   bool stop_ = false;
+  // The tick thread is idle until a command arrives (lockstep, paused): only then do new
+  // commands notify cv_ (a realtime tick runs them at its next boundary without being woken).
+  bool waiting_for_commands_ = false;
   uint64_t next_tool_id_ = 1;
   std::thread thread_;
 
