@@ -8,7 +8,9 @@
 // the server's own per-tick work outside the solver (the rollback copy of the state, the
 // finiteness check, the frame's float positions).
 //
-// Usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I]
+// Usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity]
+// (--young 1e6 --gravity --iterations 4: the 50k scene of pliant_service_bench, which sags under
+// its weight.)
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/model.hpp"
 #include "pliant/state.hpp"
@@ -44,24 +46,31 @@ struct Variant {
 
 int main(int argc, char** argv) {
   int ticks = 60, substeps = 1, iterations = 1;
+  double young = 5e7;
+  bool gravity = false;  // --gravity: -9.81 m/s^2 and the server's default damping (0.5/s), no tool
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--ticks") && i + 1 < argc) ticks = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--substeps") && i + 1 < argc) substeps = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--iterations") && i + 1 < argc) iterations = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--young") && i + 1 < argc) young = std::atof(argv[++i]);
+    else if (!std::strcmp(argv[i], "--gravity")) gravity = true;
     else {
-      std::fprintf(stderr, "usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I]\n");
+      std::fprintf(stderr, "usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity]\n");
       return 2;
     }
   }
   if (ticks < 1 || substeps < 1 || iterations < 1) return 2;
   const TetMesh mesh = make_beam(51, 21, 11, 0.005);
   Material mat;
-  mat.young = 5e7;
+  mat.young = young;
   FixedSelection fixed;
   fixed.boxes.push_back({Vec3(-1e9, -1e9, -1e9), Vec3(1e-3, 1e9, 1e9)});
   auto model = build_model(mesh, mat, fixed);
-  std::printf("50k beam: %zu vertices, %zu tets, %zu colours; %d substep(s) x %d iteration(s), %d ticks per variant\n",
-              model->vertex_count(), model->tet_count(), model->colours.size(), substeps, iterations, ticks);
+  std::printf("50k beam: %zu vertices, %zu tets, %zu colours; E %g Pa, %s; %d substep(s) x %d iteration(s), %d ticks "
+              "per variant after 30\n",
+              model->vertex_count(), model->tet_count(), model->colours.size(), young,
+              gravity ? "gravity, damping 0.5/s, no tool" : "no gravity, damping 20/s, sphere pressed 4 mm", substeps,
+              iterations, ticks);
   std::printf("| variant | tick ms | projection | residual | other | update | volume corrections / tick |\n");
   std::printf("|---|---|---|---|---|---|---|\n");
   const Variant variants[] = {
@@ -79,8 +88,10 @@ int main(int argc, char** argv) {
     s.dt = 1.0 / 60;
     s.substeps = substeps;
     s.iterations = iterations;
-    s.damping_coefficient = 20;
-    s.gravity = Eigen::Vector3d::Zero();
+    if (!gravity) {
+      s.damping_coefficient = 20;
+      s.gravity = Eigen::Vector3d::Zero();
+    }
     s.record_residuals = var.residuals;
     s.inversion_floor = var.floor;
     s.threads = var.threads;
@@ -95,7 +106,7 @@ int main(int argc, char** argv) {
     const int warmup = 30;  // the press reaches its depth
     for (int k = 0; k < warmup + ticks; ++k) {
       in.tools.clear();
-      if (var.tool) {
+      if (var.tool && !gravity) {
         const double u = std::min(1.0, (k + 1) / 30.0);
         const double y = 0.11 - 0.004 * 0.5 * (1 - std::cos(M_PI * u));
         sphere.velocity = Eigen::Vector3d(0, y - sphere.position.y(), 0) / s.dt;

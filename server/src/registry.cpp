@@ -130,6 +130,7 @@ Error merge_solver(const v1::SolverSettings& p, const std::string& prefix, int m
   if (p.has_tolerance()) s.tolerance = p.tolerance();
   if (p.has_time_budget_ms()) s.time_budget_ms = p.time_budget_ms();
   if (p.has_damping_coefficient()) s.damping_coefficient = p.damping_coefficient();
+  if (p.has_inversion_floor()) s.inversion_floor = p.inversion_floor();  // range: check_solver
   if (p.has_threads()) {
     if (p.threads() < 1)
       return invalid(fmt::format("{}.threads must be >= 1, got {}", prefix, p.threads()));
@@ -342,6 +343,7 @@ void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* sp
   ps->set_damping(damping_to(s.damping));
   ps->set_damping_coefficient(s.damping_coefficient);
   ps->set_threads(s.threads);
+  ps->set_inversion_floor(s.inversion_floor);
   spec->mutable_tick()->set_dt(s.dt);
   spec->mutable_tick()->set_mode(mode_to(cfg.mode));
 }
@@ -942,6 +944,7 @@ void SceneRegistry::fill_frame(const Frame& f, const FrameSelection& sel,
     st->set_step_wall_ms(f.step_wall_ms);
     st->set_stopped_by_tolerance(f.stopped_by_tolerance);
     st->set_stopped_by_budget(f.stopped_by_budget);
+    st->set_volume_corrections(f.volume_corrections);
   }
   out->set_late_ticks(f.late_ticks);
   out->set_skipped_ticks(f.skipped_ticks);

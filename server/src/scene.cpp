@@ -627,6 +627,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   frame->step_wall_ms = report.wall_ms;
   frame->stopped_by_tolerance = report.stopped_by_tolerance;
   frame->stopped_by_budget = report.stopped_by_budget;
+  frame->volume_corrections = report.volume_corrections;
   frame->late_ticks = t.late_ticks;
   frame->skipped_ticks = t.skipped_ticks;
   frame->lateness_ms = lateness_ms;

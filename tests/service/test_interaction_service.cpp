@@ -397,3 +397,18 @@ TEST(InteractionService, GrabsSurviveARestartAndARestore) {
   }
   fs::remove_all(dir);
 }
+
+// The inversion floor is a scene setting (spec.solver.inversion_floor), default 0.2, kept in the
+// effective spec (and so in snapshots).
+TEST(InteractionService, InversionFloorIsASceneSetting) {
+  Server s;
+  Client c = s.client();
+  ASSERT_TRUE(c.create_scene(beam("default")).ok());
+  auto off = beam("off");
+  off.mutable_spec()->mutable_solver()->set_inversion_floor(0);
+  ASSERT_TRUE(c.create_scene(off).ok());
+  auto d = c.get_scene("default"), o = c.get_scene("off");
+  ASSERT_TRUE(d.ok() && o.ok());
+  EXPECT_DOUBLE_EQ(d->spec().solver().inversion_floor(), 0.2);
+  EXPECT_DOUBLE_EQ(o->spec().solver().inversion_floor(), 0.0);
+}

@@ -84,6 +84,7 @@ struct Frame {
   double step_wall_ms = 0;
   bool stopped_by_tolerance = false;
   bool stopped_by_budget = false;
+  int volume_corrections = 0;  // inversion-floor projections in the last substep
   uint64_t late_ticks = 0;
   uint64_t skipped_ticks = 0;
   double lateness_ms = 0;
