@@ -788,8 +788,9 @@ Error SceneRegistry::grab(const v1::GrabRequest& req, v1::GrabResponse* out) {
     if (!a.target.allFinite())
       return invalid(fmt::format("target must be finite, got ({}, {}, {})", a.target.x(), a.target.y(), a.target.z()));
   } else {
-    // Hold the point where it is now (the latest frame; the rest shape before the first tick).
-    std::vector<Vec3> x = m->rest_positions;
+    // Hold the point where it is now: the latest frame, or before the first tick the positions
+    // the scene started from (a restored snapshot's, not the rest shape).
+    std::vector<Vec3> x = s->initial_positions().size() == m->vertex_count() ? s->initial_positions() : m->rest_positions;
     if (auto f = s->latest_frame(); f && f->positions.size() == 3 * x.size())
       for (size_t i = 0; i < x.size(); ++i) x[i] = Vec3(f->positions[3 * i], f->positions[3 * i + 1], f->positions[3 * i + 2]);
     a.target = a.point(x);

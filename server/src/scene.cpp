@@ -99,6 +99,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
              BodyState state, uint64_t tick, bool paused)
     : id_(std::move(id)), ts_(std::make_unique<TickState>()) {
   surface_vertices_ = surface_vertices_of(*model);
+  initial_positions_ = state.x;
   ts_->model = model;
   ts_->settings = config.settings;
   ts_->mode = config.mode;

@@ -339,9 +339,21 @@ TEST(InteractionService, GrabsSurviveARestartAndARestore) {
     ASSERT_EQ(saved->snapshot().grabs_size(), 1);
     EXPECT_EQ(saved->snapshot().grabs(0).grab_id(), grab_id);
     EXPECT_DOUBLE_EQ(saved->snapshot().grabs(0).compliance(), 1e-6);
+    // Before the first tick after the restart, a grab without a target holds a point where the
+    // snapshot left it, not where the rest shape has it: the lifted corner next to the tip.
+    const int corner = nearest(c, "g", 0.115, 0.01, 0.0);
+    const auto lifted = vertex_position(c, "g", corner);
+    ASSERT_GT(lifted[1] - 0.01, 0.001);  // lifted by the grab (rest y = 0.01)
+    v1::GrabRequest hold;
+    hold.set_scene_id("g");
+    hold.set_vertex(corner);
+    auto held = c.grab(hold);
+    ASSERT_TRUE(held.ok()) << held.status.to_string();
     // Still held after more ticks (a lost grab would let the tip spring back to rest).
     ASSERT_TRUE(c.step("g", 120).ok());
     EXPECT_NEAR(vertex_position(c, "g", tip)[1], rest[1] + 0.003, 2e-4);
+    EXPECT_NEAR(vertex_position(c, "g", corner)[1], lifted[1], 1e-4);
+    ASSERT_TRUE(c.release("g", held->grab_id()).ok());
     // The same id moves it.
     v1::MoveGrabRequest m;
     m.set_scene_id("g");

@@ -162,6 +162,9 @@ class Scene {
   SceneStatus status() const;
   // Surface vertices (ascending) of the fixed geometry.
   const std::vector<int32_t>& surface_vertices() const { return surface_vertices_; }
+  // Positions the scene was created or restored with (what "where it is now" means before the
+  // first tick publishes a frame).
+  const std::vector<Vec3>& initial_positions() const { return initial_positions_; }
 
   // Commands, executed by the tick thread; each waits for it up to `timeout`.
   Error pause(std::chrono::milliseconds timeout = std::chrono::seconds(10));
@@ -220,6 +223,7 @@ class Scene {
 
   const std::string id_;
   std::vector<int32_t> surface_vertices_;
+  std::vector<Vec3> initial_positions_;
 
   // Shared with callers (under mu_).
   mutable std::mutex mu_;
