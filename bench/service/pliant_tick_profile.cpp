@@ -71,8 +71,9 @@ int main(int argc, char** argv) {
               model->vertex_count(), model->tet_count(), model->colours.size(), young,
               gravity ? "gravity, damping 0.5/s, no tool" : "no gravity, damping 20/s, sphere pressed 4 mm", substeps,
               iterations, ticks);
-  std::printf("| variant | tick ms | projection | residual | other | update | volume corrections / tick |\n");
-  std::printf("|---|---|---|---|---|---|---|\n");
+  std::printf("| variant | tick ms | projection | residual | other | update | volume corrections / tick | "
+              "tets with det F < 0.2 / <= 0 / min det F at the end |\n");
+  std::printf("|---|---|---|---|---|---|---|---|\n");
   const Variant variants[] = {
       {"server default (residuals on, floor 0.2, 1 thread)", true, 0.2, 1},
       {"residuals off", false, 0.2, 1},
@@ -124,8 +125,20 @@ int main(int argc, char** argv) {
       sum.update_ms += r.times.update_ms + r.times.anderson_ms;
       corrections += r.volume_corrections;
     }
-    std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.0f |\n", var.name, wall / ticks, sum.projection_ms / ticks,
-                sum.residual_ms / ticks, sum.other_ms / ticks, sum.update_ms / ticks, corrections / ticks);
+    // Volume ratios det F after the last tick: how many tets sit under the floor.
+    int under_floor = 0, inverted = 0;
+    double min_det = 1e300;
+    for (const TetRest& t : model->tets) {
+      Mat3 ds;
+      for (int c = 0; c < 3; ++c) ds.col(c) = st.x[t.v[c]] - st.x[t.v[3]];
+      const double det = (ds * t.dm_inv).determinant();
+      min_det = std::min(min_det, det);
+      under_floor += det < 0.2;
+      inverted += det <= 0;
+    }
+    std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.0f | %d / %d / %.3f |\n", var.name, wall / ticks,
+                sum.projection_ms / ticks, sum.residual_ms / ticks, sum.other_ms / ticks, sum.update_ms / ticks,
+                corrections / ticks, under_floor, inverted, min_det);
     std::fflush(stdout);
   }
 
