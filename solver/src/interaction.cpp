@@ -204,7 +204,8 @@ int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vec
                           const RigidTool& tool, const V3& tool_motion,
                           const std::function<void(int32_t, const V3&, const V3&)>& record) {
   int n = 0;
-  // Vertices inside the tool.
+  // Vertices inside the tool (remembered: their triangles are left to them, below).
+  std::vector<int32_t> touched;
   for (size_t i = 0; i < x.size(); ++i) {
     if (m.inv_mass[i] == 0) continue;
     V3 q, normal;
@@ -218,6 +219,7 @@ int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vec
     if (tn < tool.static_friction * depth) x[i] -= tangential;
     else if (tn > 0) x[i] -= tangential * std::min(tool.dynamic_friction * depth / tn, 1.0);
     record(int32_t(i), m.mass[i] * (x[i] - before), normal);
+    touched.push_back(int32_t(i));
     ++n;
   }
   if (m.surface.empty()) return n;
@@ -229,6 +231,15 @@ int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vec
     const int32_t v[3] = {tri[0], tri[1], tri[2]};
     const double w[3] = {m.inv_mass[v[0]], m.inv_mass[v[1]], m.inv_mass[v[2]]};
     if (w[0] == 0 && w[1] == 0 && w[2] == 0) continue;
+    // A face with a corner in vertex contact is that vertex's: the face is a chord of the tool,
+    // and pushing it out as well would push the corner past the tool's surface (a polyhedral
+    // cup around the tool), which at few iterations crushed and inverted the tets under a
+    // stiff body's contact. Faces between the contacts (a tool smaller than the faces, or
+    // between vertices) are still caught.
+    if (std::find(touched.begin(), touched.end(), v[0]) != touched.end() ||
+        std::find(touched.begin(), touched.end(), v[1]) != touched.end() ||
+        std::find(touched.begin(), touched.end(), v[2]) != touched.end())
+      continue;
     const V3 centre = (x[v[0]] + x[v[1]] + x[v[2]]) / 3.0;
     const double tri_r = std::sqrt(std::max({(x[v[0]] - centre).squaredNorm(), (x[v[1]] - centre).squaredNorm(),
                                              (x[v[2]] - centre).squaredNorm()}));
