@@ -8,7 +8,7 @@
 // the server's own per-tick work outside the solver (the rollback copy of the state, the
 // finiteness check, the frame's float positions).
 //
-// Usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity]
+// Usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity] [--mu MU]
 // (--young 1e6 --gravity --iterations 4: the 50k scene of pliant_service_bench, which sags under
 // its weight.)
 #include "pliant/builtin_meshes.hpp"
@@ -47,15 +47,17 @@ struct Variant {
 int main(int argc, char** argv) {
   int ticks = 60, substeps = 1, iterations = 1;
   double young = 5e7;
-  bool gravity = false;  // --gravity: -9.81 m/s^2 and the server's default damping (0.5/s), no tool
+  bool gravity = false;
+  double mu = -1;  // --mu: the sphere's static and dynamic friction (default: RigidTool's)  // --gravity: -9.81 m/s^2 and the server's default damping (0.5/s), no tool
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--ticks") && i + 1 < argc) ticks = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--substeps") && i + 1 < argc) substeps = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--iterations") && i + 1 < argc) iterations = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--young") && i + 1 < argc) young = std::atof(argv[++i]);
     else if (!std::strcmp(argv[i], "--gravity")) gravity = true;
+    else if (!std::strcmp(argv[i], "--mu") && i + 1 < argc) mu = std::atof(argv[++i]);
     else {
-      std::fprintf(stderr, "usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity]\n");
+      std::fprintf(stderr, "usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity] [--mu MU]\n");
       return 2;
     }
   }
@@ -102,6 +104,7 @@ int main(int argc, char** argv) {
     // The sphere of pliant_haptic_bench's device (r = 1 cm at x = 0.2), lowered over the
     // first 30 ticks (0.5 s) to 4 mm below the top face (y = 0.1) and held, as its press does.
     RigidTool sphere = RigidTool::sphere(Eigen::Vector3d(0.2, 0.11, 0.025), 0.01);
+    if (mu >= 0) sphere.static_friction = sphere.dynamic_friction = mu;
     PhaseTimes sum;
     double wall = 0, corrections = 0;
     const int warmup = 30;  // the press reaches its depth

@@ -157,6 +157,28 @@ TEST(ToolContact, ASmallSpherePressedIntoACoarseFacePushesItsTriangle) {
   EXPECT_LT(q.y(), 0.01 - 0.0004);
 }
 
+TEST(ToolContact, FacesAroundAVertexInContactAreLeftToTheVertex) {
+  // A 2 cm sphere pressed 2 mm onto a top vertex of beam1 (its top neighbours are inside
+  // too): one pass (a solver iteration) puts every vertex that was inside on the sphere's
+  // surface and no further; the faces between them are chords of the sphere and are theirs. Its faces are chords of the sphere; pushing them out as well would
+  // push the vertex past the surface (and, in a stiff body at few iterations, crush the tets
+  // under it).
+  auto m = clamped_beam(1e6);
+  const int32_t v = nearest_vertex(*m, Vec3(0.06, 0.01, 0.005));
+  const Vec3 centre = m->rest_positions[v] + Vec3(0, 0.02 - 0.002, 0);
+  const RigidTool tool = RigidTool::sphere(centre, 0.02);
+  std::vector<int32_t> inside;
+  for (size_t i = 0; i < m->vertex_count(); ++i) {
+    Vec3 q, n;
+    double d;
+    if (tool_contact(tool, m->rest_positions[i], q, n, d)) inside.push_back(int32_t(i));
+  }
+  ASSERT_GE(inside.size(), 5u);
+  std::vector<Vec3> x = m->rest_positions;
+  project_tool_contacts(*m, x, m->rest_positions, tool, Vec3::Zero(), [](int32_t, const Vec3&, const Vec3&) {});
+  for (int32_t i : inside) EXPECT_NEAR((x[i] - centre).norm(), tool.radius, 1e-9) << "vertex " << i;
+}
+
 TEST(ToolContact, ACapsuleLyingBetweenVertexRowsTouchesTheFaces) {
   // A thin capsule (r = 0.5 mm) lying along z on the top face, between two vertex columns,
   // pressed 0.3 mm in: only the segment-triangle test finds it.
