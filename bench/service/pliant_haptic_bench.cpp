@@ -1,10 +1,11 @@
 // pliant_haptic_bench: the haptic bridge's figures on loopback, against an in-process server.
-//  A. beam1 ticking at 1 kHz (realtime), the bridge's simulated device pressing into it:
+//  A. pliant-haptic's default scene (beam1 at 1 kHz, realtime), the bridge's simulated device
+//     stroking it:
 //     round-trip latency (pose sent -> force for that pose received) p50/p99/max, the device
 //     loop's rate and period p99, the force felt.
 //  B. a 50k-tet beam ticking at 60 Hz beside the bridge: the device loop must still hold
 //     1 kHz (the force between ticks comes from the local extrapolation).
-// Usage: pliant_haptic_bench [--seconds S] [--big SUBSTEPS,ITERATIONS] [--no-realtime] [--json]
+// Usage: pliant_haptic_bench [--seconds S] [--big SUBSTEPS,ITERATIONS] [--no-realtime] [--json] [--verbose]
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/client/haptic.hpp"
 #include "pliant/server/server.hpp"
@@ -45,6 +46,12 @@ struct Figures {
 
 bool g_realtime = true;
 
+std::string fmt_number(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
 Figures run(const std::string& address, const std::string& scene, const SimulatedDevice::Params& dev,
             double seconds, const std::string& name) {
   BridgeOptions bo;
@@ -81,19 +88,21 @@ Figures run(const std::string& address, const std::string& scene, const Simulate
 
 int main(int argc, char** argv) {
   double seconds = 10;
-  bool json = false;
+  bool json = false, verbose = false;
   int big_sub = 1, big_it = 1;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc) seconds = std::atof(argv[++i]);
     else if (!std::strcmp(argv[i], "--big") && i + 1 < argc) std::sscanf(argv[++i], "%d,%d", &big_sub, &big_it);
     else if (!std::strcmp(argv[i], "--json")) json = true;
     else if (!std::strcmp(argv[i], "--no-realtime")) g_realtime = false;
+    else if (!std::strcmp(argv[i], "--verbose")) verbose = true;
     else {
-      std::fprintf(stderr, "usage: pliant_haptic_bench [--seconds S] [--big SUBSTEPS,ITERATIONS] [--no-realtime] [--json]\n");
+      std::fprintf(stderr, "usage: pliant_haptic_bench [--seconds S] [--big SUBSTEPS,ITERATIONS] [--no-realtime] [--json] [--verbose]\n");
       return 2;
     }
   }
-  spdlog::set_level(spdlog::level::warn);
+  // --verbose: the server's debug log, with each scene's tick profile every 10 s.
+  spdlog::set_level(verbose ? spdlog::level::debug : spdlog::level::warn);
   server::ServerOptions so;
   so.listen = "127.0.0.1:0";
   so.restore = false;
@@ -108,16 +117,23 @@ int main(int argc, char** argv) {
   client::Client c(co);
 
   std::vector<Figures> all;
+  std::string scene_a;
   {
-    auto r = beam_scene("beam1-1kHz", 1000, 4, 2);
-    r.mutable_spec()->mutable_mesh()->set_builtin("beam1");
+    // The scene pliant-haptic creates by default (beam1 lying on its bottom face, soft tissue,
+    // 1 kHz, its default budget).
+    BridgeOptions defaults;
+    defaults.scene_id = "beam1-1kHz";
+    const auto r = scene_request(defaults);
+    scene_a = "beam1 @ 1 kHz, pliant-haptic's default scene (E " + fmt_number(defaults.create_young) + " Pa, " +
+              std::to_string(defaults.create_substeps) + " substeps x " + std::to_string(defaults.create_iterations) +
+              " iterations)";
     if (auto s = c.create_scene(r); !s.ok()) {
       std::fprintf(stderr, "create beam1: %s\n", s.status.to_string().c_str());
       return 1;
     }
     SimulatedDevice::Params dev;  // defaults: over beam1's tip, press 3 mm, 4 s cycle
     dev.script = SimulatedDevice::Script::Stroke;
-    all.push_back(run(address, "beam1-1kHz", dev, seconds, "beam1 @ 1 kHz (4 substeps x 2 iterations)"));
+    all.push_back(run(address, "beam1-1kHz", dev, seconds, scene_a));
     c.delete_scene("beam1-1kHz");
   }
   {

@@ -236,6 +236,33 @@ void HapticBridge::loop_thread() {
   }
 }
 
+v1::CreateSceneRequest scene_request(const BridgeOptions& o) {
+  v1::CreateSceneRequest r;
+  r.set_scene_id(o.scene_id);
+  auto* s = r.mutable_spec();
+  s->mutable_mesh()->set_builtin(o.create_builtin);
+  if (o.create_clamp == BridgeOptions::Clamp::End) {
+    client::clamp_below_x(*s, 1e-3);  // the beams start at x = 0
+  } else {
+    auto* box = s->mutable_fixed()->add_boxes();  // the bottom face: the beams start at y = 0
+    box->mutable_min()->set_x(-1e9);
+    box->mutable_min()->set_y(-1e9);
+    box->mutable_min()->set_z(-1e9);
+    box->mutable_max()->set_x(1e9);
+    box->mutable_max()->set_y(1e-3);
+    box->mutable_max()->set_z(1e9);
+  }
+  s->mutable_material()->set_young_modulus(o.create_young);
+  s->mutable_material()->set_poisson_ratio(o.create_poisson);
+  s->mutable_gravity()->set_y(0);
+  s->mutable_solver()->set_substeps(o.create_substeps);
+  s->mutable_solver()->set_iterations(o.create_iterations);
+  s->mutable_solver()->set_damping_coefficient(20);
+  s->mutable_tick()->set_dt(1.0 / o.create_tick_hz);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_REALTIME);
+  return r;
+}
+
 bool HapticBridge::ensure_scene(client::Client& c) {
   auto got = c.get_scene(opt_.scene_id);
   if (got.ok()) return true;
@@ -243,18 +270,7 @@ bool HapticBridge::ensure_scene(client::Client& c) {
     spdlog::warn("pliant-haptic: scene '{}': {}", opt_.scene_id, got.status.to_string());
     return false;
   }
-  v1::CreateSceneRequest r;
-  r.set_scene_id(opt_.scene_id);
-  auto* s = r.mutable_spec();
-  s->mutable_mesh()->set_builtin(opt_.create_builtin);
-  client::clamp_below_x(*s, 1e-3);  // the beams start at x = 0
-  s->mutable_material()->set_young_modulus(opt_.create_young);
-  s->mutable_gravity()->set_y(0);
-  s->mutable_solver()->set_substeps(opt_.create_substeps);
-  s->mutable_solver()->set_iterations(opt_.create_iterations);
-  s->mutable_solver()->set_damping_coefficient(20);
-  s->mutable_tick()->set_dt(1.0 / opt_.create_tick_hz);
-  s->mutable_tick()->set_mode(v1::TICK_MODE_REALTIME);
+  const v1::CreateSceneRequest r = scene_request(opt_);
   auto created = c.create_scene(r);
   if (!created.ok() && created.status.code != 6) {
     spdlog::warn("pliant-haptic: creating scene '{}': {}", opt_.scene_id, created.status.to_string());

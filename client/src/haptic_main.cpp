@@ -27,7 +27,12 @@ const char* kUsage = R"(usage: pliant-haptic [flags]
   --create MESH          create the scene from this builtin mesh when it does not exist
                          (default beam1, clamped at x = 0; "" never creates)
   --tick-hz HZ           tick rate of a scene it creates (default 1000)
-  --young PA             Young's modulus of a scene it creates (default 5e7; gravity off)
+  --clamp bottom|end     how a scene it creates is held: bottom face fixed (default; tissue on
+                         a table) or x <= 1 mm fixed (a cantilever)
+  --young PA             Young's modulus of a scene it creates (default 1e5: soft tissue;
+                         gravity off). Stiffer materials need more substeps to feel as stiff as
+                         they are (docs/haptics.md)
+  --poisson NU           Poisson's ratio of a scene it creates (default 0.49)
   --substeps N --iterations N   solver of a scene it creates (default 4 x 2)
   --rate HZ              device loop rate (default 1000)
   --script press|stroke  simulated device motion (default press)
@@ -93,6 +98,16 @@ int main(int argc, char** argv) {
     else if (a == "--create") opt.create_builtin = value();
     else if (a == "--tick-hz") opt.create_tick_hz = number(1, 10000);
     else if (a == "--young") opt.create_young = number(1, 1e12);
+    else if (a == "--poisson") opt.create_poisson = number(-0.99, 0.499);
+    else if (a == "--clamp") {
+      const std::string s = value();
+      if (s == "bottom") opt.create_clamp = BridgeOptions::Clamp::Bottom;
+      else if (s == "end") opt.create_clamp = BridgeOptions::Clamp::End;
+      else {
+        std::cerr << "pliant-haptic: --clamp must be bottom or end, got '" << s << "'\n";
+        return 2;
+      }
+    }
     else if (a == "--substeps") opt.create_substeps = static_cast<int>(number(1, 10000));
     else if (a == "--iterations") opt.create_iterations = static_cast<int>(number(1, 10000));
     else if (a == "--rate") opt.loop_hz = number(10, 10000);

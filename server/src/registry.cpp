@@ -130,6 +130,7 @@ Error merge_solver(const v1::SolverSettings& p, const std::string& prefix, int m
   if (p.has_tolerance()) s.tolerance = p.tolerance();
   if (p.has_time_budget_ms()) s.time_budget_ms = p.time_budget_ms();
   if (p.has_damping_coefficient()) s.damping_coefficient = p.damping_coefficient();
+  if (p.has_inversion_floor()) s.inversion_floor = p.inversion_floor();  // range: check_solver
   if (p.has_threads()) {
     if (p.threads() < 1)
       return invalid(fmt::format("{}.threads must be >= 1, got {}", prefix, p.threads()));
@@ -342,6 +343,7 @@ void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* sp
   ps->set_damping(damping_to(s.damping));
   ps->set_damping_coefficient(s.damping_coefficient);
   ps->set_threads(s.threads);
+  ps->set_inversion_floor(s.inversion_floor);
   spec->mutable_tick()->set_dt(s.dt);
   spec->mutable_tick()->set_mode(mode_to(cfg.mode));
 }
@@ -403,6 +405,20 @@ Error snapshot_to_proto(const SceneSnapshot& s, v1::Snapshot* out) {
   out->set_sim_time(s.state.time);
   out->set_tick(s.tick);
   out->set_paused(s.paused);
+  for (const auto& [gid, a] : s.grabs) {
+    auto* g = out->add_grabs();
+    g->set_grab_id(gid);
+    for (int k = 0; k < 4; ++k) {
+      if (a.vertices[k] < 0) continue;
+      g->add_vertices(a.vertices[k]);
+      g->add_weights(a.weights[k]);
+    }
+    g->mutable_target()->set_x(a.target.x());
+    g->mutable_target()->set_y(a.target.y());
+    g->mutable_target()->set_z(a.target.z());
+    g->set_compliance(a.compliance);
+  }
+  out->set_next_grab_id(s.next_grab_id);
   out->set_saved_unix_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(
                              std::chrono::system_clock::now().time_since_epoch())
                              .count());
@@ -459,6 +475,36 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
   st.time = p.sim_time();
   st.steps = p.tick();
   if (!is_finite(st)) return invalid("snapshot.x/v contain non-finite values");
+  // Grabs (absent from snapshots written before they were saved: none).
+  std::map<uint64_t, Attachment> grabs;
+  for (int i = 0; i < p.grabs_size(); ++i) {
+    const auto& g = p.grabs(i);
+    const std::string field = fmt::format("snapshot.grabs[{}]", i);
+    if (g.grab_id() == 0) return invalid(field + ".grab_id = 0 is not a grab id (ids start at 1)");
+    if (grabs.count(g.grab_id()))
+      return invalid(fmt::format("{}.grab_id = {} appears twice", field, g.grab_id()));
+    if (g.vertices_size() < 1 || g.vertices_size() > 4 || g.weights_size() != g.vertices_size())
+      return invalid(fmt::format("{} has {} vertices and {} weights, expected 1 to 4 of each, as many weights as vertices",
+                                 field, g.vertices_size(), g.weights_size()));
+    Attachment a;
+    for (int k = 0; k < g.vertices_size(); ++k) {
+      a.vertices[k] = g.vertices(k);
+      a.weights[k] = g.weights(k);
+    }
+    a.target = to_vec(g.target());
+    a.compliance = g.compliance();
+    if (std::string msg = validate_interaction({a}, {}, *model); !msg.empty()) {
+      // validate_interaction names the field "attachments[0]": name the snapshot's instead.
+      const std::string prefix = "attachments[0]";
+      if (msg.rfind(prefix, 0) == 0) msg = field + msg.substr(prefix.size());
+      return invalid(msg);
+    }
+    grabs.emplace(g.grab_id(), a);
+  }
+  uint64_t next_grab_id = std::max<uint64_t>(p.next_grab_id(), 1);
+  for (const auto& [gid, a] : grabs) next_grab_id = std::max(next_grab_id, gid + 1);
+  out->grabs = std::move(grabs);
+  out->next_grab_id = next_grab_id;
   out->id = p.scene_id();
   out->config = std::move(cfg);
   out->model = std::move(model);
@@ -742,8 +788,9 @@ Error SceneRegistry::grab(const v1::GrabRequest& req, v1::GrabResponse* out) {
     if (!a.target.allFinite())
       return invalid(fmt::format("target must be finite, got ({}, {}, {})", a.target.x(), a.target.y(), a.target.z()));
   } else {
-    // Hold the point where it is now (the latest frame; the rest shape before the first tick).
-    std::vector<Vec3> x = m->rest_positions;
+    // Hold the point where it is now: the latest frame, or before the first tick the positions
+    // the scene started from (a restored snapshot's, not the rest shape).
+    std::vector<Vec3> x = s->initial_positions().size() == m->vertex_count() ? s->initial_positions() : m->rest_positions;
     if (auto f = s->latest_frame(); f && f->positions.size() == 3 * x.size())
       for (size_t i = 0; i < x.size(); ++i) x[i] = Vec3(f->positions[3 * i], f->positions[3 * i + 1], f->positions[3 * i + 2]);
     a.target = a.point(x);
@@ -898,6 +945,7 @@ void SceneRegistry::fill_frame(const Frame& f, const FrameSelection& sel,
     st->set_step_wall_ms(f.step_wall_ms);
     st->set_stopped_by_tolerance(f.stopped_by_tolerance);
     st->set_stopped_by_budget(f.stopped_by_budget);
+    st->set_volume_corrections(f.volume_corrections);
   }
   out->set_late_ticks(f.late_ticks);
   out->set_skipped_ticks(f.skipped_ticks);
@@ -960,9 +1008,10 @@ Error SceneRegistry::restore_snapshot(const v1::RestoreSnapshotRequest& req, v1:
     return e;
   std::string id = req.scene_id().empty() ? snap.id : req.scene_id();
   if (Error e = check_name("scene_id", id); !e.ok()) return e;
-  auto scene = std::make_shared<Scene>(id, snap.config, snap.model, std::move(snap.state), snap.tick, snap.paused);
+  const uint64_t tick = snap.tick;
+  auto scene = std::make_shared<Scene>(std::move(snap), id);
   if (Error e = add_scene(scene, req.replace()); !e.ok()) return e;
-  spdlog::info("scene '{}' restored from a snapshot at tick {}", id, snap.tick);
+  spdlog::info("scene '{}' restored from a snapshot at tick {}", id, tick);
   return describe(*scene, out);
 }
 
@@ -994,8 +1043,7 @@ int SceneRegistry::restore_from_data_dir() {
     if (e.ok()) e = snapshot_from_proto(proto, options_.max_threads, options_.max_vertices, &snap);
     if (e.ok()) e = check_name("scene_id", snap.id);
     if (e.ok()) {
-      auto scene = std::make_shared<Scene>(snap.id, snap.config, snap.model, std::move(snap.state),
-                                           snap.tick, snap.paused);
+      auto scene = std::make_shared<Scene>(snap);
       e = add_scene(scene, false);
     }
     if (!e.ok()) {

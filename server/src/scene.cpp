@@ -70,6 +70,12 @@ struct Scene::TickState {
   uint64_t rate_window_ticks = 0;
   double ticks_per_second = 0;
   Clock::time_point last_tick_end;
+  struct TickProfile {
+    uint64_t ticks = 0;
+    double step_ms = 0, tick_ms = 0, gap_ms = 0, late_ms = 0;
+    int64_t volume_corrections = 0;
+    Clock::time_point window_start, last_start;
+  } profile;
 
   Clock::duration period() const {
     return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(settings.dt));
@@ -93,6 +99,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
              BodyState state, uint64_t tick, bool paused)
     : id_(std::move(id)), ts_(std::make_unique<TickState>()) {
   surface_vertices_ = surface_vertices_of(*model);
+  initial_positions_ = state.x;
   ts_->model = model;
   ts_->settings = config.settings;
   ts_->mode = config.mode;
@@ -103,6 +110,15 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
   config_ = std::move(config);
   model_shared_ = std::move(model);
   publish_status();
+}
+
+Scene::Scene(SceneSnapshot snapshot, std::string id)
+    : Scene(id.empty() ? snapshot.id : std::move(id), std::move(snapshot.config), snapshot.model,
+            std::move(snapshot.state), snapshot.tick, snapshot.paused) {
+  uint64_t next = std::max<uint64_t>(snapshot.next_grab_id, 1);
+  for (const auto& [gid, a] : snapshot.grabs) next = std::max(next, gid + 1);
+  ts_->grabs = std::move(snapshot.grabs);
+  ts_->next_grab_id = next;
 }
 
 Scene::~Scene() { stop(); }
@@ -176,12 +192,14 @@ void Scene::publish_status() {
 Error Scene::call(std::function<Error()> fn, Clock::time_point deadline) {
   auto promise = std::make_shared<std::promise<Error>>();
   auto future = promise->get_future();
+  bool wake = false;
   {
     std::lock_guard lk(mu_);
     if (stop_) return Error::make(Code::Unavailable, "scene '" + id_ + "' is shutting down");
     commands_.push_back([promise, fn = std::move(fn)] { promise->set_value(fn()); });
+    wake = waiting_for_commands_;
   }
-  cv_.notify_all();
+  if (wake) cv_.notify_all();
   if (future.wait_until(deadline) != std::future_status::ready)
     return Error::make(Code::DeadlineExceeded,
                        "scene '" + id_ + "' did not reach a tick boundary in time");
@@ -193,12 +211,17 @@ Error Scene::call(std::function<Error()> fn, Clock::time_point deadline) {
 }
 
 bool Scene::post(Command fn) {
+  // Only a tick thread idle until the next command is woken: one waiting for its next
+  // scheduled tick runs the command then anyway, and at 1 kHz of tool poses the wake-ups
+  // would be 1000 useless context switches a second per stream.
+  bool wake = false;
   {
     std::lock_guard lk(mu_);
     if (stop_) return false;
     commands_.push_back(std::move(fn));
+    wake = waiting_for_commands_;
   }
-  cv_.notify_all();
+  if (wake) cv_.notify_all();
   return true;
 }
 
@@ -415,6 +438,8 @@ Error Scene::snapshot(SceneSnapshot* out, std::chrono::milliseconds timeout) {
         result->state = ts_->state;
         result->tick = ts_->tick;
         result->paused = !ts_->running;
+        result->grabs = ts_->grabs;
+        result->next_grab_id = ts_->next_grab_id;
         return Error{};
       },
       Clock::now() + timeout);
@@ -430,6 +455,8 @@ SceneSnapshot Scene::snapshot_stopped() const {
   out.state = ts_->state;
   out.tick = ts_->tick;
   out.paused = !ts_->running;
+  out.grabs = ts_->grabs;
+  out.next_grab_id = ts_->next_grab_id;
   return out;
 }
 
@@ -468,7 +495,9 @@ void Scene::run() {
       // Commands wait for the tick boundary; only stop wakes us early.
       cv_.wait_until(lk, due, [&] { return stop_; });
     } else if (!afap && t.steps.empty()) {
+      waiting_for_commands_ = true;
       cv_.wait(lk, [&] { return stop_ || !commands_.empty(); });
+      waiting_for_commands_ = false;
     }
     if (stop_) break;
     std::deque<Command> commands;
@@ -599,6 +628,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   frame->step_wall_ms = report.wall_ms;
   frame->stopped_by_tolerance = report.stopped_by_tolerance;
   frame->stopped_by_budget = report.stopped_by_budget;
+  frame->volume_corrections = report.volume_corrections;
   frame->late_ticks = t.late_ticks;
   frame->skipped_ticks = t.skipped_ticks;
   frame->lateness_ms = lateness_ms;
@@ -628,6 +658,26 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   }
 
   publish_status();
+  // Where the tick time goes, logged at debug level every 10 s: the solver step, the tick's
+  // own work around it (state copy, frame, status), the time between tick starts, lateness.
+  {
+    auto& p = t.profile;
+    p.step_ms += report.wall_ms;
+    p.tick_ms += std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+    if (p.ticks > 0) p.gap_ms += std::chrono::duration<double, std::milli>(start - p.last_start).count();
+    p.late_ms += lateness_ms;
+    p.volume_corrections += report.volume_corrections;
+    p.last_start = start;
+    if (++p.ticks == 1) p.window_start = start;
+    if (start - p.window_start >= std::chrono::seconds(10)) {
+      const double n = double(p.ticks);
+      spdlog::debug("scene '{}': {} ticks, per tick: step {:.2f} ms, tick {:.2f} ms (outside the step {:.2f} ms), "
+                    "{:.2f} ms between starts, late {:.2f} ms, {:.0f} volume corrections, {} contacts",
+                    id_, p.ticks, p.step_ms / n, p.tick_ms / n, (p.tick_ms - p.step_ms) / n,
+                    p.gap_ms / std::max(1.0, n - 1), p.late_ms / n, double(p.volume_corrections) / n, report.contacts);
+      p = {};
+    }
+  }
   {
     std::lock_guard lk(frame_mu_);
     frame->seq = ++seq_;

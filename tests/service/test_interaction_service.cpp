@@ -8,9 +8,12 @@
 #include <spdlog/spdlog.h>
 
 #include <atomic>
+#include <filesystem>
 #include <cmath>
 #include <mutex>
 #include <thread>
+
+#include <unistd.h>
 
 using namespace pliant;
 using client::Client;
@@ -27,8 +30,7 @@ constexpr int kInvalidArgument = 3, kNotFound = 5;
 struct Server {
   std::unique_ptr<server::PliantServer> server;
   std::string address;
-  Server() {
-    server::ServerOptions o;
+  explicit Server(server::ServerOptions o = {}) {
     o.listen = "127.0.0.1:0";
     server = std::make_unique<server::PliantServer>(o);
     auto e = server->start();
@@ -295,4 +297,130 @@ TEST(InteractionService, HapticStreamRejectsBadPoses) {
     EXPECT_EQ(st.code, kInvalidArgument);
     EXPECT_NE(st.message.find("orientation"), std::string::npos) << st.message;
   }
+}
+
+// Grabs are part of the scene's state: a restart (shutdown snapshot + restore) and a
+// RestoreSnapshot keep them with their ids, so MoveGrab / Release with the same id go on working
+// and the body stays held meanwhile. Without the grab the beam (no gravity) springs back.
+TEST(InteractionService, GrabsSurviveARestartAndARestore) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("pliant-grab-restart-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  server::ServerOptions o;
+  o.data_dir = dir.string();
+  int tip = 0;
+  uint64_t grab_id = 0;
+  std::array<double, 3> rest{};
+  {
+    Server a(o);
+    Client c = a.client();
+    ASSERT_TRUE(c.create_scene(beam("g")).ok());
+    tip = nearest(c, "g", 0.115, 0.01, 0.01);
+    rest = vertex_position(c, "g", tip);
+    v1::GrabRequest g;
+    g.set_scene_id("g");
+    g.set_vertex(tip);
+    *g.mutable_target() = vec(rest[0], rest[1] + 0.003, rest[2]);
+    g.set_compliance(1e-6);
+    auto grabbed = c.grab(g);
+    ASSERT_TRUE(grabbed.ok()) << grabbed.status.to_string();
+    grab_id = grabbed->grab_id();
+    ASSERT_TRUE(c.step("g", 120).ok());
+    EXPECT_NEAR(vertex_position(c, "g", tip)[1], rest[1] + 0.003, 2e-4);
+    EXPECT_EQ(a.server->shutdown(), 1);  // what SIGTERM does: one snapshot per scene
+  }
+  {
+    Server b(o);
+    Client c = b.client();
+    v1::SaveSnapshotRequest sr;
+    sr.set_scene_id("g");
+    auto saved = c.save_snapshot(sr);
+    ASSERT_TRUE(saved.ok()) << saved.status.to_string();
+    ASSERT_EQ(saved->snapshot().grabs_size(), 1);
+    EXPECT_EQ(saved->snapshot().grabs(0).grab_id(), grab_id);
+    EXPECT_DOUBLE_EQ(saved->snapshot().grabs(0).compliance(), 1e-6);
+    // Before the first tick after the restart, a grab without a target holds a point where the
+    // snapshot left it, not where the rest shape has it: the lifted corner next to the tip.
+    const int corner = nearest(c, "g", 0.115, 0.01, 0.0);
+    const auto lifted = vertex_position(c, "g", corner);
+    ASSERT_GT(lifted[1] - 0.01, 0.001);  // lifted by the grab (rest y = 0.01)
+    v1::GrabRequest hold;
+    hold.set_scene_id("g");
+    hold.set_vertex(corner);
+    auto held = c.grab(hold);
+    ASSERT_TRUE(held.ok()) << held.status.to_string();
+    // Still held after more ticks (a lost grab would let the tip spring back to rest).
+    ASSERT_TRUE(c.step("g", 120).ok());
+    EXPECT_NEAR(vertex_position(c, "g", tip)[1], rest[1] + 0.003, 2e-4);
+    EXPECT_NEAR(vertex_position(c, "g", corner)[1], lifted[1], 1e-4);
+    ASSERT_TRUE(c.release("g", held->grab_id()).ok());
+    // The same id moves it.
+    v1::MoveGrabRequest m;
+    m.set_scene_id("g");
+    m.set_grab_id(grab_id);
+    *m.mutable_target() = vec(rest[0], rest[1] - 0.003, rest[2]);
+    auto moved = c.move_grab(m);
+    ASSERT_TRUE(moved.ok()) << moved.status.to_string();
+    EXPECT_GT(moved->force().y(), 0);  // it was holding the tip up
+    ASSERT_TRUE(c.step("g", 120).ok());
+    EXPECT_NEAR(vertex_position(c, "g", tip)[1], rest[1] - 0.003, 2e-4);
+    // A new grab gets a new id, not a reused one.
+    v1::GrabRequest g2;
+    g2.set_scene_id("g");
+    g2.set_vertex(0);
+    auto second = c.grab(g2);
+    ASSERT_TRUE(second.ok()) << second.status.to_string();
+    EXPECT_GT(second->grab_id(), grab_id);
+    ASSERT_TRUE(c.release("g", second->grab_id()).ok());
+
+    // Roll back to a snapshot taken while grabbed: releasing afterwards is undone too.
+    auto before = c.save_snapshot(sr);
+    ASSERT_TRUE(before.ok());
+    ASSERT_TRUE(c.release("g", grab_id).ok());
+    EXPECT_EQ(c.release("g", grab_id).code, kNotFound);
+    v1::RestoreSnapshotRequest r;
+    *r.mutable_snapshot() = before->snapshot();
+    r.set_replace(true);
+    ASSERT_TRUE(c.restore_snapshot(r).ok());
+    *m.mutable_target() = vec(rest[0], rest[1], rest[2]);
+    auto moved_again = c.move_grab(m);
+    EXPECT_TRUE(moved_again.ok()) << moved_again.status.to_string();
+
+    // A snapshot from before grabs were saved (no grabs field) restores without grabs.
+    v1::RestoreSnapshotRequest old;
+    *old.mutable_snapshot() = before->snapshot();
+    old.mutable_snapshot()->clear_grabs();
+    old.mutable_snapshot()->clear_next_grab_id();
+    old.set_scene_id("old");
+    ASSERT_TRUE(c.restore_snapshot(old).ok());
+    m.set_scene_id("old");
+    EXPECT_EQ(c.move_grab(m).status.code, kNotFound);
+
+    // A bad grab in a snapshot is refused, naming the field and the value.
+    v1::RestoreSnapshotRequest bad;
+    *bad.mutable_snapshot() = before->snapshot();
+    bad.mutable_snapshot()->mutable_grabs(0)->set_vertices(0, 99999);
+    bad.set_scene_id("bad");
+    auto refused = c.restore_snapshot(bad);
+    EXPECT_EQ(refused.status.code, kInvalidArgument);
+    EXPECT_NE(refused.status.message.find("snapshot.grabs[0].vertices[0] = 99999"), std::string::npos)
+        << refused.status.message;
+    b.server->shutdown();
+  }
+  fs::remove_all(dir);
+}
+
+// The inversion floor is a scene setting (spec.solver.inversion_floor), default 0.2, kept in the
+// effective spec (and so in snapshots).
+TEST(InteractionService, InversionFloorIsASceneSetting) {
+  Server s;
+  Client c = s.client();
+  ASSERT_TRUE(c.create_scene(beam("default")).ok());
+  auto off = beam("off");
+  off.mutable_spec()->mutable_solver()->set_inversion_floor(0);
+  ASSERT_TRUE(c.create_scene(off).ok());
+  auto d = c.get_scene("default"), o = c.get_scene("off");
+  ASSERT_TRUE(d.ok() && o.ok());
+  EXPECT_DOUBLE_EQ(d->spec().solver().inversion_floor(), 0.2);
+  EXPECT_DOUBLE_EQ(o->spec().solver().inversion_floor(), 0.0);
 }

@@ -632,6 +632,8 @@ TEST(Service, BadInputsGetTheRightStatus) {
        kInvalidArgument, "spec.solver.iterations"},
       {"window 0", [](auto& r) { r.mutable_spec()->mutable_solver()->set_window(0); }, kInvalidArgument,
        "spec.solver.window"},
+      {"inversion floor 1.5", [](auto& r) { r.mutable_spec()->mutable_solver()->set_inversion_floor(1.5); },
+       kInvalidArgument, "spec.solver.inversion_floor must be in [0, 1), got 1.5"},
       {"gravity inf", [](auto& r) { r.mutable_spec()->mutable_gravity()->set_y(INFINITY); }, kInvalidArgument,
        "spec.gravity"},
       {"fixed index", [](auto& r) { r.mutable_spec()->mutable_fixed()->add_indices(100000); }, kInvalidArgument,

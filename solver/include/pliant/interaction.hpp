@@ -11,6 +11,7 @@
 #include <Eigen/Geometry>
 
 #include <array>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -57,6 +58,35 @@ struct RigidTool {
 // If p is inside the tool: the closest surface point q, the outward normal and the depth.
 bool tool_contact(const RigidTool& tool, const Eigen::Vector3d& p, Eigen::Vector3d& q,
                   Eigen::Vector3d& normal, double& depth);
+
+// One projection pass of a tool against the body (hard contact, tool of infinite mass,
+// position-level Coulomb friction as for the static colliders), called by the stepper once per
+// iteration after the strain sweep:
+//  - every free vertex inside the tool is moved to its surface;
+//  - then every boundary triangle (model.surface) whose closest point to the tool's core
+//    (sphere centre; capsule segment) is inside the tool, and not at one of its corners (that
+//    is the corner vertex's contact), is pushed out along the tool's normal there: the point
+//    p = sum_k b_k x_k (barycentric b) is a generalized particle of inverse mass
+//    sum_k b_k^2 w_k, and each corner moves by w_k b_k dlambda. So a small tool cannot pass
+//    between the vertices of a coarse surface.
+// Contacts are projected one after the other (Gauss-Seidel): a penetration resolved by one
+// contact is not seen by the next, so an edge shared by two triangles, or a corner shared by a
+// vertex contact, is not counted twice. Friction acts on the contact point's motion since
+// x_start relative to the tool (tool_motion: the tool's displacement over the substep).
+// `record(vertex, dlambda, normal)` is called for every correction of a vertex: dlambda is the
+// vector multiplier increment m_v * (correction of x_v) (force on the body = lambda / h^2, on
+// the tool minus that), normal the tool's outward normal at the contact. Returns the number of
+// contacts (vertices and triangles) projected.
+int project_tool_contacts(const BodyModel& model, std::vector<Eigen::Vector3d>& x,
+                          const std::vector<Eigen::Vector3d>& x_start, const RigidTool& tool,
+                          const Eigen::Vector3d& tool_motion,
+                          const std::function<void(int32_t vertex, const Eigen::Vector3d& dlambda,
+                                                   const Eigen::Vector3d& normal)>& record);
+
+// Closest point to p on triangle (a, b, c) and its barycentric weights (sum 1, all >= 0).
+Eigen::Vector3d closest_point_on_triangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
+                                          const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                                          std::array<double, 3>& barycentric);
 
 // One vertex in contact with a tool during the step.
 struct ToolContact {

@@ -113,11 +113,20 @@ struct BridgeOptions {
   // Create the scene when it does not exist (builtin mesh name; empty: never create).
   std::string create_builtin = "beam1";
   double create_tick_hz = 1000;     // tick rate of a created scene
-  // Material of a created scene: a stiff rubber (the default beam1 at 1 MPa pushes back with
-  // millinewtons); gravity is off so the scripted device finds the surface where it expects.
-  double create_young = 5e7;
-  // Solver of a created scene. 4 x 2 is cheap enough for 1 kHz on two cores but feels far
-  // softer than the material (docs/haptics.md); more substeps converge to the elastic force.
+  // How a created scene is held: Bottom fixes the beam's bottom face (y <= 1 mm: tissue
+  // lying on a table, pressed from above, locally indented); End fixes x <= 1 mm (a
+  // cantilever, which bends instead: soft materials then push back with millinewtons).
+  enum class Clamp { Bottom, End };
+  Clamp create_clamp = Clamp::Bottom;
+  // Material of a created scene: soft tissue (E = 100 kPa, nearly incompressible). Gravity is
+  // off so the scripted device finds the surface where it expects. At this stiffness the 4 x 2
+  // budget below gives the force at rest of the converged model within a few percent
+  // (docs/haptics.md: pliant_haptic_fidelity); much stiffer materials need many more
+  // substeps than a 1 ms tick affords to feel as stiff as they are.
+  double create_young = 1e5;
+  double create_poisson = 0.49;
+  // Solver of a created scene: 4 substeps x 2 iterations, about 0.25 ms per 1 kHz tick for
+  // beam1 on the 2-core development machine.
   int create_substeps = 4;
   int create_iterations = 2;
   double loop_hz = 1000;
@@ -126,6 +135,11 @@ struct BridgeOptions {
   std::chrono::milliseconds reconnect_delay{200};
   bool realtime_priority = true;  // try SCHED_FIFO for the device loop (falls back quietly)
 };
+
+// The CreateSceneRequest the bridge sends when its scene does not exist (create_builtin,
+// create_clamp, create_young, create_poisson, create_substeps x create_iterations at
+// create_tick_hz, realtime, gravity off, damping 20/s).
+v1::CreateSceneRequest scene_request(const BridgeOptions& options);
 
 struct BridgeStats {
   double loop_hz = 0;

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -83,6 +84,7 @@ struct Frame {
   double step_wall_ms = 0;
   bool stopped_by_tolerance = false;
   bool stopped_by_budget = false;
+  int volume_corrections = 0;  // inversion-floor projections in the last substep
   uint64_t late_ticks = 0;
   uint64_t skipped_ticks = 0;
   double lateness_ms = 0;
@@ -124,6 +126,9 @@ struct SceneSnapshot {
   BodyState state;
   uint64_t tick = 0;
   bool paused = false;
+  // Grabs by id (tools are not saved: they live only while their stream is open).
+  std::map<uint64_t, Attachment> grabs;
+  uint64_t next_grab_id = 1;  // always > every id in grabs
 };
 
 // A live change of settings; unset parts are kept.
@@ -140,6 +145,8 @@ class Scene {
 
   Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel> model,
         BodyState state, uint64_t tick, bool paused);
+  // A scene recreated from a snapshot, its grabs included (same ids).
+  explicit Scene(SceneSnapshot snapshot, std::string id = {});
   ~Scene();
   Scene(const Scene&) = delete;
   Scene& operator=(const Scene&) = delete;
@@ -155,6 +162,9 @@ class Scene {
   SceneStatus status() const;
   // Surface vertices (ascending) of the fixed geometry.
   const std::vector<int32_t>& surface_vertices() const { return surface_vertices_; }
+  // Positions the scene was created or restored with (what "where it is now" means before the
+  // first tick publishes a frame).
+  const std::vector<Vec3>& initial_positions() const { return initial_positions_; }
 
   // Commands, executed by the tick thread; each waits for it up to `timeout`.
   Error pause(std::chrono::milliseconds timeout = std::chrono::seconds(10));
@@ -213,12 +223,16 @@ class Scene {
 
   const std::string id_;
   std::vector<int32_t> surface_vertices_;
+  std::vector<Vec3> initial_positions_;
 
   // Shared with callers (under mu_).
   mutable std::mutex mu_;
   std::condition_variable cv_;
   std::deque<Command> commands_;
   bool stop_ = false;
+  // The tick thread is idle until a command arrives (lockstep, paused): only then do new
+  // commands notify cv_ (a realtime tick runs them at its next boundary without being woken).
+  bool waiting_for_commands_ = false;
   uint64_t next_tool_id_ = 1;
   std::thread thread_;
 

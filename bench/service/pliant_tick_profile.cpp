@@ -1,0 +1,170 @@
+// pliant_tick_profile: where the time of one server tick goes on a large mesh. Steps the 50k-tet
+// beam of pliant_haptic_bench (0.25 x 0.1 x 0.05 m, E = 50 MPa, x <= 1 mm fixed, gravity off,
+// damping 20/s, dt = 1/60 s, 1 substep x 1 iteration by default) with a sphere (r = 1 cm) lowered
+// 4 mm into its top over 0.5 s and held (the bench's press), as the server's tick does (Stepper::step with the scene's settings), and prints the
+// mean wall time per tick split as the solver reports it (projection sweep, residual passes,
+// "other": prediction, tool contacts, inversion-floor passes, velocity update, damping), for
+// solver variants that isolate each part (residuals off, inversion floor off, 2 threads), plus
+// the server's own per-tick work outside the solver (the rollback copy of the state, the
+// finiteness check, the frame's float positions).
+//
+// Usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity] [--mu MU]
+// (--young 1e6 --gravity --iterations 4: the 50k scene of pliant_service_bench, which sags under
+// its weight.)
+#include "pliant/builtin_meshes.hpp"
+#include "pliant/model.hpp"
+#include "pliant/state.hpp"
+#include "pliant/stepper.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+#include <vector>
+
+using namespace pliant;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+struct Variant {
+  const char* name;
+  bool residuals;
+  double floor;
+  int threads;
+  bool tool = true;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int ticks = 60, substeps = 1, iterations = 1;
+  double young = 5e7;
+  bool gravity = false;
+  double mu = -1;  // --mu: the sphere's static and dynamic friction (default: RigidTool's)  // --gravity: -9.81 m/s^2 and the server's default damping (0.5/s), no tool
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--ticks") && i + 1 < argc) ticks = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--substeps") && i + 1 < argc) substeps = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--iterations") && i + 1 < argc) iterations = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--young") && i + 1 < argc) young = std::atof(argv[++i]);
+    else if (!std::strcmp(argv[i], "--gravity")) gravity = true;
+    else if (!std::strcmp(argv[i], "--mu") && i + 1 < argc) mu = std::atof(argv[++i]);
+    else {
+      std::fprintf(stderr, "usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity] [--mu MU]\n");
+      return 2;
+    }
+  }
+  if (ticks < 1 || substeps < 1 || iterations < 1) return 2;
+  const TetMesh mesh = make_beam(51, 21, 11, 0.005);
+  Material mat;
+  mat.young = young;
+  FixedSelection fixed;
+  fixed.boxes.push_back({Vec3(-1e9, -1e9, -1e9), Vec3(1e-3, 1e9, 1e9)});
+  auto model = build_model(mesh, mat, fixed);
+  std::printf("50k beam: %zu vertices, %zu tets, %zu colours; E %g Pa, %s; %d substep(s) x %d iteration(s), %d ticks "
+              "per variant after 30\n",
+              model->vertex_count(), model->tet_count(), model->colours.size(), young,
+              gravity ? "gravity, damping 0.5/s, no tool" : "no gravity, damping 20/s, sphere pressed 4 mm", substeps,
+              iterations, ticks);
+  std::printf("| variant | tick ms | projection | residual | other | update | volume corrections / tick | "
+              "tets with det F < 0.2 / <= 0 / min det F at the end |\n");
+  std::printf("|---|---|---|---|---|---|---|---|\n");
+  const Variant variants[] = {
+      {"server default (residuals on, floor 0.2, 1 thread)", true, 0.2, 1},
+      {"residuals off", false, 0.2, 1},
+      {"inversion floor off", true, 0.0, 1},
+      {"residuals off, floor off", false, 0.0, 1},
+      {"2 threads (residuals on, floor 0.2)", true, 0.2, 2},
+      {"2 threads, residuals off, floor off", false, 0.0, 2},
+      {"no tool: server default", true, 0.2, 1, false},
+      {"no tool: 2 threads, residuals off, floor off", false, 0.0, 2, false},
+  };
+  for (const Variant& var : variants) {
+    SolverSettings s;
+    s.dt = 1.0 / 60;
+    s.substeps = substeps;
+    s.iterations = iterations;
+    if (!gravity) {
+      s.damping_coefficient = 20;
+      s.gravity = Eigen::Vector3d::Zero();
+    }
+    s.record_residuals = var.residuals;
+    s.inversion_floor = var.floor;
+    s.threads = var.threads;
+    BodyState st = rest_state(*model);
+    Stepper stepper;
+    StepInputs in;
+    // The sphere of pliant_haptic_bench's device (r = 1 cm at x = 0.2), lowered over the
+    // first 30 ticks (0.5 s) to 4 mm below the top face (y = 0.1) and held, as its press does.
+    RigidTool sphere = RigidTool::sphere(Eigen::Vector3d(0.2, 0.11, 0.025), 0.01);
+    if (mu >= 0) sphere.static_friction = sphere.dynamic_friction = mu;
+    PhaseTimes sum;
+    double wall = 0, corrections = 0;
+    const int warmup = 30;  // the press reaches its depth
+    for (int k = 0; k < warmup + ticks; ++k) {
+      in.tools.clear();
+      if (var.tool && !gravity) {
+        const double u = std::min(1.0, (k + 1) / 30.0);
+        const double y = 0.11 - 0.004 * 0.5 * (1 - std::cos(M_PI * u));
+        sphere.velocity = Eigen::Vector3d(0, y - sphere.position.y(), 0) / s.dt;
+        sphere.position.y() = y;
+        in.tools.push_back(sphere);
+      }
+      const auto t0 = Clock::now();
+      StepReport r = stepper.step(*model, st, s, in);
+      const double w = ms_since(t0);
+      if (k < warmup) continue;
+      wall += w;
+      sum.projection_ms += r.times.projection_ms;
+      sum.residual_ms += r.times.residual_ms;
+      sum.other_ms += r.times.other_ms;
+      sum.update_ms += r.times.update_ms + r.times.anderson_ms;
+      corrections += r.volume_corrections;
+    }
+    // Volume ratios det F after the last tick: how many tets sit under the floor.
+    int under_floor = 0, inverted = 0;
+    double min_det = 1e300;
+    for (const TetRest& t : model->tets) {
+      Mat3 ds;
+      for (int c = 0; c < 3; ++c) ds.col(c) = st.x[t.v[c]] - st.x[t.v[3]];
+      const double det = (ds * t.dm_inv).determinant();
+      min_det = std::min(min_det, det);
+      under_floor += det < 0.2;
+      inverted += det <= 0;
+    }
+    std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.0f | %d / %d / %.3f |\n", var.name, wall / ticks,
+                sum.projection_ms / ticks, sum.residual_ms / ticks, sum.other_ms / ticks, sum.update_ms / ticks,
+                corrections / ticks, under_floor, inverted, min_det);
+    std::fflush(stdout);
+  }
+
+  // The server's own work per tick (Scene::tick_once), outside Stepper::step.
+  BodyState st = rest_state(*model), last_good;
+  double copy_ms = 0, finite_ms = 0, frame_ms = 0;
+  std::vector<float> positions;
+  for (int k = 0; k < ticks; ++k) {
+    auto t0 = Clock::now();
+    last_good = st;
+    copy_ms += ms_since(t0);
+    t0 = Clock::now();
+    volatile bool ok = is_finite(st);
+    (void)ok;
+    finite_ms += ms_since(t0);
+    t0 = Clock::now();
+    positions.resize(st.x.size() * 3);
+    for (size_t i = 0; i < st.x.size(); ++i)
+      for (int c = 0; c < 3; ++c) positions[3 * i + c] = static_cast<float>(st.x[i][c]);
+    frame_ms += ms_since(t0);
+  }
+  std::printf("server work outside the solver per tick: rollback copy of x, v, lambda %.3f ms; finiteness check "
+              "%.3f ms; frame positions %.3f ms\n",
+              copy_ms / ticks, finite_ms / ticks, frame_ms / ticks);
+  return 0;
+}
