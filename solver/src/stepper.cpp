@@ -252,23 +252,13 @@ struct Stepper::Impl {
       tool.position += tool.velocity * tool_time_offset;
       const Vec3 tool_motion = tool.velocity * h;
       SparseVertexVectors& ts = tool_scratch[t];
-      for (size_t i = 0; i < x.size(); ++i) {
-        if (m.inv_mass[i] == 0) continue;
-        Vec3 q, normal;
-        double depth;
-        if (!tool_contact(tool, x[i], q, normal, depth)) continue;
-        const Vec3 before = x[i];
-        x[i] += depth * normal;
-        const Vec3 dx = x[i] - x_start[i] - tool_motion;  // relative to the tool's surface
-        const Vec3 tangential = dx - dx.dot(normal) * normal;
-        const double tn = tangential.norm();
-        if (tn < tool.static_friction * depth) x[i] -= tangential;
-        else if (tn > 0) x[i] -= tangential * std::min(tool.dynamic_friction * depth / tn, 1.0);
-        ts.value[i] += m.mass[i] * (x[i] - before);
-        ts.normal[i] = normal;
-        ts.mark(int32_t(i));
-        ++n;
-      }
+      // Vertices inside the tool, then boundary triangles (pliant/interaction.hpp).
+      n += project_tool_contacts(m, x, x_start, tool, tool_motion,
+                                 [&ts](int32_t v, const Vec3& dlambda, const Vec3& normal) {
+                                   ts.value[v] += dlambda;
+                                   ts.normal[v] = normal;
+                                   ts.mark(v);
+                                 });
     }
     return n;
   }

@@ -157,6 +157,30 @@ TEST(ToolContact, ASmallSpherePressedIntoACoarseFacePushesItsTriangle) {
   EXPECT_LT(q.y(), 0.01 - 0.0004);
 }
 
+TEST(ToolContact, ASmallToolCannotSinkBetweenTheVerticesOfACoarseFace) {
+  // The stepper projects the triangle contacts: a sphere of radius 1 mm, 1 mm below the middle
+  // of a 5 mm face (no vertex inside it), held there until the beam is at rest, is pushed
+  // back by the body and dents the face. Vertex-only contact feels nothing here.
+  auto m = clamped_beam(1e6);
+  Vec3 g;
+  const Triangle tri = top_triangle_near(*m, Vec3(0.06, 0.01, 0.004), &g);
+  StepInputs in;
+  in.tools.push_back(RigidTool::sphere(g + Vec3(0, 0.001 - 0.001, 0), 0.001));
+  in.tools[0].static_friction = in.tools[0].dynamic_friction = 0;
+  const Settled r = settle(*m, quiet_settings(false), in);
+  EXPECT_TRUE(r.at_rest);
+  const ToolReaction& t = r.report.tools[0];
+  ASSERT_FALSE(t.contacts.empty());
+  EXPECT_GT(t.force.y(), 0);
+  EXPECT_LT(std::abs(t.force.x()), 0.2 * t.force.y());
+  double corner_y = 0;
+  for (int32_t k : tri) corner_y += r.state.x[k].y() / 3;
+  EXPECT_LT(corner_y, 0.01 - 0.0002);  // the face is dented
+  Vec3 sum = Vec3::Zero();
+  for (const ToolContact& c : t.contacts) sum += c.force;
+  EXPECT_NEAR((sum - t.force).norm(), 0, 1e-9 * t.force.norm());
+}
+
 TEST(ToolContact, FacesAroundAVertexInContactAreLeftToTheVertex) {
   // A 2 cm sphere pressed 2 mm onto a top vertex of beam1 (its top neighbours are inside
   // too): one pass (a solver iteration) puts every vertex that was inside on the sphere's

@@ -91,7 +91,8 @@ Eigen::Vector3d closest_point_on_triangle(const Eigen::Vector3d& p, const Eigen:
 // One vertex in contact with a tool during the step.
 struct ToolContact {
   int32_t vertex = -1;
-  Eigen::Vector3d point{0, 0, 0};   // the vertex position at the end of the step (on the surface)
+  Eigen::Vector3d point{0, 0, 0};   // the vertex at the end of the step (on the tool's surface for a
+                                    // vertex contact, a corner of the face for a triangle contact)
   Eigen::Vector3d normal{0, 0, 0};  // tool's outward normal there (last substep in contact)
   Eigen::Vector3d force{0, 0, 0};   // force ON THE TOOL from this contact, N (tick average)
 };
