@@ -11,6 +11,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -60,7 +61,9 @@ common options:
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
 static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)  --damping K (1/s)
-run:       --steps N  --out DIR  --every K
+run:       --steps N  --out DIR  --every K   (last line: JSON with ms_per_step, inverted_tets at
+           the end, max_inverted_tets and steps_with_inverted over all steps, max_speed at the
+           end and peak_speed over all steps, m/s)
 )";
 
 const std::set<std::string> kValued = {
@@ -347,6 +350,16 @@ int cmd_run(const cli::Args& a) {
   for (const TetRest& t : model->tets) frame.tets.push_back(t.v);
   int written = 0, diverged = 0;
   double wall = 0;
+  // Health over the run, checked after every step: the most tets found inverted at a step's
+  // end and the fastest vertex seen (a blow-up shows in both long before positions go wild).
+  size_t worst_inverted = 0;
+  int steps_with_inverted = 0;
+  double peak_speed = 0;
+  auto max_speed = [&] {
+    double v = 0;
+    for (const Vec3& vi : state.v) v = std::max(v, vi.norm());
+    return v;
+  };
   auto write = [&](int k) {
     frame.vertices = state.x;
     char name[64];
@@ -359,14 +372,35 @@ int cmd_run(const cli::Args& a) {
     const StepReport r = stepper.step(*model, state, s);
     wall += r.wall_ms;
     diverged += r.diverged;
+    const size_t inverted = count_inverted(*model, state.x);
+    worst_inverted = std::max(worst_inverted, inverted);
+    steps_with_inverted += inverted > 0;
+    const double speed = max_speed();
+    peak_speed = std::max(peak_speed, speed);
     if (k % every == 0) write(k);
-    if (k % 60 == 0) spdlog::info("step {}/{}: {:.2f} ms/step", k, steps, wall / k);
+    if (spdlog::should_log(spdlog::level::debug)) {
+      // Where the speed is: a few light vertices jittering, or the body moving.
+      size_t fast = 0, fastest = 0;
+      double kinetic = 0;
+      for (size_t i = 0; i < state.v.size(); ++i) {
+        const double vi = state.v[i].norm();
+        fast += vi > 1.0;
+        if (vi > state.v[fastest].norm()) fastest = i;
+        if (model->inv_mass[i] > 0) kinetic += 0.5 * vi * vi / model->inv_mass[i];
+      }
+      spdlog::debug("step {}: {} inverted, max speed {:.3g} m/s (vertex {}, mass {:.3g} kg), {} vertices above 1 m/s, "
+                    "kinetic energy {:.3g} J", k, inverted, speed, fastest,
+                    model->inv_mass[fastest] > 0 ? 1 / model->inv_mass[fastest] : 0.0, fast, kinetic);
+    }
+    if (k % 60 == 0) spdlog::info("step {}/{}: {:.2f} ms/step, {} inverted, max speed {:.3g} m/s", k, steps, wall / k, inverted, speed);
   }
   JsonLine j;
   j.add("mesh", model->name).add("steps", steps).add("frames", written).add("out", out)
       .add("ms_per_step", wall / steps).add("diverged_steps", diverged)
       .add("tip_displacement", tip_displacement(*model, state.x))
-      .add("inverted_tets", long(count_inverted(*model, state.x)));
+      .add("inverted_tets", long(count_inverted(*model, state.x)))
+      .add("max_inverted_tets", long(worst_inverted)).add("steps_with_inverted", steps_with_inverted)
+      .add("max_speed", max_speed()).add("peak_speed", peak_speed);
   std::cout << j.str() << std::endl;
   return 0;
 }

@@ -293,7 +293,8 @@ void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vec
     }
 }
 
-int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor) {
+int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
+                      std::vector<int32_t>* hit) {
   PackGeometry g;
   pack_geometry(p, x, g);
   const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
@@ -301,7 +302,10 @@ int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& m
                   g.f[0][2] * (g.f[1][0] * g.f[2][1] - g.f[1][1] * g.f[2][0]);
   int hits = 0;
   for (int l = 0; l < p.lanes; ++l)
-    if (det[l] < floor) hits += enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, floor);
+    if (det[l] < floor && enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, floor)) {
+      ++hits;
+      if (hit) hit->push_back(int32_t(p.tet[l]));
+    }
   return hits;
 }
 

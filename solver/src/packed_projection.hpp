@@ -45,7 +45,9 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
 void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl);
 
 // Enforces the inversion floor on the real lanes whose det(F) is below it; returns how many.
-int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor);
+// The tets it corrected are appended to hit when given.
+int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
+                      std::vector<int32_t>* hit = nullptr);
 
 // Sum over the real lanes of ||C + alpha~ lambda||^2.
 double pack_residual_squared(const TetPack& p, const std::vector<Vec3>& x,

@@ -17,8 +17,8 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// End-of-substep passes of the inversion floor: each pass only projects tets below the floor,
-// so passes after the first cost a determinant per tet.
+// End-of-substep passes of the inversion floor: the first visits every tet, the later ones only
+// the tets around what the previous pass corrected (nothing else moved).
 constexpr int kVolumePasses = 20;
 
 double ms_since(Clock::time_point t0) {
@@ -67,6 +67,10 @@ struct Stepper::Impl {
   std::vector<Vec6> lambda_saved;
   std::vector<Vec3> jacobi_dx;  // 4 per tet
   std::vector<double> partial;  // per-thread sums
+  std::vector<std::vector<int32_t>> floor_hit_chunks;  // per-thread tets corrected by a floor pass
+  std::vector<int32_t> floor_hit, floor_candidates;
+  std::vector<uint32_t> floor_mark;  // pass number that last queued a tet
+  uint32_t floor_pass = 0;
 
   ThreadPool& threads(int n) {
     if (!pool || pool_threads != n) {
@@ -159,18 +163,54 @@ struct Stepper::Impl {
     return params.inversion_floor > 0 ? volume_pass(m, x, params.inversion_floor, tp) : 0;
   }
 
+  // One pass of the inversion floor over every tet, in colour order. The tets it corrected are
+  // left in floor_hit, sorted (the same list for any thread count).
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp) {
     detail::ensure_packed(packed, m);
-    std::vector<int> hits(tp.size(), 0);
+    floor_hit_chunks.resize(tp.size());
+    for (auto& h : floor_hit_chunks) h.clear();
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) hits[chunk] += detail::pack_volume_floor(packed.packs[first + i], x, m, floor);
+        for (size_t i = b; i < e; ++i)
+          detail::pack_volume_floor(packed.packs[first + i], x, m, floor, &floor_hit_chunks[chunk]);
       }, 32);
     }
-    int total = 0;
-    for (int h : hits) total += h;
-    return total;
+    floor_hit.clear();
+    for (const auto& h : floor_hit_chunks) floor_hit.insert(floor_hit.end(), h.begin(), h.end());
+    std::sort(floor_hit.begin(), floor_hit.end());
+    return int(floor_hit.size());
+  }
+
+  // A later pass: a tet's det F can only have changed if one of its corners was moved by the
+  // previous pass, so only the tets sharing a vertex with a tet in floor_hit are visited, each
+  // once, on this thread (there are few), in the order they are found from floor_hit (the same
+  // for any thread count). Leaves this pass's corrections in floor_hit.
+  int volume_pass_around_hits(const BodyModel& m, std::vector<Vec3>& x, double floor) {
+    ensure_adjacency(m);
+    if (floor_mark.size() != m.tets.size()) {
+      floor_mark.assign(m.tets.size(), 0);
+      floor_pass = 0;
+    }
+    if (++floor_pass == 0) {  // wrapped: clear the marks once in 2^32 passes
+      std::fill(floor_mark.begin(), floor_mark.end(), 0);
+      floor_pass = 1;
+    }
+    floor_candidates.clear();
+    for (int32_t t : floor_hit)
+      for (int k = 0; k < 4; ++k) {
+        const int32_t v = m.tets[t].v[k];
+        for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) {
+          const int32_t n = adj_entry[a] / 4;
+          if (floor_mark[n] == floor_pass) continue;
+          floor_mark[n] = floor_pass;
+          floor_candidates.push_back(n);
+        }
+      }
+    floor_hit.clear();
+    for (int32_t t : floor_candidates)
+      if (detail::enforce_volume_floor(m.tets[t], x, m.inv_mass, floor)) floor_hit.push_back(t);
+    return int(floor_hit.size());
   }
 
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
@@ -441,10 +481,11 @@ StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector
     // Neighbours projected later in a pass can push an earlier tet back under the floor:
     // repeat (kVolumePasses at most) until a pass finds nothing to do.
     PhaseTimer t{rep.times.other_ms};
-    for (int pass = 0; pass < kVolumePasses; ++pass) {
-      const int hits = I.volume_pass(m, x, s.inversion_floor, tp);
+    int hits = I.volume_pass(m, x, s.inversion_floor, tp);
+    rep.volume_corrections += hits;
+    for (int pass = 1; pass < kVolumePasses && hits > 0; ++pass) {
+      hits = I.volume_pass_around_hits(m, x, s.inversion_floor);
       rep.volume_corrections += hits;
-      if (hits == 0) break;
     }
   }
   if (interacting) I.finish_interaction(x, inputs, h, rep);

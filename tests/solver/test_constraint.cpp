@@ -252,8 +252,9 @@ TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
       EXPECT_GT(det_f(with, 0), 0.2);
       EXPECT_LT(det_f(with, 0), 1.5);
     }
-    if (t == 2)
+    if (t == 2) {
       for (int k = 0; k < 4; ++k) EXPECT_EQ(with[tet.v[k]], without[tet.v[k]]);
+    }
     // The scalar kernel (Jacobi sweep) takes the same shortened step.
     const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
     const double w[4] = {model->inv_mass[tet.v[0]], model->inv_mass[tet.v[1]], model->inv_mass[tet.v[2]],
