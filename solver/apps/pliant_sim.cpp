@@ -8,6 +8,7 @@
 #include "pliant/mesh_io.hpp"
 #include "pliant/reference_solver.hpp"
 #include "pliant/stepper.hpp"
+#include "pliant/strain_constraint.hpp"
 
 #include <spdlog/spdlog.h>
 
@@ -57,10 +58,11 @@ common options:
   --inversion-floor F volume floor det F >= F (default 0.2; 0: the thesis's behaviour)
   --no-line-search    take each tet's full projection step, as the thesis (default: halve it
                       until that tet's residual does not grow)
+  --damping K         velocity damping v *= exp(-K h), 1/s (default 0.5; static: 50)
   --log-level L       trace | debug | info | warn | error (default warn)
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
-static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)  --damping K (1/s)
+static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)
 run:       --steps N  --out DIR  --every K   (last line: JSON with ms_per_step, inverted_tets at
            the end, max_inverted_tets and steps_with_inverted over all steps, max_speed at the
            end and peak_speed over all steps, m/s)
@@ -147,6 +149,7 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   s.threads = int(a.integer("threads", s.threads, 1, 256));
   s.inversion_floor = a.number("inversion-floor", s.inversion_floor);
   if (a.has("no-line-search")) s.line_search = false;
+  s.damping_coefficient = a.number("damping", s.damping_coefficient);
 
   if (std::string err = validate(s); !err.empty()) throw cli::UsageError(err);
   return s;
@@ -296,7 +299,6 @@ int cmd_static(const cli::Args& a) {
   s.damping_coefficient = 50.0;
   s = settings_from(a, s);
   if (!a.has("omega")) s.omega = default_omega(s.method);
-  s.damping_coefficient = a.number("damping", s.damping_coefficient);
   const int max_steps = int(a.integer("max-steps", 2000, 1, 10000000));
   const double speed_tol = a.number("speed-tol", 1e-4);
   const bool progress = a.has("progress");
@@ -393,6 +395,15 @@ int cmd_run(const cli::Args& a) {
                     model->inv_mass[fastest] > 0 ? 1 / model->inv_mass[fastest] : 0.0, fast, kinetic);
     }
     if (k % 60 == 0) spdlog::info("step {}/{}: {:.2f} ms/step, {} inverted, max speed {:.3g} m/s", k, steps, wall / k, inverted, speed);
+  }
+  if (spdlog::should_log(spdlog::level::debug)) {
+    double mean_volume = 0;
+    for (const TetRest& t : model->tets) mean_volume += t.volume / double(model->tets.size());
+    for (size_t t = 0; t < model->tets.size(); ++t) {
+      const double j = volume_ratio(model->tets[t], gather(state.x, model->tets[t].v));
+      if (j <= 0) spdlog::debug("inverted at the end: tet {} det F {:.3g}, rest volume {:.2g} of the mean", t, j,
+                                model->tets[t].volume / mean_volume);
+    }
   }
   JsonLine j;
   j.add("mesh", model->name).add("steps", steps).add("frames", written).add("out", out)
