@@ -90,8 +90,7 @@ RestResult run_to_rest(const BodyModel& model, const SolverSettings& settings, i
   for (int k = 0; k < max_steps; ++k) {
     res.last_report = stepper.step(model, res.state, settings);
     res.steps = k + 1;
-    double vmax = 0;
-    for (const Vec3& v : res.state.v) vmax = std::max(vmax, v.norm());
+    const double vmax = max_speed(res.state);
     res.max_speed = vmax;
     if (res.last_report.diverged || !std::isfinite(vmax)) {
       res.diverged = true;

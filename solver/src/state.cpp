@@ -2,6 +2,8 @@
 
 #include "pliant/strain_constraint.hpp"
 
+#include <algorithm>
+
 namespace pliant {
 
 BodyState rest_state(const BodyModel& model) {
@@ -25,6 +27,12 @@ size_t count_inverted(const BodyModel& model, const std::vector<Vec3>& x) {
   for (const TetRest& t : model.tets)
     if (volume_ratio(t, gather(x, t.v)) <= 0) ++n;
   return n;
+}
+
+double max_speed(const BodyState& state) {
+  double v = 0;
+  for (const Vec3& vi : state.v) v = std::max(v, vi.norm());
+  return v;
 }
 
 }  // namespace pliant

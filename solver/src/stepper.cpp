@@ -69,8 +69,7 @@ struct Stepper::Impl {
   std::vector<double> partial;  // per-thread sums
   std::vector<std::vector<int32_t>> floor_hit_chunks;  // per-thread tets corrected by a floor pass
   std::vector<int32_t> floor_hit, floor_candidates;
-  std::vector<uint32_t> floor_mark;  // pass number that last queued a tet
-  uint32_t floor_pass = 0;
+  std::vector<uint8_t> floor_queued;  // per tet, set only while a pass collects its candidates
 
   ThreadPool& threads(int n) {
     if (!pool || pool_threads != n) {
@@ -188,25 +187,20 @@ struct Stepper::Impl {
   // for any thread count). Leaves this pass's corrections in floor_hit.
   int volume_pass_around_hits(const BodyModel& m, std::vector<Vec3>& x, double floor) {
     ensure_adjacency(m);
-    if (floor_mark.size() != m.tets.size()) {
-      floor_mark.assign(m.tets.size(), 0);
-      floor_pass = 0;
-    }
-    if (++floor_pass == 0) {  // wrapped: clear the marks once in 2^32 passes
-      std::fill(floor_mark.begin(), floor_mark.end(), 0);
-      floor_pass = 1;
-    }
+    floor_queued.resize(m.tets.size(), 0);
     floor_candidates.clear();
     for (int32_t t : floor_hit)
       for (int k = 0; k < 4; ++k) {
         const int32_t v = m.tets[t].v[k];
         for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) {
           const int32_t n = adj_entry[a] / 4;
-          if (floor_mark[n] == floor_pass) continue;
-          floor_mark[n] = floor_pass;
-          floor_candidates.push_back(n);
+          if (!floor_queued[n]) {
+            floor_queued[n] = 1;
+            floor_candidates.push_back(n);
+          }
         }
       }
+    for (int32_t n : floor_candidates) floor_queued[n] = 0;
     floor_hit.clear();
     for (int32_t t : floor_candidates)
       if (detail::enforce_volume_floor(m.tets[t], x, m.inv_mass, floor)) floor_hit.push_back(t);

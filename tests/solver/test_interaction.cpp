@@ -36,12 +36,6 @@ SolverSettings quiet_settings(bool gravity) {
   return s;
 }
 
-double max_speed(const BodyState& st) {
-  double v = 0;
-  for (const Vec3& vi : st.v) v = std::max(v, vi.norm());
-  return v;
-}
-
 struct Settled {
   BodyState state;
   StepReport report;

@@ -211,7 +211,7 @@ TEST(Inversion, FloorPassesLeaveNoTetBelowTheFloor) {
   EXPECT_GT(r.volume_corrections, 0);
   double lowest = 1e300;
   for (const TetRest& t : model->tets) lowest = std::min(lowest, volume_ratio(t, gather(state.x, t.v)));
-  // One linearised correction lands within round-off of the floor, not exactly on it.
+  // A correction is one linearised step on a cubic det F: it lands near the floor, not on it.
   EXPECT_GE(lowest, s.inversion_floor - 1e-3) << inverted_before << " inverted before, "
                                                << r.volume_corrections << " corrections";
 }

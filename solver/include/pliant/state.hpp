@@ -28,4 +28,7 @@ bool is_finite(const BodyState& state);
 // Number of tets with det(F) <= 0.
 size_t count_inverted(const BodyModel& model, const std::vector<Vec3>& x);
 
+// The largest vertex speed, m/s.
+double max_speed(const BodyState& state);
+
 }  // namespace pliant
