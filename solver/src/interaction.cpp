@@ -246,7 +246,7 @@ int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vec
     const double tri_r = std::sqrt(std::max({(x[v[0]] - centre).squaredNorm(), (x[v[1]] - centre).squaredNorm(),
                                              (x[v[2]] - centre).squaredNorm()}));
     if ((centre - tool.position).norm() > reach + tri_r) continue;
-    V3 core, p;
+    V3 core = V3::Zero(), p = V3::Zero();  // set by closest_core_triangle; zeroed for GCC 12 -Wmaybe-uninitialized
     std::array<double, 3> b{};
     closest_core_triangle(tool, x[v[0]], x[v[1]], x[v[2]], core, p, b);
     if (b[0] >= kCorner || b[1] >= kCorner || b[2] >= kCorner) continue;
