@@ -1,6 +1,7 @@
 // Google Benchmark: cost of the solver's iterations in ns per tet-iteration, on the thesis
 // beam3 and armadillo, per sweep, accelerator and thread count.
 //   build/bench/bench_solver --benchmark_counters_tabular=true
+//   PLIANT_BENCH_MESHES=a.node:b.node build/bench/bench_solver ...   (more meshes)
 // The counter s_per_tet_iter is wall time / (iterations x tets) of one substep solve.
 #include "pliant/experiments.hpp"
 #include "pliant/mesh_io.hpp"
@@ -8,6 +9,8 @@
 
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
+#include <cstdlib>
 #include <map>
 #include <memory>
 
@@ -32,13 +35,15 @@ const Setup& setup(const std::string& mesh) {
   return cache.emplace(mesh, std::move(s)).first->second;
 }
 
-void run(benchmark::State& state, const std::string& mesh, Method method, Sweep sweep, bool residuals) {
+void run(benchmark::State& state, const std::string& mesh, Method method, Sweep sweep, bool residuals,
+         bool line_search) {
   const Setup& su = setup(mesh);
   SolverSettings s;
   s.method = method;
   s.sweep = sweep;
   s.omega = method == Method::AndersonSor ? 2.0 : (method == Method::Sor ? 1.5 : 1.0);
   s.iterations = 20;
+  s.line_search = line_search;
   s.threads = int(state.range(0));
   s.record_residuals = residuals || method == Method::AndersonSor || method == Method::Anderson;
   Stepper stepper;
@@ -69,20 +74,32 @@ void run(benchmark::State& state, const std::string& mesh, Method method, Sweep 
 }
 
 void register_all() {
-  for (const std::string mesh : {"beam3", "armadillo"}) {
+  std::vector<std::string> meshes = {"beam3", "armadillo"};
+  // More meshes (a builtin name or a mesh path each, ':'-separated) to compare layouts.
+  if (const char* extra = std::getenv("PLIANT_BENCH_MESHES")) {
+    std::string list = extra;
+    for (size_t at = 0; at <= list.size();) {
+      const size_t end = std::min(list.find(':', at), list.size());
+      if (end > at) meshes.push_back(list.substr(at, end - at));
+      at = end + 1;
+    }
+  }
+  for (const std::string& mesh : meshes) {
     struct Variant {
       const char* name;
       Method method;
       Sweep sweep;
       bool residuals;
+      bool line_search = true;
     };
     for (const Variant& v : {Variant{"gs_xpbd", Method::Xpbd, Sweep::GaussSeidel, false},
+                             Variant{"gs_xpbd_no_line_search", Method::Xpbd, Sweep::GaussSeidel, false, false},
                              Variant{"gs_xpbd_residual", Method::Xpbd, Sweep::GaussSeidel, true},
                              Variant{"jacobi_xpbd", Method::Xpbd, Sweep::Jacobi, false},
                              Variant{"gs_chebyshev", Method::Chebyshev, Sweep::GaussSeidel, false},
                              Variant{"gs_anderson_sor", Method::AndersonSor, Sweep::GaussSeidel, true}}) {
       benchmark::RegisterBenchmark((std::string(v.name) + "/" + mesh).c_str(),
-                                   [=](benchmark::State& st) { run(st, mesh, v.method, v.sweep, v.residuals); })
+                                   [=](benchmark::State& st) { run(st, mesh, v.method, v.sweep, v.residuals, v.line_search); })
           ->Arg(1)->Arg(2)->ArgName("threads")->Unit(benchmark::kMillisecond)->UseRealTime();
     }
   }

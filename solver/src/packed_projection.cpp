@@ -18,6 +18,7 @@ void ensure_packed(PackedModel& pm, const BodyModel& m) {
   pm.model_id = m.id;
   pm.packs.clear();
   pm.colour_begin.assign(1, 0);
+  pm.tet_slot.assign(m.tets.size(), 0);
   for (const auto& unsorted : m.colours) {
     // Within a colour the order is free: sort by lowest vertex index so that neighbouring packs
     // touch nearby memory (the thesis armadillo's numbering is otherwise scattered).
@@ -27,10 +28,12 @@ void ensure_packed(PackedModel& pm, const BodyModel& m) {
     for (size_t start = 0; start < colour.size(); start += 4) {
       TetPack p{};
       p.lanes = int(std::min<size_t>(4, colour.size() - start));
+      p.slot = int32_t(4 * pm.packs.size());
       for (int l = 0; l < 4; ++l) {
         const int32_t t = colour[start + std::min(l, p.lanes - 1)];
         const TetRest& tr = m.tets[t];
         p.tet[l] = t;
+        if (l < p.lanes) pm.tet_slot[t] = p.slot + l;
         for (int k = 0; k < 4; ++k) {
           p.v[k][l] = tr.v[k];
           p.w[k][l] = m.inv_mass[tr.v[k]];
@@ -100,7 +103,7 @@ inline void pack_constraint(const TetPack& p, const PackGeometry& g, v4d C[6]) {
 
 inline void gather_lambda(const TetPack& p, const std::vector<Vec6>& lambda, v4d lam[6]) {
   for (int l = 0; l < 4; ++l) {
-    const Vec6& a = lambda[p.tet[l]];
+    const Vec6& a = lambda[p.slot + l];
     for (int r = 0; r < 6; ++r) lam[r][l] = a[r];
   }
 }
@@ -262,9 +265,9 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
     if (!ok) continue;  // not positive definite (cannot happen with alpha~ > 0): skip the tet
     const int32_t t = p.tet[l];
     const double a = step[l];
-    Vec6& dl = dlambda[t];
+    Vec6& dl = dlambda[p.slot + l];
     for (int r = 0; r < 6; ++r) dl[r] = a * y[r][l];
-    lambda[t] += dl;
+    lambda[p.slot + l] += dl;
     for (int k = 0; k < 4; ++k) {
       Vec3& q = x[p.v[k][l]];
       q[0] += a * dx[k][0][l];

@@ -3,6 +3,11 @@
 // kernel is the same algebra as projection.cpp written on 4-wide vectors (GCC vector
 // extensions: AVX with -march supporting it, two SSE2 halves otherwise). Padding lanes of the
 // last pack of a colour repeat a real tet and are never written back.
+//
+// The multipliers (lambda, dlambda) the packed kernels read and write are in SLOT order: pack
+// i owns slots 4i..4i+3, one per lane, so a sweep walks them contiguously. Indexed by tet (the
+// mesh's order, scattered within a colour) they cost a cache miss per tet on large meshes; the
+// Stepper keeps them in slots while it solves and hands them out per tet (tet_slot).
 #pragma once
 
 #include "pliant/model.hpp"
@@ -23,25 +28,29 @@ struct alignas(32) TetPack {
   int32_t tet[4];
   int32_t v[4][4];  // v[corner][lane]
   int lanes;        // real lanes (1..4)
+  int32_t slot;     // multiplier slot of lane 0 (4 x the pack's index); lane l has slot + l
 };
 
 struct PackedModel {
   uint64_t model_id = 0;  // BodyModel::id the packs were built from
   std::vector<TetPack> packs;
   std::vector<size_t> colour_begin;  // packs of colour c: [colour_begin[c], colour_begin[c+1])
+  std::vector<int32_t> tet_slot;     // multiplier slot of each tet
+  size_t slot_count() const { return 4 * packs.size(); }  // padding lanes' slots stay zero
 };
 
 // (Re)builds the packs when `model` differs from the one they were built for.
 void ensure_packed(PackedModel& packed, const BodyModel& model);
 
-// Gauss-Seidel projection of one pack: x, lambda and dlambda updated for the real lanes.
+// Gauss-Seidel projection of one pack: x, lambda and dlambda (slot order) updated for the real
+// lanes.
 // Returns the number of lanes below the inversion floor (handled here, scalar). With
 // line_search, each tet's step is shortened until its own residual does not grow.
 int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                  std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
                  double lambda_scale, double inversion_floor, bool line_search);
 
-// x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update).
+// x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update; dl in slots).
 void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl);
 
 // Enforces the inversion floor on the real lanes whose det(F) is below it; returns how many.
@@ -49,7 +58,7 @@ void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vec
 int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
                       std::vector<int32_t>* hit = nullptr);
 
-// Sum over the real lanes of ||C + alpha~ lambda||^2.
+// Sum over the real lanes of ||C + alpha~ lambda||^2 (lambda in slots).
 double pack_residual_squared(const TetPack& p, const std::vector<Vec3>& x,
                              const std::vector<Vec6>& lambda, const Mat6& alpha_tilde);
 

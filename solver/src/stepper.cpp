@@ -61,11 +61,17 @@ struct Stepper::Impl {
   detail::PackedModel packed;
   std::vector<int32_t> adj_start, adj_entry;
 
+  // The strain multipliers of the substep being solved and the last sweep's increment, in
+  // slot order (packed_projection.hpp): contiguous per pack, so the sweep reads them in order.
+  std::vector<Vec6> lam, dlambda;
+  uint64_t dlambda_model = 0;  // the packs dlambda was zeroed for
+
   // Scratch.
-  std::vector<Vec6> dlambda;
   std::vector<Vec3> x_before, x_saved, v_prev;
   std::vector<Vec6> lambda_saved;
-  std::vector<Vec3> jacobi_dx;  // 4 per tet
+  std::vector<Vec3> jacobi_dx;  // 4 per slot
+  std::vector<int32_t> jacobi_entry;  // adj_entry in slots: 4 x slot + corner
+  uint64_t jacobi_model = 0;
   std::vector<double> partial;  // per-thread sums
   std::vector<std::vector<int32_t>> floor_hit_chunks;  // per-thread tets corrected by a floor pass
   std::vector<int32_t> floor_hit, floor_candidates;
@@ -136,26 +142,45 @@ struct Stepper::Impl {
   int sweep_jacobi(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                    const detail::ProjectionParams& params, double relaxation, ThreadPool& tp) {
     ensure_adjacency(m);
-    jacobi_dx.resize(4 * m.tets.size());
-    tp.parallel_for(m.tets.size(), [&](int, size_t b, size_t e) {
-      for (size_t t = b; t < e; ++t) {
-        const TetRest& tet = m.tets[t];
-        const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-        const double w[4] = {m.inv_mass[tet.v[0]], m.inv_mass[tet.v[1]], m.inv_mass[tet.v[2]],
-                             m.inv_mass[tet.v[3]]};
-        detail::strain_increment(tet, p, w, lambda[t], params, dlambda[t], &jacobi_dx[4 * t]);
-        int most = 1;
-        for (int k = 0; k < 4; ++k) most = std::max(most, int(m.vertex_tet_count[tet.v[k]]));
-        const double scale = relaxation / most;
-        dlambda[t] *= scale;
-        lambda[t] += dlambda[t];
-        for (int k = 0; k < 4; ++k) jacobi_dx[4 * t + k] *= scale;
+    detail::ensure_packed(packed, m);
+    if (jacobi_model != m.id || m.id == 0) {
+      // The gather of corner corrections, addressed by slot: 4 x slot + corner.
+      jacobi_model = m.id;
+      jacobi_entry.resize(adj_entry.size());
+      for (size_t a = 0; a < adj_entry.size(); ++a)
+        jacobi_entry[a] = 4 * packed.tet_slot[adj_entry[a] / 4] + adj_entry[a] % 4;
+    }
+    jacobi_dx.resize(4 * packed.slot_count());
+    // Tets in slot order, so that the multipliers and the corrections are walked in order.
+    tp.parallel_for(packed.packs.size(), [&](int, size_t b, size_t e) {
+      for (size_t i = b; i < e; ++i) {
+        const detail::TetPack& pack = packed.packs[i];
+        for (int l = 0; l < pack.lanes; ++l) {
+          // The tet's rest data from the pack (read in order, unlike m.tets[pack.tet[l]]).
+          TetRest tet;
+          for (int k = 0; k < 4; ++k) tet.v[k] = pack.v[k][l];
+          for (int k = 0; k < 3; ++k)
+            for (int c = 0; c < 3; ++c) tet.dm_inv(k, c) = pack.B[3 * k + c][l];
+          tet.volume = pack.volume[l];
+          tet.sqrt_volume = pack.sqrt_volume[l];
+          const int32_t slot = pack.slot + l;
+          const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+          const double w[4] = {pack.w[0][l], pack.w[1][l], pack.w[2][l], pack.w[3][l]};
+          Vec3* dx = &jacobi_dx[4 * size_t(slot)];
+          detail::strain_increment(tet, p, w, lambda[slot], params, dlambda[slot], dx);
+          int most = 1;
+          for (int k = 0; k < 4; ++k) most = std::max(most, int(m.vertex_tet_count[tet.v[k]]));
+          const double scale = relaxation / most;
+          dlambda[slot] *= scale;
+          lambda[slot] += dlambda[slot];
+          for (int k = 0; k < 4; ++k) dx[k] *= scale;
+        }
       }
-    });
+    }, 16);
     tp.parallel_for(m.vertex_count(), [&](int, size_t b, size_t e) {
       for (size_t v = b; v < e; ++v) {
         Vec3 sum = Vec3::Zero();
-        for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) sum += jacobi_dx[adj_entry[a]];
+        for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) sum += jacobi_dx[jacobi_entry[a]];
         x[v] += sum;
       }
     });
@@ -205,6 +230,17 @@ struct Stepper::Impl {
     for (int32_t t : floor_candidates)
       if (detail::enforce_volume_floor(m.tets[t], x, m.inv_mass, floor)) floor_hit.push_back(t);
     return int(floor_hit.size());
+  }
+
+  // Multipliers per tet <-> slots. Tets missing from `lambda` count as zero.
+  void multipliers_to_slots(const BodyModel& m, const std::vector<Vec6>& lambda) {
+    detail::ensure_packed(packed, m);
+    lam.assign(packed.slot_count(), Vec6::Zero());
+    for (size_t t = 0; t < std::min(lambda.size(), m.tets.size()); ++t) lam[packed.tet_slot[t]] = lambda[t];
+  }
+  void multipliers_from_slots(const BodyModel& m, std::vector<Vec6>& lambda) const {
+    lambda.resize(m.tets.size());
+    for (size_t t = 0; t < m.tets.size(); ++t) lambda[t] = lam[packed.tet_slot[t]];
   }
 
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
@@ -337,27 +373,34 @@ void Stepper::set_iteration_hook(IterationHook hook) { impl_->hook = std::move(h
 StepReport Stepper::solve_substep(const BodyModel& m, const std::vector<Vec3>& x_prev,
                                   std::vector<Vec3>& x, std::vector<Vec6>& lambda, double h,
                                   const SolverSettings& s, const StepInputs& inputs) {
-  return solve_substep_budgeted(m, x_prev, x, lambda, h, s, inputs, 0.0);
+  impl_->multipliers_to_slots(m, lambda);
+  StepReport rep = solve_in_slots(m, x_prev, x, h, s, inputs, 0.0);
+  impl_->multipliers_from_slots(m, lambda);
+  return rep;
 }
 
-StepReport Stepper::solve_substep_budgeted(const BodyModel& m, const std::vector<Vec3>& x_prev,
-                                           std::vector<Vec3>& x, std::vector<Vec6>& lambda,
-                                           double h, const SolverSettings& s,
-                                           const StepInputs& inputs, double budget_ms) {
+StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x,
+                                   double h, const SolverSettings& s, const StepInputs& inputs,
+                                   double budget_ms) {
   Impl& I = *impl_;
+  std::vector<Vec6>& lambda = I.lam;
   const auto t_start = Clock::now();
   StepReport rep;
   rep.substeps = 1;
   ThreadPool& tp = I.threads(s.threads);
   auto accel = detail::make_accelerator(s);
-  accel->begin_substep(m.vertex_count(), m.tet_count());
+  detail::ensure_packed(I.packed, m);
+  accel->begin_substep(m.vertex_count(), I.packed.slot_count());
   detail::ProjectionParams params;
   params.alpha_tilde = m.compliance / (h * h);
   params.lambda_scale = accel->increment_scale();
   params.inversion_floor = s.inversion_floor;
   params.line_search = s.line_search;
-  I.dlambda.resize(m.tet_count());
-  lambda.resize(m.tet_count(), Vec6::Zero());
+  // Every real slot is written by each sweep; padding slots must read zero for the accelerators.
+  if (I.dlambda_model != I.packed.model_id || I.dlambda.size() != I.packed.slot_count()) {
+    I.dlambda.assign(I.packed.slot_count(), Vec6::Zero());
+    I.dlambda_model = I.packed.model_id;
+  }
   const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();
   if (interacting) I.begin_interaction(m.vertex_count(), inputs);
 
@@ -520,8 +563,8 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
       state.v[i] += h * a;
       state.x[i] += h * state.v[i];
     }
-    if (state.lambda.size() != m.tet_count()) state.lambda.assign(m.tet_count(), Vec6::Zero());
-    std::fill(state.lambda.begin(), state.lambda.end(), Vec6::Zero());
+    detail::ensure_packed(I.packed, m);
+    I.lam.assign(I.packed.slot_count(), Vec6::Zero());
     state.lambda_h = h;
     total.times.other_ms += ms_since(t_other);
 
@@ -530,8 +573,8 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     // The report carries the residual history of the last substep only; earlier substeps
     // compute residuals only when the method or a tolerance needs them.
     I.tool_time_offset = (sub + 1 - n) * h;
-    StepReport r = solve_substep_budgeted(m, I.v_prev, state.x, state.lambda, h, sub + 1 == n ? s : quiet,
-                                          inputs, s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
+    StepReport r = solve_in_slots(m, I.v_prev, state.x, h, sub + 1 == n ? s : quiet, inputs,
+                                  s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
 
     const auto t_vel = Clock::now();
     for (size_t i = 0; i < nv; ++i) state.v[i] = (state.x[i] - I.v_prev[i]) / h;
@@ -570,6 +613,8 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     }
   }
   I.tool_time_offset = 0;  // solve_substep on its own: tools at their pose
+  // The last substep's multipliers, per tet (the constraint forces of the step).
+  if (n > 0) I.multipliers_from_slots(m, state.lambda);
   if (interacting) {
     // Averages over the substeps: the impulse delivered during the step divided by dt.
     for (size_t t = 0; t < total.tools.size(); ++t) {

@@ -86,10 +86,11 @@ class Stepper {
   void set_iteration_hook(IterationHook hook);
 
  private:
-  StepReport solve_substep_budgeted(const BodyModel& model, const std::vector<Vec3>& x_prev,
-                                    std::vector<Vec3>& x, std::vector<Vec6>& lambda, double h,
-                                    const SolverSettings& settings, const StepInputs& inputs,
-                                    double budget_ms);
+  // The substep solve on the stepper's own multipliers (kept in the packed sweep's slot order
+  // between substeps; step() hands them out per tet once, at the end).
+  StepReport solve_in_slots(const BodyModel& model, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x,
+                            double h, const SolverSettings& settings, const StepInputs& inputs,
+                            double budget_ms);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
