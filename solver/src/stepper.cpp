@@ -149,6 +149,8 @@ struct Stepper::Impl {
       jacobi_entry.resize(adj_entry.size());
       for (size_t a = 0; a < adj_entry.size(); ++a)
         jacobi_entry[a] = 4 * packed.tet_slot[adj_entry[a] / 4] + adj_entry[a] % 4;
+      for (size_t v = 0; v < m.vertex_count(); ++v)  // each vertex reads its corrections in memory order
+        std::sort(jacobi_entry.begin() + adj_start[v], jacobi_entry.begin() + adj_start[v + 1]);
     }
     jacobi_dx.resize(4 * packed.slot_count());
     // Tets in slot order, so that the multipliers and the corrections are walked in order.
