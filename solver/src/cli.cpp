@@ -22,7 +22,7 @@ Args::Args(int argc, char** argv, int first, const std::set<std::string>& valued
       continue;
     }
     if (flags.count(name)) {
-      values_[name] = "1";
+      values_.insert_or_assign(name, std::string("1"));  // not operator=(const char*): GCC 12 -Wrestrict false positive
     } else if (valued.count(name)) {
       if (i + 1 >= argc) throw UsageError("option --" + name + " needs a value");
       values_[name] = argv[++i];
