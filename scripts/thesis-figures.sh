@@ -51,7 +51,23 @@ for E in 1e7 1e5; do
 done
 fi
 
-# 5. Plots.
+# 5. What a real-time budget gives: beam3 brought to rest under gravity at a 60 Hz tick with
+#    S substeps x 1 iteration, against the Newton equilibrium of the same mesh. SKIP_REALTIME=1
+#    keeps the previous data (about 5 minutes).
+if [ "${SKIP_REALTIME:-0}" != 1 ]; then
+: > "$D/realtime_accuracy_beam3.jsonl"
+for E in 1e4 1e5 1e6 1e7; do
+  for S in 64 256 1024; do
+    say "real-time budget beam3 E=$E ${S}x1"
+    "$SIM" static --mesh beam3 --young "$E" --substeps "$S" --iterations 1 --dt 1/60 --damping 5 \
+      --speed-tol 1e-3 --max-steps 600 | tail -n 1 >> "$D/realtime_accuracy_beam3.jsonl" || true
+  done
+  say "Newton reference beam3 E=$E"
+  "$SIM" reference --mesh beam3 --young "$E" --steps 10 | tail -n 1 >> "$D/realtime_accuracy_beam3.jsonl" || true
+done
+fi
+
+# 6. Plots.
 if command -v gnuplot >/dev/null; then
   gnuplot <<GP
 set datafile separator ","
