@@ -79,6 +79,8 @@ Scene flags (create and update):
   --method xpbd|sor|lambda-sor|chebyshev|anderson|anderson-sor|extrapolation
   --sweep gauss-seidel|jacobi   --substeps N   --iterations N   --window M   --omega W
   --tolerance T         --time-budget-ms MS    --threads N     --paused (create paused)
+  --wave-courant C      let the server pick the substeps: the fewest with a pressure wave
+                        crossing at most C elements per substep (0.3 resolves the material)
 
 Exit codes: 0 ok, 1 refused by the server, 2 usage, 3 server unreachable, 4 not found,
 5 authentication.
@@ -227,6 +229,14 @@ void print_scene(const v1::Scene& s, bool json) {
               v1::Method_Name(so.method()).c_str(), v1::Sweep_Name(so.sweep()).c_str(), so.substeps(),
               so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
   std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
+  // What the number means with one iteration per substep (measured on beam3, docs/solver.md);
+  // with more iterations it has not been measured, so nothing is said.
+  const double co = s.wave_courant_number();
+  const char* meaning = so.iterations() != 1 ? ""
+                        : co > 1             ? "; above 1 with 1 iteration: clearly softer than the material"
+                        : co > 0.3           ? "; 0.3-1 with 1 iteration: somewhat softer than the material"
+                                             : "; at most 0.3 with 1 iteration: close to the material (2-5% on the beams)";
+  std::printf("resolution a pressure wave crosses %.2g elements per substep (wave_courant_number%s)\n", co, meaning);
   std::printf("progress   tick %llu, t %.4f s, %.1f ticks/s, late %llu, skipped %llu, rollbacks %llu\n",
               static_cast<unsigned long long>(s.tick()), s.sim_time(), s.ticks_per_second(),
               static_cast<unsigned long long>(s.late_ticks()), static_cast<unsigned long long>(s.skipped_ticks()),
@@ -273,6 +283,7 @@ bool read_settings(Args& a, v1::SolverSettings* so, v1::TickSettings* tick, v1::
   num("omega", [&](double x) { so->set_omega(x); });
   num("tolerance", [&](double x) { so->set_tolerance(x); });
   num("time-budget-ms", [&](double x) { so->set_time_budget_ms(x); });
+  num("wave-courant", [&](double x) { so->set_target_wave_courant_number(x); });
   num("dt", [&](double x) { tick->set_dt(x); });
   num("rate", [&](double x) {
     if (x <= 0) throw Usage("--rate must be > 0 Hz");

@@ -49,6 +49,8 @@ common options:
   --anderson-form F   thesis | type2 (default thesis)
   --iterations N      iterations (per substep)
   --substeps N        substeps per step
+  --wave-courant C    instead of --substeps: the fewest substeps that keep a pressure wave
+                      within C elements per substep (static, run; 0.3 resolves the material)
   --dt H              step length, s (fractions like 1/60 accepted)
   --omega W           over-relaxation factor of sor / lambda-sor / anderson-sor / extrapolation
   --window M          Anderson window (default 5)
@@ -63,6 +65,8 @@ common options:
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
 static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)
+static and run also print wave_courant_number: c_p h / mean edge, the elements a pressure wave
+           crosses per substep; with 1 iteration per substep the body is too soft above ~0.3
 run:       --steps N  --out DIR  --every K   (last line: JSON with ms_per_step, inverted_tets at
            the end, max_inverted_tets and steps_with_inverted over all steps, max_speed at the
            end and peak_speed over all steps, m/s)
@@ -70,7 +74,7 @@ run:       --steps N  --out DIR  --every K   (last line: JSON with ms_per_step, 
 
 const std::set<std::string> kValued = {
     "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
-    "substeps", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
+    "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
     "steps", "out", "every", "inversion-floor"};
 const std::set<std::string> kFlags = {"help", "progress", "no-line-search"};
@@ -139,6 +143,7 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   }
   s.iterations = int(a.integer("iterations", s.iterations, 0, 1000000));
   s.substeps = int(a.integer("substeps", s.substeps, 1, 100000));
+  s.target_wave_courant_number = a.number("wave-courant", s.target_wave_courant_number);
   s.dt = a.number("dt", s.dt);
   s.omega = a.number("omega", s.omega);
   s.window = int(a.integer("window", s.window, 1, 50));
@@ -165,14 +170,6 @@ double default_omega(Method m) {
     case Method::Extrapolation: return 2.0;
     default: return 1.0;
   }
-}
-
-double mean_edge_length(const BodyModel& m) {
-  double sum = 0;
-  for (const TetRest& t : m.tets)
-    for (int a = 0; a < 4; ++a)
-      for (int b = a + 1; b < 4; ++b) sum += (m.rest_positions[t.v[a]] - m.rest_positions[t.v[b]]).norm();
-  return sum / (6.0 * double(m.tet_count()));
 }
 
 std::shared_ptr<const BodyModel> load_model(const cli::Args& a, const Material& mat, std::optional<double> fix_x) {
@@ -279,7 +276,7 @@ int cmd_converge(const cli::Args& a) {
 int cmd_static(const cli::Args& a) {
   const Material mat = material_from(a);
   auto model = load_model(a, mat, a.number("fix-x-max"));
-  const bool solver_flags = a.has("method") || a.has("substeps") || a.has("iterations") || a.has("dt") ||
+  const bool solver_flags = a.has("method") || a.has("substeps") || a.has("wave-courant") || a.has("iterations") || a.has("dt") ||
                             a.has("sweep") || a.has("tolerance");
   SolverSettings s;
   if (!solver_flags) {
@@ -288,8 +285,8 @@ int cmd_static(const cli::Args& a) {
     // few tens of sweeps only when alpha/h^2 dominates J M^-1 J^T, i.e. when a substep is no
     // longer than a couple of times the time a pressure wave needs to cross one element
     // (measured in docs/solver.md). So: substeps of h = 2 l / c_p, 30 iterations each.
-    const double c_p = std::sqrt((model->lame.lambda + 2 * model->lame.mu) / mat.density);
-    const double h = 2.0 * mean_edge_length(*model) / c_p;
+    const double c_p = pressure_wave_speed(*model);
+    const double h = 2.0 * model->mean_edge / c_p;
     s.dt = 1.0 / 60.0;
     s.substeps = std::max(1, int(std::ceil(s.dt / h)));
     s.iterations = 30;
@@ -307,8 +304,9 @@ int cmd_static(const cli::Args& a) {
   });
   JsonLine j;
   j.add("mesh", model->name).add("young", mat.young).add("poisson", mat.poisson).add("density", mat.density)
-      .add("method", std::string(to_string(s.method))).add("substeps", s.substeps).add("iterations", s.iterations)
+      .add("method", std::string(to_string(s.method))).add("substeps", effective_substeps(*model, s)).add("iterations", s.iterations)
       .add("dt", s.dt).add("tip_displacement", tip_displacement(*model, r.state.x)).add("steps", r.steps)
+      .add("wave_courant_number", wave_courant_number(*model, s.dt / effective_substeps(*model, s)))
       .add("max_speed", r.max_speed).add("at_rest", r.at_rest).add("diverged", r.diverged)
       .add("inverted_tets", long(count_inverted(*model, r.state.x)));
   std::cout << j.str() << std::endl;
@@ -403,6 +401,8 @@ int cmd_run(const cli::Args& a) {
   JsonLine j;
   j.add("mesh", model->name).add("steps", steps).add("frames", written).add("out", out)
       .add("ms_per_step", wall / steps).add("diverged_steps", diverged)
+      .add("substeps", effective_substeps(*model, s))
+      .add("wave_courant_number", wave_courant_number(*model, s.dt / effective_substeps(*model, s)))
       .add("tip_displacement", tip_displacement(*model, state.x))
       .add("inverted_tets", long(count_inverted(*model, state.x)))
       .add("max_inverted_tets", long(worst_inverted)).add("steps_with_inverted", steps_with_inverted)

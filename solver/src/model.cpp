@@ -136,6 +136,11 @@ std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material
     m->tets.push_back(r);
     for (int k = 0; k < 4; ++k) m->vertex_tet_count[v[k]]++;
   }
+  double edges = 0;
+  for (const TetRest& t : m->tets)
+    for (int a = 0; a < 4; ++a)
+      for (int b = a + 1; b < 4; ++b) edges += (m->rest_positions[t.v[a]] - m->rest_positions[t.v[b]]).norm();
+  m->mean_edge = m->tets.empty() ? 0.0 : edges / (6.0 * double(m->tets.size()));
   m->surface = boundary_triangles(mesh.tets);
   set_material(*m, material);
   set_fixed(*m, fixed);
@@ -157,6 +162,14 @@ std::shared_ptr<const BodyModel> with_fixed(const BodyModel& model, const FixedS
   m->id = next_model_id();
   set_fixed(*m, fixed);
   return m;
+}
+
+double pressure_wave_speed(const BodyModel& model) {
+  return std::sqrt((model.lame.lambda + 2 * model.lame.mu) / model.material.density);
+}
+
+double wave_courant_number(const BodyModel& model, double substep) {
+  return model.mean_edge > 0 ? pressure_wave_speed(model) * substep / model.mean_edge : 0.0;
 }
 
 }  // namespace pliant

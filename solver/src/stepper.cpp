@@ -536,7 +536,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
                          const StepInputs& inputs) {
   Impl& I = *impl_;
   const auto t_start = Clock::now();
-  const int n = s.substeps;
+  const int n = effective_substeps(m, s);
   const double h = s.dt / n;
   const size_t nv = m.vertex_count();
   if (state.v.size() != nv) state.v.assign(nv, Vec3::Zero());
@@ -635,6 +635,15 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   if (!is_finite(state)) total.diverged = true;
   total.wall_ms = ms_since(t_start);
   return total;
+}
+
+int effective_substeps(const BodyModel& m, const SolverSettings& s) {
+  constexpr int kMaxSubsteps = 10000;  // as validate() allows for substeps
+  if (!(s.target_wave_courant_number > 0)) return s.substeps;
+  const double per_substep = wave_courant_number(m, s.dt);  // for one substep of the whole tick
+  if (!(per_substep > 0) || !std::isfinite(per_substep)) return s.substeps;
+  const double n = std::ceil(per_substep / s.target_wave_courant_number * (1 - 1e-12));
+  return int(std::clamp(n, 1.0, double(kMaxSubsteps)));
 }
 
 void apply_damping(const BodyModel& m, BodyState& state, const SolverSettings& s, double h) {

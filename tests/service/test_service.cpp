@@ -1,7 +1,9 @@
 // Integration tests: an in-process pliant server on 127.0.0.1 port 0, driven through the client
 // library. Scenes are beam1 with few iterations so the suite stays fast; nothing here asserts
 // on timing (the benchmark measures that).
+#include "pliant/builtin_meshes.hpp"
 #include "pliant/client/client.hpp"
+#include "pliant/model.hpp"
 #include "pliant/server/server.hpp"
 
 #include <gtest/gtest.h>
@@ -303,6 +305,70 @@ TEST(Service, DecimationSendsEveryNthFrame) {
     EXPECT_GT((t - 1) / 5, (previous - 1) / 5) << "ticks " << previous << " and " << t << " share a window";
     previous = t;
   }
+}
+
+TEST(Service, SceneReportsHowWellItsBudgetResolvesTheMaterial) {
+  // wave_courant_number = c_p (dt / substeps) / mean edge, computed by the solver library on the
+  // same mesh and material, and kept current through updates of the substeps and of E.
+  TestServer ts;
+  Client c = ts.client();
+  auto created = c.create_scene(beam_request("w"));
+  ASSERT_TRUE(created.ok()) << created.status.to_string();
+  const double young = created->spec().material().young_modulus();
+  auto model = build_model(*builtin_mesh("beam1"),
+                           Material{young, created->spec().material().poisson_ratio(),
+                                    created->spec().material().density()});
+  const double expected = wave_courant_number(*model, (1.0 / 60) / 2);
+  ASSERT_GT(expected, 0);
+  EXPECT_NEAR(created->wave_courant_number(), expected, 1e-12 * expected);
+
+  v1::UpdateSceneRequest more_substeps;
+  more_substeps.set_scene_id("w");
+  more_substeps.mutable_solver()->set_substeps(8);
+  auto u = c.update_scene(more_substeps);
+  ASSERT_TRUE(u.ok()) << u.status.to_string();
+  EXPECT_NEAR(u->wave_courant_number(), expected / 4, 1e-12 * expected);
+
+  v1::UpdateSceneRequest stiffer;
+  stiffer.set_scene_id("w");
+  stiffer.mutable_material()->set_young_modulus(4 * young);
+  u = c.update_scene(stiffer);
+  ASSERT_TRUE(u.ok()) << u.status.to_string();
+  EXPECT_NEAR(u->wave_courant_number(), expected / 2, 1e-9 * expected);
+  auto got = c.get_scene("w");
+  ASSERT_TRUE(got.ok());
+  EXPECT_NEAR(got->wave_courant_number(), expected / 2, 1e-9 * expected);
+
+  // Substeps chosen by the server: the fewest that keep the number at or below the target,
+  // reported as the substeps in use, and recomputed when E changes (4x E: 2x the substeps).
+  v1::UpdateSceneRequest target;
+  target.set_scene_id("w");
+  target.mutable_solver()->set_target_wave_courant_number(0.3);
+  u = c.update_scene(target);
+  ASSERT_TRUE(u.ok()) << u.status.to_string();
+  const int n = u->spec().solver().substeps();
+  EXPECT_DOUBLE_EQ(u->spec().solver().target_wave_courant_number(), 0.3);
+  EXPECT_LE(u->wave_courant_number(), 0.3 * (1 + 1e-9));
+  auto stiff_model = with_material(*model, Material{4 * young, model->material.poisson, model->material.density});
+  EXPECT_GT(wave_courant_number(*stiff_model, (1.0 / 60) / (n - 1)), 0.3) << n << " substeps are not the fewest";
+  v1::UpdateSceneRequest back;
+  back.set_scene_id("w");
+  back.mutable_material()->set_young_modulus(young);
+  u = c.update_scene(back);
+  ASSERT_TRUE(u.ok()) << u.status.to_string();
+  EXPECT_NEAR(u->spec().solver().substeps(), n / 2.0, 1.0);
+  EXPECT_LE(u->wave_courant_number(), 0.3 * (1 + 1e-9));
+  // A tick runs them: the frame's solver stats say how many.
+  ASSERT_TRUE(c.step("w", 1).ok());
+  v1::StreamFramesRequest q;
+  q.set_scene_id("w");
+  q.add_fields(v1::FRAME_FIELD_SOLVER_STATS);
+  auto stream = c.stream_frames(q);
+  v1::Frame f;
+  ASSERT_TRUE(stream->next(&f));
+  EXPECT_EQ(f.tick(), 1u);
+  EXPECT_EQ(f.solver().substeps(), u->spec().solver().substeps());
+  stream->cancel();
 }
 
 TEST(Service, ApplyForcePushesVertices) {
@@ -640,6 +706,10 @@ TEST(Service, BadInputsGetTheRightStatus) {
        "spec.solver.window"},
       {"inversion floor 1.5", [](auto& r) { r.mutable_spec()->mutable_solver()->set_inversion_floor(1.5); },
        kInvalidArgument, "spec.solver.inversion_floor must be in [0, 1), got 1.5"},
+      {"negative wave courant", [](auto& r) { r.mutable_spec()->mutable_solver()->set_target_wave_courant_number(-1); },
+       kInvalidArgument, "spec.solver.target_wave_courant_number must be in [0, 1000] (0: use substeps), got -1"},
+      {"wave courant nan", [](auto& r) { r.mutable_spec()->mutable_solver()->set_target_wave_courant_number(NAN); },
+       kInvalidArgument, "spec.solver.target_wave_courant_number"},
       {"gravity inf", [](auto& r) { r.mutable_spec()->mutable_gravity()->set_y(INFINITY); }, kInvalidArgument,
        "spec.gravity"},
       {"fixed index", [](auto& r) { r.mutable_spec()->mutable_fixed()->add_indices(100000); }, kInvalidArgument,

@@ -1,8 +1,11 @@
 // Builtin thesis beams: counts, sizes, conformity (the only boundary faces are the box's).
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/model.hpp"
+#include "pliant/stepper.hpp"
 
 #include <gtest/gtest.h>
+
+#include <cmath>
 
 using namespace pliant;
 
@@ -54,4 +57,41 @@ TEST(Colouring, NoTwoTetsOfAColourShareAVertex) {
     total += colour.size();
   }
   EXPECT_EQ(total, model->tet_count());
+}
+
+TEST(Beam, WaveCourantNumberFromTheMaterialAndTheEdges) {
+  // beam1: cubes of a = 5 mm cut into 5 tets: 4 corner tets with 3 cube edges and 3 face
+  // diagonals each, and a middle tet with 6 face diagonals, so the mean edge over tets is
+  // a (12 + 18 sqrt 2) / 30. The pressure-wave speed from E and nu directly (not from the
+  // Lame constants the model uses): c_p^2 = E (1 - nu) / ((1 + nu) (1 - 2 nu) rho).
+  const double E = 1e6, nu = 0.4, rho = 1000, a = 0.005;
+  auto model = build_model(*builtin_mesh("beam1"), Material{E, nu, rho});
+  EXPECT_NEAR(model->mean_edge, a * (12 + 18 * std::sqrt(2.0)) / 30, 1e-12);
+  const double c_p = std::sqrt(E * (1 - nu) / ((1 + nu) * (1 - 2 * nu) * rho));
+  EXPECT_NEAR(pressure_wave_speed(*model), c_p, 1e-9 * c_p);
+  const double h = 1.0 / 60 / 64;
+  EXPECT_NEAR(wave_courant_number(*model, h), c_p * h / model->mean_edge, 1e-12);
+  // Four times stiffer: twice the wave speed; the edges survive a material change.
+  auto stiffer = with_material(*model, Material{4 * E, nu, rho});
+  EXPECT_EQ(stiffer->mean_edge, model->mean_edge);
+  EXPECT_NEAR(wave_courant_number(*stiffer, h), 2 * wave_courant_number(*model, h), 1e-12);
+}
+
+TEST(Beam, SubstepsChosenFromTheWaveCourantTarget) {
+  // The fewest substeps that keep c_p h / mean edge at or below the target; substeps as given
+  // without a target; at most 10000.
+  auto model = build_model(*builtin_mesh("beam1"), Material{1e6, 0.4, 1000});
+  SolverSettings s;
+  EXPECT_EQ(effective_substeps(*model, s), s.substeps);
+  s.target_wave_courant_number = 0.3;
+  const int n = effective_substeps(*model, s);
+  EXPECT_LE(wave_courant_number(*model, s.dt / n), 0.3);
+  EXPECT_GT(wave_courant_number(*model, s.dt / (n - 1)), 0.3);
+  // And a step runs them.
+  BodyState state = rest_state(*model);
+  Stepper stepper;
+  s.iterations = 1;
+  EXPECT_EQ(stepper.step(*model, state, s).substeps, n);
+  s.target_wave_courant_number = 1e-9;
+  EXPECT_EQ(effective_substeps(*model, s), 10000);
 }

@@ -43,6 +43,7 @@ struct BodyModel {
   std::vector<uint8_t> fixed;     // 1 for fixed vertices
   std::vector<Triangle> surface;  // boundary triangles, outward
   std::vector<int32_t> vertex_tet_count;  // constraints touching each vertex (Jacobi averaging)
+  double mean_edge = 0;           // mean rest length of the tets' edges (6 per tet)
   Material material;
   Lame lame{};
   Mat6 stiffness = Mat6::Zero();  // K (alpha = K^-1)
@@ -66,6 +67,15 @@ std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Mat
 
 // Same geometry and material, a new set of fixed vertices.
 std::shared_ptr<const BodyModel> with_fixed(const BodyModel& model, const FixedSelection& fixed);
+
+// Speed of pressure waves in the body's material: sqrt((lambda + 2 mu) / rho).
+double pressure_wave_speed(const BodyModel& model);
+
+// How many elements a pressure wave crosses in one substep of length h: c_p h / mean edge.
+// With one Gauss-Seidel iteration per substep, a body is as stiff as its material only when
+// this is well below 1; above, the solve is far from converged and the body is too soft
+// (docs/solver.md, "Accuracy of a real-time budget").
+double wave_courant_number(const BodyModel& model, double substep);
 
 // Indices of vertices selected by the selection (sorted, unique).
 std::vector<int32_t> select_vertices(const std::vector<Vec3>& positions, const FixedSelection& sel);

@@ -95,6 +95,10 @@ class Stepper {
   std::unique_ptr<Impl> impl_;
 };
 
+// Substeps a step runs: settings.substeps, or with settings.target_wave_courant_number > 0 the
+// fewest n in [1, 10000] with wave_courant_number(model, dt / n) <= that target.
+int effective_substeps(const BodyModel& model, const SolverSettings& settings);
+
 // Velocity damping of one substep of length h (settings.damping).
 void apply_damping(const BodyModel& model, BodyState& state, const SolverSettings& settings, double h);
 
