@@ -3,6 +3,7 @@
 #include "pliant/strain_constraint.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 namespace pliant {
 
@@ -33,6 +34,20 @@ double max_speed(const BodyState& state) {
   double v = 0;
   for (const Vec3& vi : state.v) v = std::max(v, vi.norm());
   return v;
+}
+
+double kinetic_energy(const BodyModel& model, const BodyState& state) {
+  double e = 0;
+  for (size_t i = 0; i < state.v.size() && i < model.mass.size(); ++i)
+    if (model.inv_mass[i] > 0) e += 0.5 * model.mass[i] * state.v[i].squaredNorm();
+  return e;
+}
+
+double rms_speed(const BodyModel& model, const BodyState& state) {
+  double m = 0;
+  for (size_t i = 0; i < model.mass.size(); ++i)
+    if (model.inv_mass[i] > 0) m += model.mass[i];
+  return m > 0 ? std::sqrt(2 * kinetic_energy(model, state) / m) : 0.0;
 }
 
 }  // namespace pliant

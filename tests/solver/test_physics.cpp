@@ -215,3 +215,21 @@ TEST(Inversion, FloorPassesLeaveNoTetBelowTheFloor) {
   EXPECT_GE(lowest, s.inversion_floor - 1e-3) << inverted_before << " inverted before, "
                                                << r.volume_corrections << " corrections";
 }
+
+TEST(State, KineticEnergyAndRmsSpeedCountOnlyTheFreeVertices) {
+  // Every vertex moving at the same velocity: E = 1/2 M_free |v|^2 and the mass-weighted RMS
+  // speed is |v|, whatever the clamped vertices carry (their velocity is not motion).
+  TetMesh mesh = *builtin_mesh("beam1");
+  auto model = build_model(mesh, Material{1e6, 0.4, 1000}, clamp_below_x(default_clamp_x(mesh.vertices)));
+  BodyState state = rest_state(*model);
+  const Vec3 v(0.3, -0.4, 1.2);  // |v| = 1.3
+  double free_mass = 0;
+  for (size_t i = 0; i < state.v.size(); ++i) {
+    state.v[i] = model->inv_mass[i] > 0 ? v : Vec3(100, 0, 0);
+    if (model->inv_mass[i] > 0) free_mass += model->mass[i];
+  }
+  ASSERT_LT(free_mass, model->total_mass());
+  EXPECT_NEAR(kinetic_energy(*model, state), 0.5 * free_mass * 1.69, 1e-12);
+  EXPECT_NEAR(rms_speed(*model, state), 1.3, 1e-12);
+  EXPECT_EQ(max_speed(state), 100.0);  // max_speed is per vertex, clamped ones included
+}

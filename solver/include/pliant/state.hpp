@@ -31,4 +31,9 @@ size_t count_inverted(const BodyModel& model, const std::vector<Vec3>& x);
 // The largest vertex speed, m/s.
 double max_speed(const BodyState& state);
 
+// Kinetic energy of the free vertices, J, and their mass-weighted RMS speed sqrt(2 E / M), m/s:
+// whether the body moves, where max_speed can be one light vertex.
+double kinetic_energy(const BodyModel& model, const BodyState& state);
+double rms_speed(const BodyModel& model, const BodyState& state);
+
 }  // namespace pliant
