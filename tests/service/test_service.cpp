@@ -583,6 +583,10 @@ TEST(Service, RestartKeepsScenes) {
     Client c = a.client();
     ASSERT_TRUE(c.create_scene(beam_request("keep")).ok());
     ASSERT_TRUE(c.step("keep", 12).ok());
+    // A scene whose substeps the server chooses keeps that choice across the restart.
+    auto resolved = beam_request("resolved");
+    resolved.mutable_spec()->mutable_solver()->set_target_wave_courant_number(0.5);
+    ASSERT_TRUE(c.create_scene(resolved).ok());
     auto deleted = beam_request("deleted");
     ASSERT_TRUE(c.create_scene(deleted).ok());
     ASSERT_TRUE(c.delete_scene("deleted").ok());
@@ -594,7 +598,7 @@ TEST(Service, RestartKeepsScenes) {
     auto saved = c.save_snapshot(named);
     ASSERT_TRUE(saved.ok()) << saved.status.to_string();
     EXPECT_TRUE(fs::exists(saved->path()));
-    EXPECT_EQ(a.server->shutdown(), 1);
+    EXPECT_EQ(a.server->shutdown(), 2);
   }
   EXPECT_TRUE(fs::exists(dir / "scenes" / "keep.snapshot"));
   {
@@ -606,6 +610,11 @@ TEST(Service, RestartKeepsScenes) {
     EXPECT_EQ(got->state(), v1::SCENE_STATE_LOCKSTEP);
     EXPECT_EQ(got->spec().solver().iterations(), 4);
     EXPECT_TRUE(bit_equal(positions_of(c, "keep"), x));
+    auto r2 = c.get_scene("resolved");
+    ASSERT_TRUE(r2.ok()) << r2.status.to_string();
+    EXPECT_DOUBLE_EQ(r2->spec().solver().target_wave_courant_number(), 0.5);
+    EXPECT_LE(r2->wave_courant_number(), 0.5 * (1 + 1e-9));
+    EXPECT_GT(r2->spec().solver().substeps(), 2);  // chosen, not the request's 2
     EXPECT_EQ(c.get_scene("deleted").status.code, kNotFound);
     auto names = c.list_snapshots();
     ASSERT_TRUE(names.ok());
