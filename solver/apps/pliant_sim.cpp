@@ -65,9 +65,9 @@ common options:
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
 static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)
-static and run also print rms_speed (mass-weighted, m/s) and kinetic_energy (J) next to max_speed,
-and wave_courant_number: c_p h / mean edge, the elements a pressure wave
-           crosses per substep; with 1 iteration per substep the body is too soft above ~0.3
+static, run: the JSON also has rms_speed (mass-weighted, m/s), kinetic_energy (J) and
+           wave_courant_number (c_p h / mean edge: the elements a pressure wave crosses per
+           substep; with 1 iteration per substep the body is too soft above ~0.3)
 run:       --steps N  --out DIR  --every K   (last line: JSON with ms_per_step, inverted_tets at
            the end, max_inverted_tets and steps_with_inverted over all steps, max_speed at the
            end and peak_speed over all steps, m/s)
