@@ -53,7 +53,7 @@ fi
 
 # 5. What a real-time budget gives: beam3 brought to rest under gravity at a 60 Hz tick with
 #    S substeps x 1 iteration, against the Newton equilibrium of the same mesh. SKIP_REALTIME=1
-#    keeps the previous data (about 5 minutes).
+#    keeps the previous data (about 10 minutes).
 if [ "${SKIP_REALTIME:-0}" != 1 ]; then
 : > "$D/realtime_accuracy_beam3.jsonl"
 for E in 1e4 1e5 1e6 1e7; do
@@ -64,6 +64,14 @@ for E in 1e4 1e5 1e6 1e7; do
   done
   say "Newton reference beam3 E=$E"
   "$SIM" reference --mesh beam3 --young "$E" --steps 10 | tail -n 1 >> "$D/realtime_accuracy_beam3.jsonl" || true
+done
+# The same 256 sweeps per tick split into substeps x iterations, plain and accelerated (1 MPa).
+echo "# beam3, E = 1 MPa: pliant-sim static --mesh beam3 --young 1e6 --substeps S --iterations N --method M --dt 1/60 --damping 5 --speed-tol 1e-3 --max-steps 600 (columns: S N M, then the JSON line). Newton: see realtime_accuracy_beam3.jsonl." > "$D/budget_split_beam3.txt"
+for cfg in "256 1 xpbd" "64 4 xpbd" "32 8 xpbd" "32 8 anderson" "32 8 chebyshev" "16 16 xpbd" "16 16 anderson" "16 16 chebyshev"; do
+  set -- $cfg
+  say "budget split beam3 1 MPa: $1 x $2 $3"
+  echo "$1 $2 $3 $("$SIM" static --mesh beam3 --young 1e6 --substeps "$1" --iterations "$2" --method "$3" --dt 1/60 \
+    --damping 5 --speed-tol 1e-3 --max-steps 600 | tail -n 1)" >> "$D/budget_split_beam3.txt" || true
 done
 fi
 
