@@ -547,8 +547,9 @@ void warn_if_under_resolved(const std::string& id, const BodyModel& model, const
   const int substeps = effective_substeps(model, s);
   const double co = wave_courant_number(model, s.dt / substeps);
   if (s.iterations != 1 || co <= 1.0) return;
-  const double c_p = pressure_wave_speed(model);
-  const long enough = std::lround(std::ceil(s.dt * c_p / (0.3 * model.mean_edge)));
+  SolverSettings resolved = s;
+  resolved.target_wave_courant_number = 0.3;
+  const int enough = effective_substeps(model, resolved);
   spdlog::warn("scene '{}': a pressure wave crosses {:.2g} elements per substep (E {:g} Pa, {} substeps x 1 "
                "iteration per {:g} s tick): the body will be softer than its material; about {} substeps "
                "would resolve it (wave_courant_number 0.3; docs/solver.md, \"Accuracy of a real-time budget\")",

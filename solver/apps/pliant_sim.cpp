@@ -285,18 +285,19 @@ int cmd_static(const cli::Args& a) {
     // equilibrium as its fixed point, and Gauss-Seidel on the strain multipliers converges in a
     // few tens of sweeps only when alpha/h^2 dominates J M^-1 J^T, i.e. when a substep is no
     // longer than a couple of times the time a pressure wave needs to cross one element
-    // (measured in docs/solver.md). So: substeps of h = 2 l / c_p, 30 iterations each.
-    const double c_p = pressure_wave_speed(*model);
-    const double h = 2.0 * model->mean_edge / c_p;
+    // (measured in docs/solver.md). So: substeps of h = 2 l / c_p (a wave Courant number of 2),
+    // 30 iterations each.
     s.dt = 1.0 / 60.0;
-    s.substeps = std::max(1, int(std::ceil(s.dt / h)));
+    s.target_wave_courant_number = 2.0;
     s.iterations = 30;
-    spdlog::info("static: {} substeps of {:.3g} s (c_p {:.3g} m/s), {} iterations", s.substeps, s.dt / s.substeps, c_p, s.iterations);
   }
   s.damping = Damping::Simple;
   s.damping_coefficient = 50.0;
   s = settings_from(a, s);
   if (!a.has("omega")) s.omega = default_omega(s.method);
+  const int substeps = effective_substeps(*model, s);
+  spdlog::info("static: {} substeps of {:.3g} s (c_p {:.3g} m/s), {} iterations", substeps, s.dt / substeps,
+               pressure_wave_speed(*model), s.iterations);
   const int max_steps = int(a.integer("max-steps", 2000, 1, 10000000));
   const double speed_tol = a.number("speed-tol", 1e-4);
   const bool progress = a.has("progress");
@@ -305,9 +306,9 @@ int cmd_static(const cli::Args& a) {
   });
   JsonLine j;
   j.add("mesh", model->name).add("young", mat.young).add("poisson", mat.poisson).add("density", mat.density)
-      .add("method", std::string(to_string(s.method))).add("substeps", effective_substeps(*model, s)).add("iterations", s.iterations)
+      .add("method", std::string(to_string(s.method))).add("substeps", substeps).add("iterations", s.iterations)
       .add("dt", s.dt).add("tip_displacement", tip_displacement(*model, r.state.x)).add("steps", r.steps)
-      .add("wave_courant_number", wave_courant_number(*model, s.dt / effective_substeps(*model, s)))
+      .add("wave_courant_number", wave_courant_number(*model, s.dt / substeps))
       .add("max_speed", r.max_speed).add("rms_speed", rms_speed(*model, r.state))
       .add("kinetic_energy", kinetic_energy(*model, r.state)).add("at_rest", r.at_rest).add("diverged", r.diverged)
       .add("inverted_tets", long(count_inverted(*model, r.state.x)));
@@ -338,6 +339,7 @@ int cmd_run(const cli::Args& a) {
   auto model = load_model(a, mat, a.number("fix-x-max"));
   SolverSettings s = settings_from(a, SolverSettings{});
   if (!a.has("omega")) s.omega = default_omega(s.method);
+  const int substeps = effective_substeps(*model, s);
   const int steps = int(a.integer("steps", 60, 1, 10000000));
   const int every = int(a.integer("every", 1, 1, 10000000));
   const std::string out = a.str("out", "");
@@ -402,8 +404,8 @@ int cmd_run(const cli::Args& a) {
   JsonLine j;
   j.add("mesh", model->name).add("steps", steps).add("frames", written).add("out", out)
       .add("ms_per_step", wall / steps).add("diverged_steps", diverged)
-      .add("substeps", effective_substeps(*model, s))
-      .add("wave_courant_number", wave_courant_number(*model, s.dt / effective_substeps(*model, s)))
+      .add("substeps", substeps)
+      .add("wave_courant_number", wave_courant_number(*model, s.dt / substeps))
       .add("tip_displacement", tip_displacement(*model, state.x))
       .add("inverted_tets", long(count_inverted(*model, state.x)))
       .add("max_inverted_tets", long(worst_inverted)).add("steps_with_inverted", steps_with_inverted)

@@ -68,7 +68,7 @@ std::string validate(const SolverSettings& s) {
     os << "solver." << field << " " << rule << ", got " << value;
   };
   if (!std::isfinite(s.dt) || s.dt <= 0 || s.dt > 1.0) bad("dt", s.dt, "must be in (0, 1] s");
-  else if (s.substeps < 1 || s.substeps > 10000) bad("substeps", s.substeps, "must be in [1, 10000]");
+  else if (s.substeps < 1 || s.substeps > kMaxSubsteps) bad("substeps", s.substeps, "must be in [1, 10000]");
   else if (!(s.target_wave_courant_number >= 0 && s.target_wave_courant_number <= 1000))
     bad("target_wave_courant_number", s.target_wave_courant_number, "must be in [0, 1000] (0: use substeps)");
   else if (s.iterations < 0 || s.iterations > 100000) bad("iterations", s.iterations, "must be in [0, 100000]");

@@ -55,8 +55,7 @@ struct Stepper::Impl {
   int pool_threads = 0;
   IterationHook hook;
 
-  // Vertex -> (tet, corner) adjacency for the Jacobi gather, rebuilt when the model changes.
-  uint64_t adjacency_model = 0;
+  uint64_t adjacency_model = 0;  // the model adj_* and jacobi_entry were built for
   // Colours cut into SIMD packs for the Gauss-Seidel sweep and the residual.
   detail::PackedModel packed;
   std::vector<int32_t> adj_start, adj_entry;
@@ -71,7 +70,6 @@ struct Stepper::Impl {
   std::vector<Vec6> lambda_saved;
   std::vector<Vec3> jacobi_dx;  // 4 per slot
   std::vector<int32_t> jacobi_entry;  // adj_entry in slots: 4 x slot + corner
-  uint64_t jacobi_model = 0;
   std::vector<double> partial;  // per-thread sums
   std::vector<std::vector<int32_t>> floor_hit_chunks;  // per-thread tets corrected by a floor pass
   std::vector<int32_t> floor_hit, floor_candidates;
@@ -85,9 +83,12 @@ struct Stepper::Impl {
     return *pool;
   }
 
+  // Vertex -> (tet, corner) adjacency, and the same entries addressed by slot for the Jacobi
+  // gather (4 x slot + corner), rebuilt when the model changes.
   void ensure_adjacency(const BodyModel& m) {
     if (adjacency_model == m.id && m.id != 0) return;
     adjacency_model = m.id;
+    detail::ensure_packed(packed, m);
     adj_start.assign(m.vertex_count() + 1, 0);
     for (const TetRest& t : m.tets)
       for (int k = 0; k < 4; ++k) adj_start[t.v[k] + 1]++;
@@ -96,6 +97,9 @@ struct Stepper::Impl {
     std::vector<int32_t> fill(adj_start.begin(), adj_start.end() - 1);
     for (size_t t = 0; t < m.tets.size(); ++t)
       for (int k = 0; k < 4; ++k) adj_entry[fill[m.tets[t].v[k]]++] = int32_t(4 * t + k);
+    jacobi_entry.resize(adj_entry.size());
+    for (size_t a = 0; a < adj_entry.size(); ++a)
+      jacobi_entry[a] = 4 * packed.tet_slot[adj_entry[a] / 4] + adj_entry[a] % 4;
   }
 
   double residual(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
@@ -142,16 +146,6 @@ struct Stepper::Impl {
   int sweep_jacobi(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                    const detail::ProjectionParams& params, double relaxation, ThreadPool& tp) {
     ensure_adjacency(m);
-    detail::ensure_packed(packed, m);
-    if (jacobi_model != m.id || m.id == 0) {
-      // The gather of corner corrections, addressed by slot: 4 x slot + corner.
-      jacobi_model = m.id;
-      jacobi_entry.resize(adj_entry.size());
-      for (size_t a = 0; a < adj_entry.size(); ++a)
-        jacobi_entry[a] = 4 * packed.tet_slot[adj_entry[a] / 4] + adj_entry[a] % 4;
-      for (size_t v = 0; v < m.vertex_count(); ++v)  // each vertex reads its corrections in memory order
-        std::sort(jacobi_entry.begin() + adj_start[v], jacobi_entry.begin() + adj_start[v + 1]);
-    }
     jacobi_dx.resize(4 * packed.slot_count());
     // Tets in slot order, so that the multipliers and the corrections are walked in order.
     tp.parallel_for(packed.packs.size(), [&](int, size_t b, size_t e) {
@@ -616,7 +610,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   }
   I.tool_time_offset = 0;  // solve_substep on its own: tools at their pose
   // The last substep's multipliers, per tet (the constraint forces of the step).
-  if (n > 0) I.multipliers_from_slots(m, state.lambda);
+  I.multipliers_from_slots(m, state.lambda);
   if (interacting) {
     // Averages over the substeps: the impulse delivered during the step divided by dt.
     for (size_t t = 0; t < total.tools.size(); ++t) {
@@ -638,10 +632,10 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
 }
 
 int effective_substeps(const BodyModel& m, const SolverSettings& s) {
-  constexpr int kMaxSubsteps = 10000;  // as validate() allows for substeps
   if (!(s.target_wave_courant_number > 0)) return s.substeps;
   const double per_substep = wave_courant_number(m, s.dt);  // for one substep of the whole tick
   if (!(per_substep > 0) || !std::isfinite(per_substep)) return s.substeps;
+  // (1 - 1e-12): a ratio that is a whole number up to rounding does not round up to one more.
   const double n = std::ceil(per_substep / s.target_wave_courant_number * (1 - 1e-12));
   return int(std::clamp(n, 1.0, double(kMaxSubsteps)));
 }

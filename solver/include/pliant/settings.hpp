@@ -37,6 +37,8 @@ struct ChebyshevParams {
   int delay = 10;      // plain iterations before the acceleration starts
 };
 
+constexpr int kMaxSubsteps = 10000;  // the most substeps a tick may have (validate, effective_substeps)
+
 struct SolverSettings {
   double dt = 1.0 / 60.0;   // tick length h, s
   int substeps = 64;        // h is split into this many substeps (small steps: see docs/solver.md)
