@@ -229,14 +229,15 @@ void print_scene(const v1::Scene& s, bool json) {
               v1::Method_Name(so.method()).c_str(), v1::Sweep_Name(so.sweep()).c_str(), so.substeps(),
               so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
   std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
-  // What the number means with one iteration per substep (measured on beam3, docs/solver.md);
-  // with more iterations it has not been measured, so nothing is said.
+  // What the number means with this many iterations (a rough guide measured on the beams,
+  // docs/solver.md): under_resolution = wave_courant_number / sqrt(iterations).
   const double co = s.wave_courant_number();
-  const char* meaning = so.iterations() != 1 ? ""
-                        : co > 1             ? "; above 1 with 1 iteration: clearly softer than the material"
-                        : co > 0.3           ? "; 0.3-1 with 1 iteration: somewhat softer than the material"
-                                             : "; at most 0.3 with 1 iteration: close to the material (2-5% on the beams)";
-  std::printf("resolution a pressure wave crosses %.2g elements per substep (wave_courant_number%s)\n", co, meaning);
+  const double u = under_resolution(co, so.iterations());
+  const char* meaning = u > 1     ? "clearly softer than the material"
+                        : u > 0.3 ? "softer than the material by a few % to ~30%"
+                                  : "close to the material (2-5% on the beams)";
+  std::printf("resolution a pressure wave crosses %.2g elements per substep (wave_courant_number); over\n"
+              "           sqrt(iterations): %.2g, %s\n", co, u, meaning);
   std::printf("progress   tick %llu, t %.4f s, %.1f ticks/s, late %llu, skipped %llu, rollbacks %llu\n",
               static_cast<unsigned long long>(s.tick()), s.sim_time(), s.ticks_per_second(),
               static_cast<unsigned long long>(s.late_ticks()), static_cast<unsigned long long>(s.skipped_ticks()),

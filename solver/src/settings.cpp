@@ -1,5 +1,6 @@
 #include "pliant/settings.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -60,6 +61,10 @@ std::optional<Damping> parse_damping(std::string_view s) {
   for (Damping v : {Damping::None, Damping::Simple, Damping::RigidPreserving})
     if (to_string(v) == s) return v;
   return std::nullopt;
+}
+
+double under_resolution(double wave_courant_number, int iterations) {
+  return wave_courant_number / std::sqrt(double(std::max(1, iterations)));
 }
 
 std::string validate(const SolverSettings& s) {

@@ -83,6 +83,13 @@ std::optional<Damping> parse_damping(std::string_view s); // "none" | "simple" |
 std::string_view to_string(AndersonForm f);
 std::optional<AndersonForm> parse_anderson_form(std::string_view s);  // "thesis" | "type2"
 
+// How far a budget is from resolving the material, as a rough guide: the wave Courant number of
+// its substeps (wave_courant_number in model.hpp) over sqrt(iterations per substep). On beam3 at
+// rest the tip's excess over the converged solution follows it for 1 to 16 iterations: about 2%
+// at 0.3, 17-30% near 1, 1.8-4.3x at 2-4 (docs/solver.md, "Accuracy of a real-time budget").
+// Above 1 the body is clearly softer than its material.
+double under_resolution(double wave_courant_number, int iterations);
+
 // Empty when valid, else a message naming the bad field and its value.
 std::string validate(const SolverSettings& settings);
 
