@@ -546,6 +546,11 @@ void warn_if_under_resolved(const std::string& id, const BodyModel& model, const
   const int substeps = effective_substeps(model, s);
   const double co = wave_courant_number(model, s.dt / substeps);
   if (under_resolution(co, s.iterations) <= 1.0) return;
+  if (model.material.poisson > kUnderResolutionMaxPoisson) {
+    spdlog::info("scene '{}': a pressure wave crosses {:.2g} elements per substep; not interpreted for nu {} "
+                 "(calibrated up to {})", id, co, model.material.poisson, kUnderResolutionMaxPoisson);
+    return;
+  }
   SolverSettings resolved = s;
   resolved.target_wave_courant_number = 0.3;
   const int enough = effective_substeps(model, resolved);
