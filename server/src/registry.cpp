@@ -176,12 +176,16 @@ Error merge_material(const v1::Material& p, const std::string& prefix, Material&
   if (p.has_young_modulus()) m.young = p.young_modulus();
   if (p.has_poisson_ratio()) m.poisson = p.poisson_ratio();
   if (p.has_density()) m.density = p.density();
+  if (p.has_inertia_floor()) m.inertia_floor = p.inertia_floor();
   if (!(std::isfinite(m.young) && m.young > 0))
     return invalid(fmt::format("{}.young_modulus must be a finite value > 0 Pa, got {}", prefix, m.young));
   if (!(m.poisson > -1 && m.poisson < 0.5))
     return invalid(fmt::format("{}.poisson_ratio must be in (-1, 0.5), got {}", prefix, m.poisson));
   if (!(std::isfinite(m.density) && m.density > 0))
     return invalid(fmt::format("{}.density must be a finite value > 0 kg/m^3, got {}", prefix, m.density));
+  if (!(m.inertia_floor >= 0 && m.inertia_floor <= 1))
+    return invalid(fmt::format("{}.inertia_floor must be in [0, 1] (a fraction of the mean vertex mass), got {}",
+                               prefix, m.inertia_floor));
   return {};
 }
 
@@ -324,6 +328,7 @@ void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* sp
   m->set_young_modulus(model.material.young);
   m->set_poisson_ratio(model.material.poisson);
   m->set_density(model.material.density);
+  m->set_inertia_floor(model.material.inertia_floor);
   auto* f = spec->mutable_fixed();
   for (int32_t i : cfg.fixed.indices) f->add_indices(i);
   for (const auto& b : cfg.fixed.boxes) {

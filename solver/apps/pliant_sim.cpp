@@ -44,6 +44,8 @@ common options:
   --young E           Young's modulus, Pa (default 1e6)
   --poisson NU        Poisson's ratio (default 0.4)
   --density RHO       kg/m^3 (default 1000)
+  --inertia-floor F   a free vertex's inertia is at least F x the mean vertex mass, its weight
+                      stays its mass (default 0.1; 0: plain lumped masses)
   --method X          xpbd | sor | lambda-sor | chebyshev | anderson | anderson-sor | extrapolation
   --sweep S           gauss-seidel | jacobi
   --anderson-form F   thesis | type2 (default thesis)
@@ -65,7 +67,8 @@ common options:
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
 static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)
-static, run: the JSON also has rms_speed (mass-weighted, m/s), kinetic_energy (J) and
+static, run: the JSON also has inertia_floor, added_inertia (what the floor adds, as a fraction
+           of the total mass) and floored_vertices, rms_speed (mass-weighted, m/s), kinetic_energy (J) and
            wave_courant_number (c_p h / mean edge: the elements a pressure wave crosses per
            substep; with 1 iteration per substep the body is too soft above ~0.3)
 run:       --steps N  --out DIR  --every K   (last line: JSON with ms_per_step, inverted_tets at
@@ -77,7 +80,7 @@ const std::set<std::string> kValued = {
     "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
     "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
-    "steps", "out", "every", "inversion-floor"};
+    "steps", "out", "every", "inversion-floor", "inertia-floor"};
 const std::set<std::string> kFlags = {"help", "progress", "no-line-search"};
 
 // A JSON object written field by field, numbers in full precision, nan/inf as null.
@@ -121,6 +124,7 @@ Material material_from(const cli::Args& a) {
   m.young = a.number("young", 1e6);
   m.poisson = a.number("poisson", 0.4);
   m.density = a.number("density", 1000);
+  m.inertia_floor = a.number("inertia-floor", kDefaultInertiaFloor);
   if (std::string err = validate(m); !err.empty()) throw cli::UsageError(err);
   return m;
 }
@@ -309,6 +313,8 @@ int cmd_static(const cli::Args& a) {
       .add("method", std::string(to_string(s.method))).add("substeps", substeps).add("iterations", s.iterations)
       .add("dt", s.dt).add("tip_displacement", tip_displacement(*model, r.state.x)).add("steps", r.steps)
       .add("wave_courant_number", wave_courant_number(*model, s.dt / substeps))
+      .add("inertia_floor", mat.inertia_floor).add("added_inertia", model->added_inertia())
+      .add("floored_vertices", long(model->floored_vertices()))
       .add("max_speed", r.max_speed).add("rms_speed", rms_speed(*model, r.state))
       .add("kinetic_energy", kinetic_energy(*model, r.state)).add("at_rest", r.at_rest).add("diverged", r.diverged)
       .add("inverted_tets", long(count_inverted(*model, r.state.x)));
@@ -386,9 +392,9 @@ int cmd_run(const cli::Args& a) {
         fast += vi > 1.0;
         if (vi == speed) fastest = i;
       }
-      spdlog::debug("step {}: {} inverted, max speed {:.3g} m/s (vertex {}, mass {:.3g} kg), {} vertices above 1 m/s, "
-                    "kinetic energy {:.3g} J", k, inverted, speed, fastest,
-                    model->inv_mass[fastest] > 0 ? 1 / model->inv_mass[fastest] : 0.0, fast, kinetic);
+      spdlog::debug("step {}: {} inverted, max speed {:.3g} m/s (vertex {}, mass {:.3g} kg, inertia {:.3g} kg), "
+                    "{} vertices above 1 m/s, kinetic energy {:.3g} J", k, inverted, speed, fastest,
+                    model->mass[fastest], model->inertia[fastest], fast, kinetic);
     }
     if (k % 60 == 0) spdlog::info("step {}/{}: {:.2f} ms/step, {} inverted, max speed {:.3g} m/s", k, steps, wall / k, inverted, speed);
   }
@@ -406,6 +412,8 @@ int cmd_run(const cli::Args& a) {
       .add("ms_per_step", wall / steps).add("diverged_steps", diverged)
       .add("substeps", substeps)
       .add("wave_courant_number", wave_courant_number(*model, s.dt / substeps))
+      .add("inertia_floor", mat.inertia_floor).add("added_inertia", model->added_inertia())
+      .add("floored_vertices", long(model->floored_vertices()))
       .add("tip_displacement", tip_displacement(*model, state.x))
       .add("inverted_tets", long(count_inverted(*model, state.x)))
       .add("max_inverted_tets", long(worst_inverted)).add("steps_with_inverted", steps_with_inverted)

@@ -218,7 +218,7 @@ int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vec
     const double tn = tangential.norm();
     if (tn < tool.static_friction * depth) x[i] -= tangential;
     else if (tn > 0) x[i] -= tangential * std::min(tool.dynamic_friction * depth / tn, 1.0);
-    record(int32_t(i), m.mass[i] * (x[i] - before), normal);
+    record(int32_t(i), m.inertia[i] * (x[i] - before), normal);  // the impulse the contact gave (times h)
     touched.push_back(int32_t(i));
     ++n;
   }

@@ -25,6 +25,8 @@ std::string validate(const Material& m) {
     os << "material.poisson must be in (-1, 0.5), got " << m.poisson;
   else if (!std::isfinite(m.density) || m.density <= 0)
     os << "material.density must be a finite value > 0 kg/m^3, got " << m.density;
+  else if (!std::isfinite(m.inertia_floor) || m.inertia_floor < 0 || m.inertia_floor > 1)
+    os << "material.inertia_floor must be in [0, 1] (a fraction of the mean vertex mass), got " << m.inertia_floor;
   return os.str();
 }
 

@@ -10,6 +10,21 @@
 
 namespace pliant {
 
+double BodyModel::added_inertia() const {
+  double added = 0, total = 0;
+  for (size_t i = 0; i < mass.size(); ++i) {
+    total += mass[i];
+    if (!fixed[i]) added += inertia[i] - mass[i];
+  }
+  return total > 0 ? added / total : 0.0;
+}
+
+size_t BodyModel::floored_vertices() const {
+  size_t n = 0;
+  for (size_t i = 0; i < mass.size(); ++i) n += !fixed[i] && inertia[i] > mass[i];
+  return n;
+}
+
 double BodyModel::total_mass() const {
   double m = 0;
   for (double v : mass) m += v;
@@ -81,14 +96,25 @@ void set_material(BodyModel& m, const Material& material) {
   m.mass.assign(m.rest_positions.size(), 0.0);
   for (const TetRest& t : m.tets)
     for (int k = 0; k < 4; ++k) m.mass[t.v[k]] += material.density * t.volume / 4.0;
+  double total = 0;
+  size_t used = 0;
+  for (double v : m.mass)
+    if (v > 0) total += v, ++used;
+  const double floor = used > 0 ? material.inertia_floor * total / double(used) : 0.0;
+  m.inertia.resize(m.mass.size());
+  for (size_t i = 0; i < m.mass.size(); ++i) m.inertia[i] = m.mass[i] > 0 ? std::max(m.mass[i], floor) : 0.0;
+}
+
+void set_inverse_inertia(BodyModel& m) {
+  m.inv_mass.resize(m.inertia.size());
+  for (size_t i = 0; i < m.inertia.size(); ++i)
+    m.inv_mass[i] = (m.fixed[i] || m.inertia[i] <= 0) ? 0.0 : 1.0 / m.inertia[i];
 }
 
 void set_fixed(BodyModel& m, const FixedSelection& sel) {
   m.fixed.assign(m.rest_positions.size(), 0);
   for (int32_t i : select_vertices(m.rest_positions, sel)) m.fixed[i] = 1;
-  m.inv_mass.resize(m.mass.size());
-  for (size_t i = 0; i < m.mass.size(); ++i)
-    m.inv_mass[i] = (m.fixed[i] || m.mass[i] <= 0) ? 0.0 : 1.0 / m.mass[i];
+  set_inverse_inertia(m);
 }
 
 }  // namespace
@@ -152,8 +178,7 @@ std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Mat
   auto m = std::make_shared<BodyModel>(model);
   m->id = next_model_id();
   set_material(*m, material);
-  for (size_t i = 0; i < m->mass.size(); ++i)
-    m->inv_mass[i] = (m->fixed[i] || m->mass[i] <= 0) ? 0.0 : 1.0 / m->mass[i];
+  set_inverse_inertia(*m);
   return m;
 }
 

@@ -39,7 +39,7 @@ struct Problem {
     for (size_t i = 0; i < x.size(); ++i) {
       if (dof[i] < 0) continue;
       e -= load[i].dot(x[i]);
-      if (inertia_weight > 0) e += 0.5 * inertia_weight * m.mass[i] * (x[i] - (*target)[i]).squaredNorm();
+      if (inertia_weight > 0) e += 0.5 * inertia_weight * m.inertia[i] * (x[i] - (*target)[i]).squaredNorm();
     }
     return e;
   }
@@ -69,8 +69,8 @@ struct Problem {
       if (d < 0) continue;
       g.segment<3>(d) -= load[i];
       if (inertia_weight > 0) {
-        g.segment<3>(d) += inertia_weight * m.mass[i] * (x[i] - (*target)[i]);
-        for (int k = 0; k < 3; ++k) trip.emplace_back(d + k, d + k, inertia_weight * m.mass[i]);
+        g.segment<3>(d) += inertia_weight * m.inertia[i] * (x[i] - (*target)[i]);
+        for (int k = 0; k < 3; ++k) trip.emplace_back(d + k, d + k, inertia_weight * m.inertia[i]);
       }
     }
     H.resize(ndof, ndof);

@@ -554,7 +554,8 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
         state.v[i].setZero();
         continue;
       }
-      Vec3 a = s.gravity;
+      // Weight is the lumped mass; a floored vertex's inertia is larger (Material::inertia_floor).
+      Vec3 a = m.inertia[i] > m.mass[i] ? Vec3(s.gravity * (m.mass[i] / m.inertia[i])) : s.gravity;
       if (forces) a += inputs.external_forces[i] * m.inv_mass[i];
       state.v[i] += h * a;
       state.x[i] += h * state.v[i];
@@ -651,15 +652,16 @@ void apply_damping(const BodyModel& m, BodyState& state, const SolverSettings& s
     }
     case Damping::RigidPreserving: {
       // Mueller et al. 2007: damp only the deviation from the body's rigid motion. k is per
-      // step; per substep we use k_s with (1 - k_s)^substeps = 1 - k.
+      // step; per substep we use k_s with (1 - k_s)^substeps = 1 - k. Momenta use the inertia the
+      // solver moves (the damping then conserves the momentum the sweeps conserve).
       const double k = 1.0 - std::pow(1.0 - s.damping_coefficient, h / s.dt);
       double mass = 0;
       Vec3 xc = Vec3::Zero(), vc = Vec3::Zero();
       for (size_t i = 0; i < nv; ++i) {
         if (m.inv_mass[i] == 0) continue;
-        mass += m.mass[i];
-        xc += m.mass[i] * state.x[i];
-        vc += m.mass[i] * state.v[i];
+        mass += m.inertia[i];
+        xc += m.inertia[i] * state.x[i];
+        vc += m.inertia[i] * state.v[i];
       }
       if (mass <= 0) return;
       xc /= mass;
@@ -669,8 +671,8 @@ void apply_damping(const BodyModel& m, BodyState& state, const SolverSettings& s
       for (size_t i = 0; i < nv; ++i) {
         if (m.inv_mass[i] == 0) continue;
         const Vec3 r = state.x[i] - xc;
-        L += r.cross(m.mass[i] * state.v[i]);
-        I += m.mass[i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+        L += r.cross(m.inertia[i] * state.v[i]);
+        I += m.inertia[i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
       }
       const Eigen::FullPivLU<Mat3> lu(I);
       const Vec3 omega = lu.isInvertible() ? Vec3(lu.solve(L)) : Vec3::Zero();

@@ -113,6 +113,7 @@ TEST(Service, SceneLifecycle) {
   EXPECT_EQ(created->tet_count(), 460u);
   EXPECT_EQ(created->spec().solver().iterations(), 4);
   EXPECT_NEAR(created->spec().material().poisson_ratio(), 0.4, 1e-12);  // default filled in
+  EXPECT_EQ(created->spec().material().inertia_floor(), kDefaultInertiaFloor);  // default filled in
 
   // The server picks an id when none is given.
   v1::CreateSceneRequest anon = beam_request("");
@@ -144,6 +145,18 @@ TEST(Service, SceneLifecycle) {
   EXPECT_EQ(updated->spec().solver().omega(), 2.0);
   EXPECT_EQ(updated->spec().solver().iterations(), 4);  // unset fields are kept
   EXPECT_EQ(updated->spec().material().young_modulus(), 2e6);
+  EXPECT_EQ(updated->spec().material().inertia_floor(), kDefaultInertiaFloor);  // kept
+  v1::UpdateSceneRequest floor;
+  floor.set_scene_id("a");
+  floor.mutable_material()->set_inertia_floor(0.5);
+  updated = c.update_scene(floor);
+  ASSERT_TRUE(updated.ok()) << updated.status.to_string();
+  EXPECT_EQ(updated->spec().material().inertia_floor(), 0.5);
+  EXPECT_EQ(updated->spec().material().young_modulus(), 2e6);
+  floor.mutable_material()->set_inertia_floor(-0.5);
+  updated = c.update_scene(floor);
+  EXPECT_EQ(updated.status.code, kInvalidArgument);
+  EXPECT_NE(updated.status.message.find("material.inertia_floor"), std::string::npos) << updated.status.message;
 
   auto reset = c.reset_scene("a");
   ASSERT_TRUE(reset.ok());
@@ -586,6 +599,7 @@ TEST(Service, RestartKeepsScenes) {
     // A scene whose substeps the server chooses keeps that choice across the restart.
     auto resolved = beam_request("resolved");
     resolved.mutable_spec()->mutable_solver()->set_target_wave_courant_number(0.5);
+    resolved.mutable_spec()->mutable_material()->set_inertia_floor(0);  // plain lumped masses, kept too
     ASSERT_TRUE(c.create_scene(resolved).ok());
     auto deleted = beam_request("deleted");
     ASSERT_TRUE(c.create_scene(deleted).ok());
@@ -613,6 +627,7 @@ TEST(Service, RestartKeepsScenes) {
     auto r2 = c.get_scene("resolved");
     ASSERT_TRUE(r2.ok()) << r2.status.to_string();
     EXPECT_DOUBLE_EQ(r2->spec().solver().target_wave_courant_number(), 0.5);
+    EXPECT_EQ(r2->spec().material().inertia_floor(), 0.0);
     EXPECT_LE(r2->wave_courant_number(), 0.5 * (1 + 1e-9));
     EXPECT_GT(r2->spec().solver().substeps(), 2);  // chosen, not the request's 2
     EXPECT_EQ(c.get_scene("deleted").status.code, kNotFound);
@@ -683,6 +698,10 @@ TEST(Service, BadInputsGetTheRightStatus) {
        kInvalidArgument, "spec.material.young_modulus"},
       {"zero density", [](auto& r) { r.mutable_spec()->mutable_material()->set_density(0); },
        kInvalidArgument, "spec.material.density"},
+      {"inertia floor 2", [](auto& r) { r.mutable_spec()->mutable_material()->set_inertia_floor(2); },
+       kInvalidArgument, "spec.material.inertia_floor must be in [0, 1] (a fraction of the mean vertex mass), got 2"},
+      {"inertia floor nan", [](auto& r) { r.mutable_spec()->mutable_material()->set_inertia_floor(NAN); },
+       kInvalidArgument, "spec.material.inertia_floor"},
       {"unknown builtin", [](auto& r) { r.mutable_spec()->mutable_mesh()->set_builtin("beam9"); },
        kInvalidArgument, "spec.mesh.builtin 'beam9'"},
       {"no mesh", [](auto& r) { r.mutable_spec()->clear_mesh(); }, kInvalidArgument, "spec.mesh"},

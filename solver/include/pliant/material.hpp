@@ -12,10 +12,20 @@ namespace pliant {
 using Mat6 = Eigen::Matrix<double, 6, 6>;
 using Vec6 = Eigen::Matrix<double, 6, 1>;
 
+// Default inertia floor (fraction of the mean vertex mass), see Material::inertia_floor.
+inline constexpr double kDefaultInertiaFloor = 0.1;
+
 struct Material {
   double young = 1e6;      // E, Pa (> 0)
   double poisson = 0.4;    // nu, in (-1, 0.5)
   double density = 1000;   // rho, kg/m^3 (> 0)
+  // Inertia floor, in [0, 1]: a free vertex's inertia (what a correction or a force moves) is
+  // at least this fraction of the mean lumped vertex mass; its weight stays its lumped mass,
+  // so a converged equilibrium does not depend on it. It keeps vertices of tiny tets from
+  // jittering under one iteration per substep (docs/solver.md, "Inertia floor"). 0 = plain
+  // lumped masses. Not an elastic property; it lives here because it is part of how the
+  // density becomes vertex masses.
+  double inertia_floor = kDefaultInertiaFloor;
 };
 
 struct Lame {

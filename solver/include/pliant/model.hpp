@@ -38,8 +38,9 @@ struct BodyModel {
   std::string name;
   std::vector<Vec3> rest_positions;
   std::vector<TetRest> tets;
-  std::vector<double> mass;       // lumped: each tet gives rho*V0/4 to each vertex
-  std::vector<double> inv_mass;   // 0 for fixed vertices
+  std::vector<double> mass;       // lumped: each tet gives rho*V0/4 to each vertex (its weight)
+  std::vector<double> inertia;    // max(mass, material.inertia_floor x mean vertex mass)
+  std::vector<double> inv_mass;   // 1 / inertia; 0 for fixed vertices
   std::vector<uint8_t> fixed;     // 1 for fixed vertices
   std::vector<Triangle> surface;  // boundary triangles, outward
   std::vector<int32_t> vertex_tet_count;  // constraints touching each vertex (Jacobi averaging)
@@ -55,6 +56,10 @@ struct BodyModel {
   size_t vertex_count() const { return rest_positions.size(); }
   size_t tet_count() const { return tets.size(); }
   double total_mass() const;
+  // Inertia the floor adds to free vertices, as a fraction of the total mass, and how many
+  // free vertices it raises.
+  double added_inertia() const;
+  size_t floored_vertices() const;
 };
 
 // Builds the model; throws std::invalid_argument with a message naming field and value on a
