@@ -199,6 +199,8 @@ std::string report_json(const MeshLoadResult& r, const std::optional<double>& de
   o += ", \"mean_aspect_ratio\": " + jnum(m.mean_aspect_ratio);
   o += ", \"min_tet_volume\": " + jnum(m.min_volume);
   o += ", \"mean_tet_volume\": " + jnum(m.mean_volume);
+  o += ", \"min_vertex_mass_ratio\": " + jnum(m.min_vertex_mass_ratio);
+  o += ", \"light_vertices\": " + std::to_string(m.light_vertices);
   o += ", \"max_tet_volume\": " + jnum(m.max_volume);
   o += ", \"dihedral_histogram\": [";
   const auto& edges = QualityHistogram::kEdgesDeg;
@@ -243,6 +245,8 @@ void print_text(const MeshLoadResult& r, const std::optional<double>& density, d
   std::printf("scale       %.6g (file units -> m)\n", r.applied_scale);
   std::printf("volume      %.6g m^3 (tets: min %.3g, mean %.3g, max %.3g)\n", m.volume, m.min_volume, m.mean_volume, m.max_volume);
   if (density) std::printf("mass        %.6g kg at %.6g kg/m^3\n", *density * m.volume, *density);
+  std::printf("vertex mass lightest %.3g of the mean; %lld vertices under %g of the mean (their inertia is raised by the "
+              "default inertia floor)\n", m.min_vertex_mass_ratio, static_cast<long long>(m.light_vertices), kDefaultInertiaFloor);
   std::printf("quality     min dihedral %.4g deg, aspect ratio mean %.3g max %.3g\n", m.min_dihedral_deg, m.mean_aspect_ratio,
               m.max_aspect_ratio);
   std::printf("min dihedral histogram (deg):\n");

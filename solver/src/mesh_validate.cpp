@@ -407,6 +407,16 @@ MeshReport validate_mesh(TetMesh& mesh, const MeshValidationOptions& o) {
   report.max_aspect_ratio = *std::max_element(aspect.begin(), aspect.end());
   report.mean_aspect_ratio = aspect_sum / static_cast<double>(nt);
   report.bbox = bounding_box(mesh.vertices);
+  // Lumped vertex volumes (a quarter of each tet at each corner): how light the lightest
+  // vertex is, and how many the default inertia floor raises (Material::inertia_floor).
+  {
+    std::vector<double> lumped(mesh.vertices.size(), 0.0);
+    for (size_t t = 0; t < nt; ++t)
+      for (int32_t v : mesh.tets[t]) lumped[v] += volume[t] / 4;
+    const double mean_lumped = sum / static_cast<double>(mesh.vertices.size());
+    report.min_vertex_mass_ratio = *std::min_element(lumped.begin(), lumped.end()) / mean_lumped;
+    for (double l : lumped) report.light_vertices += l < kDefaultInertiaFloor * mean_lumped;
+  }
   return report;
 }
 

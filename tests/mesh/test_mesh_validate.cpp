@@ -131,6 +131,22 @@ TEST(MeshValidate, ThesisHippoLoadsWithQualityWarningsNotErrors) {
   EXPECT_EQ(histogram_total, r.report.tets);
 }
 
+TEST(MeshValidate, LightVerticesAreCounted) {
+  // beam1: its only vertices under 1/10 of the mean lumped mass are the four box corners that
+  // belong to a single tet (0.098 of the mean).
+  TetMesh beam = *builtin_mesh("beam1");
+  const MeshReport b = validate_mesh(beam);
+  EXPECT_EQ(b.light_vertices, 4);
+  EXPECT_NEAR(b.min_vertex_mass_ratio, 0.0978, 0.0005);
+  // The thesis hippo: vertices down to about 1e-6 of the mean, and many under 1/10.
+  MeshLoadOptions o;
+  o.validation.log = false;
+  const MeshLoadResult h = load_mesh_with_report(model_dir() + "/thesis/hippo.node", o);
+  EXPECT_LT(h.report.min_vertex_mass_ratio, 1e-5);
+  EXPECT_GT(h.report.light_vertices, 1000);
+  EXPECT_LT(h.report.light_vertices, 1200);
+}
+
 TEST(MeshResolve, BuiltinsModelsAndPaths) {
   EXPECT_EQ(resolve_mesh("beam1", {model_dir()}).tets.size(), 460u);
   const TetMesh hippo = resolve_mesh("hippo", {model_dir()});

@@ -4,6 +4,7 @@
 // only hurts accuracy or speed (slivers, an open boundary) is reported as a quality warning.
 #pragma once
 
+#include "pliant/material.hpp"
 #include "pliant/mesh.hpp"
 
 #include <array>
@@ -77,6 +78,10 @@ struct MeshReport {
   double min_dihedral_deg = 0;             // over the mesh
   double max_aspect_ratio = 0;             // 1 for a regular tet
   double mean_aspect_ratio = 0;
+  // Lumped vertex masses (any density): the lightest over the mean, and the vertices under
+  // kDefaultInertiaFloor of the mean, whose inertia the default floor raises.
+  double min_vertex_mass_ratio = 0;
+  int64_t light_vertices = 0;
   Aabb bbox;
   QualityHistogram dihedral_histogram;
   std::vector<WorstTet> worst;             // by min dihedral angle, ascending
