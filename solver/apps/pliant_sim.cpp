@@ -10,6 +10,7 @@
 #include "pliant/stepper.hpp"
 #include "pliant/strain_constraint.hpp"
 
+#include <Eigen/SVD>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -405,6 +406,41 @@ int cmd_run(const cli::Args& a) {
       const double j = volume_ratio(model->tets[t], gather(state.x, model->tets[t].v));
       if (j <= 0) spdlog::debug("inverted at the end: tet {} det F {:.3g}, rest volume {:.2g} of the mean", t, j,
                                 model->tets[t].volume / mean_volume);
+    }
+    // Principal stretches at the end: how strained the body is, and around the fastest vertices
+    // (an under-resolved budget can hang a stiff body at strains where StVK is no longer stable).
+    std::vector<double> smin(model->tets.size()), smax(model->tets.size());
+    int count[6] = {0, 0, 0, 0, 0, 0};  // min stretch < 0.5, < 0.7, < 0.9; max stretch > 1.1, > 1.5, > 2
+    for (size_t t = 0; t < model->tets.size(); ++t) {
+      const auto p = gather(state.x, model->tets[t].v);
+      Mat3 ds;
+      for (int c = 0; c < 3; ++c) ds.col(c) = p[c] - p[3];
+      const Vec3 sv = Eigen::JacobiSVD<Mat3>(ds * model->tets[t].dm_inv).singularValues();
+      smin[t] = sv.minCoeff();
+      smax[t] = sv.maxCoeff();
+      count[0] += smin[t] < 0.5, count[1] += smin[t] < 0.7, count[2] += smin[t] < 0.9;
+      count[3] += smax[t] > 1.1, count[4] += smax[t] > 1.5, count[5] += smax[t] > 2;
+    }
+    spdlog::debug("principal stretches at the end: {} / {} / {} tets with one under 0.5 / 0.7 / 0.9, "
+                  "{} / {} / {} with one over 1.1 / 1.5 / 2 (of {})", count[0], count[1], count[2], count[3],
+                  count[4], count[5], model->tets.size());
+    std::vector<int32_t> order(model->vertex_count());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = int32_t(i);
+    const size_t shown = std::min<size_t>(8, order.size());
+    std::partial_sort(order.begin(), order.begin() + shown, order.end(),
+                      [&](int32_t a, int32_t b) { return state.v[a].norm() > state.v[b].norm(); });
+    std::vector<double> vmin(model->vertex_count(), 1e300), vmax(model->vertex_count(), 0);
+    for (size_t t = 0; t < model->tets.size(); ++t)
+      for (int32_t v : model->tets[t].v) vmin[v] = std::min(vmin[v], smin[t]), vmax[v] = std::max(vmax[v], smax[t]);
+    for (size_t k = 0; k < shown; ++k) {
+      const int32_t v = order[k];
+      int fixed_neighbours = 0;
+      for (const TetRest& t : model->tets)
+        if (std::find(t.v.begin(), t.v.end(), v) != t.v.end())
+          for (int32_t u : t.v) fixed_neighbours += model->fixed[u];
+      spdlog::debug("fast vertex {}: {:.3g} m/s, rest x {:.4g} m, mass {:.3g} kg, stretches of its tets {:.3g}..{:.3g}, "
+                    "{} fixed corners among its tets", v, state.v[v].norm(), model->rest_positions[v].x(),
+                    model->mass[v], vmin[v], vmax[v], fixed_neighbours);
     }
   }
   JsonLine j;
