@@ -231,6 +231,8 @@ void print_scene(const v1::Scene& s, bool json) {
               v1::Method_Name(so.method()).c_str(), v1::Sweep_Name(so.sweep()).c_str(), so.substeps(),
               so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
   std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
+  std::printf("inertia    floor %g of the mean vertex mass: %u light vertices raised, +%.3g%% inertia\n",
+              sp.material().inertia_floor(), s.floored_vertices(), 100 * s.added_inertia());
   // What the number means with this many iterations (a rough guide measured on the beams,
   // docs/solver.md): under_resolution = wave_courant_number / sqrt(iterations).
   const double co = s.wave_courant_number();

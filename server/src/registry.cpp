@@ -598,6 +598,8 @@ Error SceneRegistry::describe(const Scene& scene, v1::Scene* out) const {
   out->set_ticks_per_second(st.running ? st.ticks_per_second : 0.0);
   out->set_pause_reason(st.pause_reason);
   out->set_wave_courant_number(wave_courant_number(*model, cfg.settings.dt / effective_substeps(*model, cfg.settings)));
+  out->set_floored_vertices(static_cast<uint32_t>(model->floored_vertices()));
+  out->set_added_inertia(model->added_inertia());
   return {};
 }
 

@@ -3,6 +3,7 @@
 // on timing (the benchmark measures that).
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/client/client.hpp"
+#include "pliant/experiments.hpp"
 #include "pliant/model.hpp"
 #include "pliant/server/server.hpp"
 
@@ -153,6 +154,17 @@ TEST(Service, SceneLifecycle) {
   ASSERT_TRUE(updated.ok()) << updated.status.to_string();
   EXPECT_EQ(updated->spec().material().inertia_floor(), 0.5);
   EXPECT_EQ(updated->spec().material().young_modulus(), 2e6);
+  {
+    // The scene reports what the floor does to its mesh: the same as the library's model.
+    Material m{2e6, 0.4, 1000};
+    m.inertia_floor = 0.5;
+    const TetMesh beam = *builtin_mesh("beam1");
+    auto local = build_model(beam, m, clamp_below_x(1e-3));
+    ASSERT_GT(local->floored_vertices(), 4u);
+    EXPECT_EQ(updated->floored_vertices(), local->floored_vertices());
+    EXPECT_DOUBLE_EQ(updated->added_inertia(), local->added_inertia());
+    EXPECT_EQ(created->floored_vertices(), 0u);  // beam1 clamped at x = 0: its light corners are fixed
+  }
   floor.mutable_material()->set_inertia_floor(-0.5);
   updated = c.update_scene(floor);
   EXPECT_EQ(updated.status.code, kInvalidArgument);
