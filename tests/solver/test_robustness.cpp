@@ -65,15 +65,20 @@ INSTANTIATE_TEST_SUITE_P(
              std::to_string(int(std::log10(std::get<1>(info.param))));
     });
 
-TEST(DefaultBudget, HippoComesToRestWithNoInvertedTet) {
-  // The hippo at 1 MPa under the default 64 x 1 with plain lumped masses keeps a sliver (tet
-  // 594) inverted and a 1.6 mg vertex jittering at 2 m/s after 600 ticks (docs/solver.md,
-  // "Real-time robustness"). With the default inertia floor (vertices of tiny tets move as if
-  // they weighed 1/10 of the mean vertex, their weight unchanged) it comes to rest (about 150
-  // ticks) with no inverted tet.
+class DefaultBudget : public ::testing::TestWithParam<double> {};
+
+TEST_P(DefaultBudget, HippoComesToRestWithNoInvertedTet) {
+  // Item 10 brought to rest on the thesis hippo. At 1 MPa under the default 64 x 1 with plain
+  // lumped masses it keeps a sliver (tet 594) inverted and a 1.6 mg vertex jittering at 2 m/s
+  // after 600 ticks, at 100 kPa one inverted tet and 0.11 m/s (docs/solver.md, "Real-time
+  // robustness"). With the default inertia floor (vertices of tiny tets move as if they
+  // weighed 1/10 of the mean vertex, their weight unchanged) it comes to rest in about 150-170
+  // ticks with no inverted tet at 100 kPa, 1 MPa and 10 MPa. (At 10 kPa one spot still creeps
+  // at a few mm/s after 600 ticks with no inverted tet: not asserted here.)
+  const double young = GetParam();
   const TetMesh mesh = resolve_mesh("hippo");
   const Aabb box = bounding_box(mesh.vertices);
-  auto model = build_model(mesh, Material{1e6, 0.4, 1000}, clamp_below_x(box.min.x() + 0.1 * box.extent().x()));
+  auto model = build_model(mesh, Material{young, 0.4, 1000}, clamp_below_x(box.min.x() + 0.1 * box.extent().x()));
   ASSERT_GT(model->floored_vertices(), 0u);
   SolverSettings s;  // the default budget: 64 x 1 per 60 Hz tick
   s.threads = 1;
@@ -86,6 +91,13 @@ TEST(DefaultBudget, HippoComesToRestWithNoInvertedTet) {
   EXPECT_TRUE(r.at_rest) << "max speed " << r.max_speed << " after " << r.steps << " ticks";
   EXPECT_EQ(count_inverted(*model, r.state.x), 0u);
 }
+
+INSTANTIATE_TEST_SUITE_P(Hippo, DefaultBudget, ::testing::Values(1e5, 1e6, 1e7),
+                         [](const auto& info) {
+                           std::string name(1, 'E');  // not "E" + ...: a GCC 12 -Wrestrict false positive
+                           name += std::to_string(int(std::log10(info.param)));
+                           return name;
+                         });
 
 TEST(ResolvedBudget, HippoSettlesWithNoInvertedTet) {
   // A budget that resolves the material needs no inertia floor: with plain lumped masses the
