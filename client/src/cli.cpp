@@ -223,8 +223,8 @@ void print_scene(const v1::Scene& s, bool json) {
   std::printf("scene      %s (%s)\n", s.scene_id().c_str(), std::string(state_name(s.state())).c_str());
   std::printf("mesh       %s: %u vertices, %u tets, %u surface triangles\n", mesh_name(sp.mesh()).c_str(),
               s.vertex_count(), s.tet_count(), s.surface_triangle_count());
-  std::printf("material   E %g Pa, nu %g, rho %g kg/m^3, inertia floor %g\n", sp.material().young_modulus(),
-              sp.material().poisson_ratio(), sp.material().density(), sp.material().inertia_floor());
+  std::printf("material   E %g Pa, nu %g, rho %g kg/m^3\n", sp.material().young_modulus(),
+              sp.material().poisson_ratio(), sp.material().density());
   std::printf("tick       dt %g s (%g Hz), %s\n", sp.tick().dt(), 1.0 / sp.tick().dt(),
               v1::TickMode_Name(sp.tick().mode()).c_str());
   std::printf("solver     %s, %s, %d substeps x %d iterations, window %d, omega %g, tolerance %g, budget %g ms\n",

@@ -1,6 +1,7 @@
 // pliant-mesh: inspect, validate, convert, tetrahedralize and embed meshes.
 // Output meant for the user goes to stdout; logs (warnings about quality, repairs) go to stderr.
 #include "pliant/builtin_meshes.hpp"
+#include "pliant/material.hpp"
 #include "pliant/mesh_io.hpp"
 #include "pliant/mesh_validate.hpp"
 #include "pliant/render_mesh.hpp"

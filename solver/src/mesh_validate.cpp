@@ -1,5 +1,6 @@
 #include "pliant/mesh_validate.hpp"
 
+#include "pliant/material.hpp"  // kDefaultInertiaFloor: which vertices the report calls light
 #include "pliant/mesh_io.hpp"
 
 #include <Eigen/Dense>

@@ -4,7 +4,6 @@
 // only hurts accuracy or speed (slivers, an open boundary) is reported as a quality warning.
 #pragma once
 
-#include "pliant/material.hpp"
 #include "pliant/mesh.hpp"
 
 #include <array>
