@@ -1,5 +1,5 @@
 // Google Benchmark: cost of the solver's iterations in ns per tet-iteration, on the thesis
-// beam3 and armadillo, per sweep, accelerator and thread count.
+// beam3 and armadillo, per sweep, accelerator, strain model (StVK / corotated) and thread count.
 //   build/bench/bench_solver --benchmark_counters_tabular=true
 //   PLIANT_BENCH_MESHES=a.node:b.node build/bench/bench_solver ...   (more meshes)
 // The counter s_per_tet_iter is wall time / (iterations x tets) of one substep solve.
@@ -23,21 +23,23 @@ struct Setup {
   std::vector<Vec3> x0;
 };
 
-const Setup& setup(const std::string& mesh) {
-  static std::map<std::string, Setup> cache;
-  auto it = cache.find(mesh);
+const Setup& setup(const std::string& mesh, ElasticModel elastic) {
+  static std::map<std::pair<std::string, ElasticModel>, Setup> cache;
+  auto it = cache.find({mesh, elastic});
   if (it != cache.end()) return it->second;
   const TetMesh m = resolve_mesh(mesh);
   Setup s;
   const double clamp = default_clamp_x(m.vertices);
-  s.model = build_model(m, Material{1e6, 0.4, 1000}, clamp_below_x(clamp));
+  Material material{1e6, 0.4, 1000};
+  material.model = elastic;
+  s.model = build_model(m, material, clamp_below_x(clamp));
   s.x0 = cantilever_bend(*s.model, clamp, 0.1 * bounding_box(m.vertices).extent().x());
-  return cache.emplace(mesh, std::move(s)).first->second;
+  return cache.emplace(std::make_pair(mesh, elastic), std::move(s)).first->second;
 }
 
 void run(benchmark::State& state, const std::string& mesh, Method method, Sweep sweep, bool residuals,
-         bool line_search) {
-  const Setup& su = setup(mesh);
+         bool line_search, ElasticModel elastic) {
+  const Setup& su = setup(mesh, elastic);
   SolverSettings s;
   s.method = method;
   s.sweep = sweep;
@@ -91,15 +93,18 @@ void register_all() {
       Sweep sweep;
       bool residuals;
       bool line_search = true;
+      ElasticModel elastic = ElasticModel::StVK;
     };
     for (const Variant& v : {Variant{"gs_xpbd", Method::Xpbd, Sweep::GaussSeidel, false},
                              Variant{"gs_xpbd_no_line_search", Method::Xpbd, Sweep::GaussSeidel, false, false},
                              Variant{"gs_xpbd_residual", Method::Xpbd, Sweep::GaussSeidel, true},
+                             Variant{"gs_xpbd_corotated", Method::Xpbd, Sweep::GaussSeidel, false, true,
+                                     ElasticModel::Corotated},
                              Variant{"jacobi_xpbd", Method::Xpbd, Sweep::Jacobi, false},
                              Variant{"gs_chebyshev", Method::Chebyshev, Sweep::GaussSeidel, false},
                              Variant{"gs_anderson_sor", Method::AndersonSor, Sweep::GaussSeidel, true}}) {
       benchmark::RegisterBenchmark((std::string(v.name) + "/" + mesh).c_str(),
-                                   [=](benchmark::State& st) { run(st, mesh, v.method, v.sweep, v.residuals, v.line_search); })
+                                   [=](benchmark::State& st) { run(st, mesh, v.method, v.sweep, v.residuals, v.line_search, v.elastic); })
           ->Arg(1)->Arg(2)->ArgName("threads")->Unit(benchmark::kMillisecond)->UseRealTime();
     }
   }

@@ -73,6 +73,8 @@ Scene flags (create and update):
   --young PA --poisson NU --density KG_M3     material
   --inertia-floor F     inertia of a free vertex at least F x the mean vertex mass (weight
                         unchanged; default 0.1, 0 = plain lumped masses)
+  --model stvk|corotated  strain of the tet constraint (default stvk, the thesis's;
+                        corotated resists strong compression, ~3x the cost per iteration)
   --fix I,J,..          fixed vertex indices;   --fix-box X0,Y0,Z0,X1,Y1,Z1   fixed box
   --fix-x-below X       fix every vertex with x <= X (a cantilever's clamped end)
   --gravity GX,GY,GZ    m/s^2 (default 0,-9.81,0)
@@ -223,8 +225,9 @@ void print_scene(const v1::Scene& s, bool json) {
   std::printf("scene      %s (%s)\n", s.scene_id().c_str(), std::string(state_name(s.state())).c_str());
   std::printf("mesh       %s: %u vertices, %u tets, %u surface triangles\n", mesh_name(sp.mesh()).c_str(),
               s.vertex_count(), s.tet_count(), s.surface_triangle_count());
-  std::printf("material   E %g Pa, nu %g, rho %g kg/m^3\n", sp.material().young_modulus(),
-              sp.material().poisson_ratio(), sp.material().density());
+  std::printf("material   E %g Pa, nu %g, rho %g kg/m^3, %s\n", sp.material().young_modulus(),
+              sp.material().poisson_ratio(), sp.material().density(),
+              sp.material().model() == v1::ELASTIC_MODEL_COROTATED ? "corotated" : "stvk");
   std::printf("tick       dt %g s (%g Hz), %s\n", sp.tick().dt(), 1.0 / sp.tick().dt(),
               v1::TickMode_Name(sp.tick().mode()).c_str());
   std::printf("solver     %s, %s, %d substeps x %d iterations, window %d, omega %g, tolerance %g, budget %g ms\n",
@@ -307,6 +310,12 @@ bool read_settings(Args& a, v1::SolverSettings* so, v1::TickSettings* tick, v1::
   num("poisson", [&](double x) { mat->set_poisson_ratio(x); });
   num("density", [&](double x) { mat->set_density(x); });
   num("inertia-floor", [&](double x) { mat->set_inertia_floor(x); });
+  if (auto v = a.get("model")) {
+    if (*v == "stvk") mat->set_model(v1::ELASTIC_MODEL_STVK);
+    else if (*v == "corotated") mat->set_model(v1::ELASTIC_MODEL_COROTATED);
+    else throw Usage("--model '" + *v + "' is not one of stvk, corotated");
+    any = true;
+  }
   if (auto v = a.get("gravity")) {
     set_vec(gravity, to_doubles("gravity", *v, 3));
     *gravity_set = true;

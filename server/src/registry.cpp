@@ -177,6 +177,14 @@ Error merge_material(const v1::Material& p, const std::string& prefix, Material&
   if (p.has_poisson_ratio()) m.poisson = p.poisson_ratio();
   if (p.has_density()) m.density = p.density();
   if (p.has_inertia_floor()) m.inertia_floor = p.inertia_floor();
+  switch (p.model()) {
+    case v1::ELASTIC_MODEL_UNSPECIFIED: break;
+    case v1::ELASTIC_MODEL_STVK: m.model = ElasticModel::StVK; break;
+    case v1::ELASTIC_MODEL_COROTATED: m.model = ElasticModel::Corotated; break;
+    default:
+      return invalid(fmt::format("{}.model must be ELASTIC_MODEL_STVK or ELASTIC_MODEL_COROTATED, got {}", prefix,
+                                 int(p.model())));
+  }
   if (!(std::isfinite(m.young) && m.young > 0))
     return invalid(fmt::format("{}.young_modulus must be a finite value > 0 Pa, got {}", prefix, m.young));
   if (!(m.poisson > -1 && m.poisson < 0.5))
@@ -329,6 +337,7 @@ void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* sp
   m->set_poisson_ratio(model.material.poisson);
   m->set_density(model.material.density);
   m->set_inertia_floor(model.material.inertia_floor);
+  m->set_model(model.material.model == ElasticModel::Corotated ? v1::ELASTIC_MODEL_COROTATED : v1::ELASTIC_MODEL_STVK);
   auto* f = spec->mutable_fixed();
   for (int32_t i : cfg.fixed.indices) f->add_indices(i);
   for (const auto& b : cfg.fixed.boxes) {

@@ -47,6 +47,8 @@ common options:
   --density RHO       kg/m^3 (default 1000)
   --inertia-floor F   a free vertex's inertia is at least F x the mean vertex mass, its weight
                       stays its mass (default 0.1; 0: plain lumped masses)
+  --model M           strain of the tet constraint: stvk (Green strain, the thesis's; default)
+                      | corotated (S - I of F = R S: resists compression down to zero volume)
   --method X          xpbd | sor | lambda-sor | chebyshev | anderson | anderson-sor | extrapolation
   --sweep S           gauss-seidel | jacobi
   --anderson-form F   thesis | type2 (default thesis)
@@ -81,7 +83,7 @@ const std::set<std::string> kValued = {
     "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
     "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
-    "steps", "out", "every", "inversion-floor", "inertia-floor"};
+    "steps", "out", "every", "inversion-floor", "inertia-floor", "model"};
 const std::set<std::string> kFlags = {"help", "progress", "no-line-search"};
 
 // A JSON object written field by field, numbers in full precision, nan/inf as null.
@@ -126,6 +128,11 @@ Material material_from(const cli::Args& a) {
   m.poisson = a.number("poisson", 0.4);
   m.density = a.number("density", 1000);
   m.inertia_floor = a.number("inertia-floor", kDefaultInertiaFloor);
+  if (auto v = a.str("model")) {
+    auto e = parse_elastic_model(*v);
+    if (!e) throw cli::UsageError("--model: unknown model '" + *v + "' (stvk, corotated)");
+    m.model = *e;
+  }
   if (std::string err = validate(m); !err.empty()) throw cli::UsageError(err);
   return m;
 }
@@ -311,6 +318,7 @@ int cmd_static(const cli::Args& a) {
   });
   JsonLine j;
   j.add("mesh", model->name).add("young", mat.young).add("poisson", mat.poisson).add("density", mat.density)
+      .add("model", std::string(to_string(mat.model)))
       .add("method", std::string(to_string(s.method))).add("substeps", substeps).add("iterations", s.iterations)
       .add("dt", s.dt).add("tip_displacement", tip_displacement(*model, r.state.x)).add("steps", r.steps)
       .add("wave_courant_number", wave_courant_number(*model, s.dt / substeps))
@@ -444,7 +452,8 @@ int cmd_run(const cli::Args& a) {
     }
   }
   JsonLine j;
-  j.add("mesh", model->name).add("steps", steps).add("frames", written).add("out", out)
+  j.add("mesh", model->name).add("model", std::string(to_string(mat.model)))
+      .add("steps", steps).add("frames", written).add("out", out)
       .add("ms_per_step", wall / steps).add("diverged_steps", diverged)
       .add("substeps", substeps)
       .add("wave_courant_number", wave_courant_number(*model, s.dt / substeps))

@@ -17,6 +17,20 @@ Mat6 stvk_stiffness(const Lame& l) {
   return K;
 }
 
+std::string_view to_string(ElasticModel m) {
+  switch (m) {
+    case ElasticModel::StVK: return "stvk";
+    case ElasticModel::Corotated: return "corotated";
+  }
+  return "?";
+}
+
+std::optional<ElasticModel> parse_elastic_model(std::string_view s) {
+  if (s == "stvk") return ElasticModel::StVK;
+  if (s == "corotated") return ElasticModel::Corotated;
+  return std::nullopt;
+}
+
 std::string validate(const Material& m) {
   std::ostringstream os;
   if (!std::isfinite(m.young) || m.young <= 0)
@@ -27,6 +41,8 @@ std::string validate(const Material& m) {
     os << "material.density must be a finite value > 0 kg/m^3, got " << m.density;
   else if (!std::isfinite(m.inertia_floor) || m.inertia_floor < 0 || m.inertia_floor > 1)
     os << "material.inertia_floor must be in [0, 1] (a fraction of the mean vertex mass), got " << m.inertia_floor;
+  else if (m.model != ElasticModel::StVK && m.model != ElasticModel::Corotated)
+    os << "material.model must be stvk or corotated, got " << int(m.model);
   return os.str();
 }
 

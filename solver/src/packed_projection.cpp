@@ -2,6 +2,8 @@
 
 #include "projection.hpp"
 
+#include "pliant/strain_constraint.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -66,10 +68,113 @@ namespace {
 
 struct PackGeometry {
   v4d f[3][3];  // f[i][c]: component c of column i of F
-  v4d S00, S11, S22, S01, S02, S12;
+  v4d j[3][3];  // the Jacobian's columns, same layout: F's (StVK) or R's (Corotated)
+  v4d S00, S11, S22, S01, S02, S12;  // Gram matrix of those columns
+  v4d c[6];     // strain vector (no sqrt(V0))
 };
 
-inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeometry& g) {
+inline v4d column_dot(const v4d a[3], const v4d b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+// Green strain from g.f (StVK): the Jacobian's columns are F's.
+inline void green_strain(PackGeometry& g) {
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) g.j[i][c] = g.f[i][c];
+  g.S00 = column_dot(g.f[0], g.f[0]);
+  g.S11 = column_dot(g.f[1], g.f[1]);
+  g.S22 = column_dot(g.f[2], g.f[2]);
+  g.S01 = column_dot(g.f[0], g.f[1]);
+  g.S02 = column_dot(g.f[0], g.f[2]);
+  g.S12 = column_dot(g.f[1], g.f[2]);
+  g.c[0] = 0.5 * g.S00 - 0.5;
+  g.c[1] = 0.5 * g.S11 - 0.5;
+  g.c[2] = 0.5 * g.S22 - 0.5;
+  g.c[3] = g.S12;
+  g.c[4] = g.S02;
+  g.c[5] = g.S01;
+}
+
+inline void cross(const v4d a[3], const v4d b[3], v4d out[3]) {
+  out[0] = a[1] * b[2] - a[2] * b[1];
+  out[1] = a[2] * b[0] - a[0] * b[2];
+  out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+// The rotation of F = R S for 4 lanes at once: the scaled Newton iteration of polar_rotation
+// (strain_constraint.cpp), same steps and stopping test per lane, iterated until every lane has
+// converged (a converged lane stays put). Lanes with det F <= 0 or that do not converge take the
+// scalar polar_rotation (SVD); they are rare (inverted or degenerate tets).
+inline void pack_rotation(const v4d f[3][3], v4d r[3][3]) {
+  v4d X[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) X[i][c] = f[i][c];
+  int pending = 0xF, failed = 0;
+  for (int it = 0; it < kMaxPolarIterations && pending; ++it) {
+    v4d cof[3][3];
+    cross(X[1], X[2], cof[0]);
+    cross(X[2], X[0], cof[1]);
+    cross(X[0], X[1], cof[2]);
+    const v4d det = column_dot(X[0], cof[0]);
+    v4d nx = splat(0.0), nc = splat(0.0);
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) {
+        nx += X[i][c] * X[i][c];
+        nc += cof[i][c] * cof[i][c];
+      }
+    v4d g, inv;  // g and 1 / (g det) per lane
+    for (int l = 0; l < 4; ++l) {
+      if (!(det[l] > 0)) {  // inverted or degenerate: the SVD handles this lane
+        failed |= pending & (1 << l);
+        pending &= ~(1 << l);
+        g[l] = 1.0;
+        inv[l] = 0.0;
+        continue;
+      }
+      g[l] = std::abs(nx[l] - 3.0) > kPolarScalingBand ? std::sqrt(std::sqrt(nc[l] / (det[l] * det[l]) / nx[l])) : 1.0;
+      inv[l] = 1.0 / (g[l] * det[l]);
+    }
+    v4d change = splat(0.0);
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) {
+        const v4d next = 0.5 * (g * X[i][c] + inv * cof[i][c]);
+        const v4d d = next - X[i][c];
+        change += d * d;
+        X[i][c] = next;
+      }
+    for (int l = 0; l < 4; ++l)
+      if ((pending & (1 << l)) && change[l] < kPolarConverged) pending &= ~(1 << l);
+  }
+  failed |= pending;
+  for (int l = 0; l < 4; ++l) {
+    if (failed & (1 << l)) {
+      Mat3 F;
+      for (int i = 0; i < 3; ++i)
+        for (int c = 0; c < 3; ++c) F(c, i) = f[i][c][l];
+      const Mat3 R = polar_rotation(F);
+      for (int i = 0; i < 3; ++i)
+        for (int c = 0; c < 3; ++c) X[i][c][l] = R(c, i);
+    }
+  }
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) r[i][c] = X[i][c];
+}
+
+// Corotated strain from g.f: c = (r_i . f_i - 1, r_a . f_c + r_c . f_a), the Jacobian's columns
+// are R's.
+inline void corotated_strain(PackGeometry& g) {
+  pack_rotation(g.f, g.j);
+  for (int i = 0; i < 3; ++i) g.c[i] = column_dot(g.j[i], g.f[i]) - 1.0;
+  g.c[3] = column_dot(g.j[1], g.f[2]) + column_dot(g.j[2], g.f[1]);
+  g.c[4] = column_dot(g.j[0], g.f[2]) + column_dot(g.j[2], g.f[0]);
+  g.c[5] = column_dot(g.j[0], g.f[1]) + column_dot(g.j[1], g.f[0]);
+  g.S00 = column_dot(g.j[0], g.j[0]);
+  g.S11 = column_dot(g.j[1], g.j[1]);
+  g.S22 = column_dot(g.j[2], g.j[2]);
+  g.S01 = column_dot(g.j[0], g.j[1]);
+  g.S02 = column_dot(g.j[0], g.j[2]);
+  g.S12 = column_dot(g.j[1], g.j[2]);
+}
+
+inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeometry& g, ElasticModel model) {
   v4d px[4][3];
   for (int k = 0; k < 4; ++k)
     for (int l = 0; l < 4; ++l) {
@@ -83,22 +188,12 @@ inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeom
     for (int c = 0; c < 3; ++c) d[k][c] = px[k][c] - px[3][c];
   for (int i = 0; i < 3; ++i)
     for (int c = 0; c < 3; ++c) g.f[i][c] = d[0][c] * p.B[i] + d[1][c] * p.B[3 + i] + d[2][c] * p.B[6 + i];
-  auto dot = [&](int i, int j) { return g.f[i][0] * g.f[j][0] + g.f[i][1] * g.f[j][1] + g.f[i][2] * g.f[j][2]; };
-  g.S00 = dot(0, 0);
-  g.S11 = dot(1, 1);
-  g.S22 = dot(2, 2);
-  g.S01 = dot(0, 1);
-  g.S02 = dot(0, 2);
-  g.S12 = dot(1, 2);
+  if (model == ElasticModel::Corotated) corotated_strain(g);
+  else green_strain(g);
 }
 
 inline void pack_constraint(const TetPack& p, const PackGeometry& g, v4d C[6]) {
-  C[0] = p.sqrt_volume * (0.5 * g.S00 - 0.5);
-  C[1] = p.sqrt_volume * (0.5 * g.S11 - 0.5);
-  C[2] = p.sqrt_volume * (0.5 * g.S22 - 0.5);
-  C[3] = p.sqrt_volume * g.S12;
-  C[4] = p.sqrt_volume * g.S02;
-  C[5] = p.sqrt_volume * g.S01;
+  for (int r = 0; r < 6; ++r) C[r] = p.sqrt_volume * g.c[r];
 }
 
 inline void gather_lambda(const TetPack& p, const std::vector<Vec6>& lambda, v4d lam[6]) {
@@ -108,12 +203,12 @@ inline void gather_lambda(const TetPack& p, const std::vector<Vec6>& lambda, v4d
   }
 }
 
-// dx_k = w_k sqrt(V0) (F P) b_k, P the symmetric 3x3 of the increment y.
+// dx_k = w_k sqrt(V0) (G P) b_k, P the symmetric 3x3 of the increment y, G the Jacobian's columns.
 inline void pack_corrections(const TetPack& p, const PackGeometry& g, const v4d y[6], v4d dx[4][3]) {
   const v4d P[3][3] = {{y[0], y[5], y[4]}, {y[5], y[1], y[3]}, {y[4], y[3], y[2]}};
-  v4d M[3][3];  // M[i][c]: component c of column i of F P
+  v4d M[3][3];  // M[i][c]: component c of column i of G P
   for (int i = 0; i < 3; ++i)
-    for (int c = 0; c < 3; ++c) M[i][c] = g.f[0][c] * P[0][i] + g.f[1][c] * P[1][i] + g.f[2][c] * P[2][i];
+    for (int c = 0; c < 3; ++c) M[i][c] = g.j[0][c] * P[0][i] + g.j[1][c] * P[1][i] + g.j[2][c] * P[2][i];
   v4d b[4][3];
   for (int k = 0; k < 3; ++k)
     for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
@@ -136,7 +231,7 @@ inline v4d lane_residual_squared(const v4d C[6], const v4d lam[6], const Mat6& a
 }
 
 // Step length along the projection's increment (y for lambda, dx for the corners), per lane:
-// see kMaxHalvings in projection.hpp.
+// see kMaxHalvings in projection.hpp. StVK only.
 v4d residual_decreasing_step(const TetPack& p, const PackGeometry& g, const v4d C[6], const v4d lam[6],
                              const v4d y[6], const v4d dx[4][3], const Mat6& at) {
   const v4d before = lane_residual_squared(C, lam, at);
@@ -161,13 +256,7 @@ v4d residual_decreasing_step(const TetPack& p, const PackGeometry& g, const v4d 
     PackGeometry n;
     for (int i = 0; i < 3; ++i)
       for (int c = 0; c < 3; ++c) n.f[i][c] = g.f[i][c] + trial * dF[i][c];
-    auto dot = [&](int i, int j) { return n.f[i][0] * n.f[j][0] + n.f[i][1] * n.f[j][1] + n.f[i][2] * n.f[j][2]; };
-    n.S00 = dot(0, 0);
-    n.S11 = dot(1, 1);
-    n.S22 = dot(2, 2);
-    n.S01 = dot(0, 1);
-    n.S02 = dot(0, 2);
-    n.S12 = dot(1, 2);
+    green_strain(n);
     v4d Cn[6], ln[6];
     pack_constraint(p, n, Cn);
     for (int r = 0; r < 6; ++r) ln[r] = lam[r] + trial * y[r];
@@ -187,8 +276,9 @@ v4d residual_decreasing_step(const TetPack& p, const PackGeometry& g, const v4d 
 int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                  std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& at,
                  double lambda_scale, double inversion_floor, bool line_search) {
+  const ElasticModel elastic = model.material.model;
   PackGeometry g;
-  pack_geometry(p, x, g);
+  pack_geometry(p, x, g, elastic);
   v4d C[6], lam[6];
   pack_constraint(p, g, C);
   gather_lambda(p, lambda, lam);
@@ -252,7 +342,7 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   v4d dx[4][3];
   pack_corrections(p, g, y, dx);
   v4d step = splat(1.0);
-  if (line_search) step = residual_decreasing_step(p, g, C, lam, y, dx, at);
+  if (line_search && elastic == ElasticModel::StVK) step = residual_decreasing_step(p, g, C, lam, y, dx, at);
   // det F before the projection, for the inversion floor.
   const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
                   g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
@@ -280,9 +370,10 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   return floor_hits;
 }
 
-void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl) {
+void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl,
+                          ElasticModel model) {
   PackGeometry g;
-  pack_geometry(p, x, g);
+  pack_geometry(p, x, g, model);
   v4d y[6];
   gather_lambda(p, dl, y);
   v4d dx[4][3];
@@ -299,7 +390,7 @@ void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vec
 int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
                       std::vector<int32_t>* hit) {
   PackGeometry g;
-  pack_geometry(p, x, g);
+  pack_geometry(p, x, g, ElasticModel::StVK);  // only det F is used
   const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
                   g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
                   g.f[0][2] * (g.f[1][0] * g.f[2][1] - g.f[1][1] * g.f[2][0]);
@@ -313,9 +404,9 @@ int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& m
 }
 
 double pack_residual_squared(const TetPack& p, const std::vector<Vec3>& x,
-                             const std::vector<Vec6>& lambda, const Mat6& at) {
+                             const std::vector<Vec6>& lambda, const Mat6& at, ElasticModel model) {
   PackGeometry g;
-  pack_geometry(p, x, g);
+  pack_geometry(p, x, g, model);
   v4d C[6], lam[6];
   pack_constraint(p, g, C);
   gather_lambda(p, lambda, lam);

@@ -51,7 +51,8 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
                  double lambda_scale, double inversion_floor, bool line_search);
 
 // x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update; dl in slots).
-void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl);
+void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl,
+                          ElasticModel model);
 
 // Enforces the inversion floor on the real lanes whose det(F) is below it; returns how many.
 // The tets it corrected are appended to hit when given.
@@ -60,6 +61,6 @@ int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& m
 
 // Sum over the real lanes of ||C + alpha~ lambda||^2 (lambda in slots).
 double pack_residual_squared(const TetPack& p, const std::vector<Vec3>& x,
-                             const std::vector<Vec6>& lambda, const Mat6& alpha_tilde);
+                             const std::vector<Vec6>& lambda, const Mat6& alpha_tilde, ElasticModel model);
 
 }  // namespace pliant::detail

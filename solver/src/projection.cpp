@@ -1,5 +1,7 @@
 #include "projection.hpp"
 
+#include "pliant/strain_constraint.hpp"
+
 #include <cmath>
 
 namespace pliant::detail {
@@ -19,6 +21,19 @@ inline Vec6 strain_from_columns(const Vec3 f[3], double S[3][3]) {
     for (int j = i; j < 3; ++j) S[i][j] = S[j][i] = f[i].dot(f[j]);
   Vec6 c;
   c << 0.5 * (S[0][0] - 1.0), 0.5 * (S[1][1] - 1.0), 0.5 * (S[2][2] - 1.0), S[1][2], S[0][2], S[0][1];
+  return c;
+}
+
+// c of the model from F's columns; g receives the Jacobian's columns (F's for StVK, R's for
+// Corotated) and S their Gram matrix (what the 6x6 system is built from).
+inline Vec6 model_strain(ElasticModel model, const Vec3 f[3], Vec3 g[3], double S[3][3]) {
+  if (model == ElasticModel::StVK) {
+    for (int i = 0; i < 3; ++i) g[i] = f[i];
+    return strain_from_columns(f, S);
+  }
+  const Vec6 c = corotated_from_columns(f, g);
+  for (int i = 0; i < 3; ++i)
+    for (int j = i; j < 3; ++j) S[i][j] = S[j][i] = g[i].dot(g[j]);
   return c;
 }
 
@@ -52,7 +67,7 @@ inline bool ldlt_solve6(const double A[6][6], const double rhs[6], double y[6]) 
   return true;
 }
 
-// dx_k = w_k sqrt(V0) (F P) b_k, P the symmetric 3x3 of the increment.
+// dx_k = w_k sqrt(V0) (G P) b_k, P the symmetric 3x3 of the increment, G the Jacobian's columns.
 inline void position_corrections(const TetRest& tet, const Vec3 f[3], const Vec3 b[4],
                                  const double w[4], const Vec6& dl, Vec3 dx[4]) {
   double P[3][3] = {{dl[0], dl[5], dl[4]}, {dl[5], dl[1], dl[3]}, {dl[4], dl[3], dl[2]}};
@@ -90,14 +105,27 @@ double residual_decreasing_step(const TetRest& tet, const Vec3 f[3], const Vec6&
 
 }  // namespace
 
+Vec6 corotated_from_columns(const Vec3 f[3], Vec3 r[3]) {
+  Mat3 F;
+  for (int i = 0; i < 3; ++i) F.col(i) = f[i];
+  const Mat3 R = polar_rotation(F);
+  for (int i = 0; i < 3; ++i) r[i] = R.col(i);
+  Vec6 c;
+  for (int i = 0; i < 3; ++i) c[i] = r[i].dot(f[i]) - 1.0;
+  c[3] = r[1].dot(f[2]) + r[2].dot(f[1]);
+  c[4] = r[0].dot(f[2]) + r[2].dot(f[0]);
+  c[5] = r[0].dot(f[1]) + r[1].dot(f[0]);
+  return c;
+}
+
 void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w[4],
                       const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda,
                       Vec3 dx[4], double* det_f) {
-  Vec3 f[3], b[4];
+  Vec3 f[3], b[4], g[3];
   geometry(tet, p, f, b);
   if (det_f) *det_f = f[0].dot(f[1].cross(f[2]));
   double S[3][3];
-  const Vec6 C = tet.sqrt_volume * strain_from_columns(f, S);
+  const Vec6 C = tet.sqrt_volume * model_strain(params.model, f, g, S);
 
   double Q[3][3] = {};
   for (int k = 0; k < 4; ++k) {
@@ -143,8 +171,8 @@ void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w
     return;
   }
   for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
-  position_corrections(tet, f, b, w, dlambda, dx);
-  if (params.line_search) {
+  position_corrections(tet, g, b, w, dlambda, dx);
+  if (params.line_search && params.model == ElasticModel::StVK) {
     const double a = residual_decreasing_step(tet, f, C, lambda_t, dlambda, dx, params.alpha_tilde);
     if (a != 1.0) {
       dlambda *= a;
@@ -175,12 +203,12 @@ bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::v
 }
 
 double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Vec6& lambda_t,
-                        const Mat6& alpha_tilde) {
+                        const Mat6& alpha_tilde, ElasticModel model) {
   const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-  Vec3 f[3], b[4];
+  Vec3 f[3], b[4], g[3];
   geometry(tet, p, f, b);
   double S[3][3];
-  const Vec6 r = tet.sqrt_volume * strain_from_columns(f, S) + alpha_tilde * lambda_t;
+  const Vec6 r = tet.sqrt_volume * model_strain(model, f, g, S) + alpha_tilde * lambda_t;
   return r.squaredNorm();
 }
 

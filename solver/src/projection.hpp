@@ -15,13 +15,16 @@
 namespace pliant::detail {
 
 struct ProjectionParams {
+  ElasticModel model = ElasticModel::StVK;  // which strain the constraint measures
   Mat6 alpha_tilde;          // compliance / h^2
   double lambda_scale = 1;   // over-relaxation of the increment (lambda-SOR), 1 otherwise
   double inversion_floor = 0;
   bool line_search = false;  // shorten a tet's step until its residual does not grow
 };
 
-// Line search of one tet's projection (both kernels): the step is halved at most kMaxHalvings
+// Line search of one tet's projection (both kernels; StVK only: the corotated strain is linear
+// in x for the rotation it is linearised at, so its step lands on the tet's linearised solution
+// and only the rotation's change, second order, is left): the step is halved at most kMaxHalvings
 // times until the tet's own residual ||C + alpha~ lambda|| does not grow. Steps that change F by
 // less than kSmallStep (Frobenius) are taken whole: their quadratic remainder is below
 // kSmallStep^2 / 2 in strain, and testing them would only compare round-off near convergence.
@@ -46,6 +49,10 @@ bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::v
 
 // r_t = C_t(x) + alpha~ lambda_t, squared norm.
 double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Vec6& lambda_t,
-                        const Mat6& alpha_tilde);
+                        const Mat6& alpha_tilde, ElasticModel model = ElasticModel::StVK);
+
+// The corotated strain of F given by its columns f, and the columns r of its rotation (the
+// Jacobian's columns, see strain_jacobian): c = (r_i . f_i - 1, r_a . f_c + r_c . f_a).
+Vec6 corotated_from_columns(const Vec3 f[3], Vec3 r[3]);
 
 }  // namespace pliant::detail

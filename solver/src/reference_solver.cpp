@@ -35,7 +35,7 @@ struct Problem {
 
   double energy(const std::vector<Vec3>& x) const {
     double e = 0;
-    for (const TetRest& t : m.tets) e += strain_energy(t, m.stiffness, gather(x, t.v));
+    for (const TetRest& t : m.tets) e += strain_energy(t, m.stiffness, gather(x, t.v), m.material.model);
     for (size_t i = 0; i < x.size(); ++i) {
       if (dof[i] < 0) continue;
       e -= load[i].dot(x[i]);
@@ -51,7 +51,7 @@ struct Problem {
     Vec12 gt;
     Mat12 ht;
     for (const TetRest& t : m.tets) {
-      strain_energy_derivatives(t, m.stiffness, gather(x, t.v), &gt, &ht, true);
+      strain_energy_derivatives(t, m.stiffness, gather(x, t.v), &gt, &ht, true, m.material.model);
       for (int a = 0; a < 4; ++a) {
         const int da = dof[t.v[a]];
         if (da < 0) continue;

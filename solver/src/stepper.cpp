@@ -108,7 +108,7 @@ struct Stepper::Impl {
     partial.assign(tp.size(), 0.0);
     tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
       double s = 0;
-      for (size_t i = b; i < e; ++i) s += detail::pack_residual_squared(packed.packs[i], x, lambda, alpha_tilde);
+      for (size_t i = b; i < e; ++i) s += detail::pack_residual_squared(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
       partial[chunk] = s;
     }, 32);
     double sum = 0;
@@ -244,7 +244,7 @@ struct Stepper::Impl {
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int, size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) detail::pack_apply_increment(packed.packs[first + i], x, dl);
+        for (size_t i = b; i < e; ++i) detail::pack_apply_increment(packed.packs[first + i], x, dl, m.material.model);
       }, 32);
     }
   }
@@ -388,6 +388,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
   detail::ensure_packed(I.packed, m);
   accel->begin_substep(m.vertex_count(), I.packed.slot_count());
   detail::ProjectionParams params;
+  params.model = m.material.model;
   params.alpha_tilde = m.compliance / (h * h);
   params.lambda_scale = accel->increment_scale();
   params.inversion_floor = s.inversion_floor;
@@ -690,7 +691,7 @@ double residual_norm(const BodyModel& m, const std::vector<Vec3>& x, const std::
                      double h) {
   const Mat6 at = m.compliance / (h * h);
   double sum = 0;
-  for (size_t t = 0; t < m.tets.size(); ++t) sum += detail::residual_squared(m.tets[t], x, lambda[t], at);
+  for (size_t t = 0; t < m.tets.size(); ++t) sum += detail::residual_squared(m.tets[t], x, lambda[t], at, m.material.model);
   return std::sqrt(sum);
 }
 

@@ -1,6 +1,7 @@
 #include "pliant/strain_constraint.hpp"
 
 #include <Eigen/Dense>
+#include <Eigen/SVD>
 
 namespace pliant {
 
@@ -33,49 +34,156 @@ Vec6 strain_vector(const Mat3& F) {
   return c;
 }
 
-Vec6 strain_constraint(const TetRest& tet, const std::array<Vec3, 4>& x) {
-  return tet.sqrt_volume * strain_vector(deformation_gradient(tet, x));
+namespace {
+
+// Inversion-aware polar rotation from the SVD (the general case: any F).
+Mat3 polar_rotation_svd(const Mat3& F) {
+  Eigen::JacobiSVD<Mat3> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Mat3 U = svd.matrixU();
+  const Mat3 V = svd.matrixV();
+  // Singular values come sorted, largest first: flipping U's last column when U V^T would be a
+  // reflection negates the smallest one (and makes a rank-2 F's R proper as well).
+  if (U.determinant() * V.determinant() < 0) U.col(2) = -U.col(2);
+  return U * V.transpose();
 }
 
-Mat6x12 strain_jacobian(const TetRest& tet, const std::array<Vec3, 4>& x) {
+}  // namespace
+
+Mat3 polar_rotation(const Mat3& F) {
+  // For det F > 0: X <- (g X + X^-T / g) / 2 converges quadratically to the rotation, keeping
+  // det X > 0 (it acts on the singular values only: s <- (g s + 1 / (g s)) / 2). Roughly 20x
+  // cheaper than a Jacobi SVD; inverted and degenerate tets (rare) take the SVD.
+  Mat3 X = F;
+  for (int it = 0; it < kMaxPolarIterations; ++it) {
+    Mat3 cof;  // cofactor matrix: X^-T = cof / det X
+    cof.col(0) = X.col(1).cross(X.col(2));
+    cof.col(1) = X.col(2).cross(X.col(0));
+    cof.col(2) = X.col(0).cross(X.col(1));
+    const double det = X.col(0).dot(cof.col(0));
+    if (!(det > 0)) break;
+    const double nx = X.squaredNorm();
+    // Frobenius scaling g = sqrt(|X^-1| / |X|) while far from orthogonal; 1 once close (the
+    // unscaled iteration converges quadratically from there and the scaling would only add
+    // round-off).
+    const double ninv = cof.squaredNorm() / (det * det);
+    const double g = std::abs(nx - 3.0) > kPolarScalingBand ? std::sqrt(std::sqrt(ninv / nx)) : 1.0;
+    const Mat3 next = 0.5 * (g * X + cof / (g * det));
+    const double change = (next - X).squaredNorm();
+    X = next;
+    if (change < kPolarConverged) return X;  // with the scaled Newton iteration, about 3
+    // iterations near rest and under 10 for a condition number of 1e6 (Higham 1986)
+  }
+  return polar_rotation_svd(F);
+}
+
+Vec6 corotated_strain_vector(const Mat3& F, const Mat3& R) {
+  const Mat3 S = R.transpose() * F;
+  Vec6 c;
+  for (int i = 0; i < 3; ++i) c[i] = S(i, i) - 1.0;
+  for (int s = 0; s < 3; ++s) c[3 + s] = S(kShearA[s], kShearB[s]) + S(kShearB[s], kShearA[s]);
+  return c;
+}
+
+Vec6 strain_vector(const Mat3& F, ElasticModel model) {
+  return model == ElasticModel::Corotated ? corotated_strain_vector(F, polar_rotation(F)) : strain_vector(F);
+}
+
+Vec6 strain_constraint(const TetRest& tet, const std::array<Vec3, 4>& x, ElasticModel model) {
+  return tet.sqrt_volume * strain_vector(deformation_gradient(tet, x), model);
+}
+
+Mat6x12 strain_jacobian(const TetRest& tet, const std::array<Vec3, 4>& x, ElasticModel model) {
   const Mat3 F = deformation_gradient(tet, x);
+  // Green strain: d(|f_i|^2 / 2) = f_i . df_i, d(f_a . f_c) = f_c . df_a + f_a . df_c; the
+  // corotated rows r_i . f_i and r_a . f_c + r_c . f_a (R fixed) have R's columns in the same
+  // places.
+  const Mat3 G = model == ElasticModel::Corotated ? polar_rotation(F) : F;
   const auto b = shape_rows(tet.dm_inv);
   Mat6x12 J;
   for (int k = 0; k < 4; ++k) {
-    for (int i = 0; i < 3; ++i) J.block<1, 3>(i, 3 * k) = (F.col(i) * b[k][i]).transpose();
+    for (int i = 0; i < 3; ++i) J.block<1, 3>(i, 3 * k) = (G.col(i) * b[k][i]).transpose();
     for (int s = 0; s < 3; ++s) {
       const int a = kShearA[s], c = kShearB[s];
-      J.block<1, 3>(3 + s, 3 * k) = (F.col(c) * b[k][a] + F.col(a) * b[k][c]).transpose();
+      J.block<1, 3>(3 + s, 3 * k) = (G.col(c) * b[k][a] + G.col(a) * b[k][c]).transpose();
     }
   }
   return tet.sqrt_volume * J;
 }
 
-double strain_energy(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x) {
-  const Vec6 C = strain_constraint(tet, x);
+double strain_energy(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x, ElasticModel model) {
+  const Vec6 C = strain_constraint(tet, x, model);
   return 0.5 * C.dot(K * C);
 }
 
+namespace {
+
+using Mat9 = Eigen::Matrix<double, 9, 9>;
+
+// First Piola-Kirchhoff stress of the corotated energy density 1/2 c^T K c = mu |S - I|^2 +
+// lambda/2 tr(S - I)^2: P = 2 mu (F - R) + lambda tr(S - I) R, and its derivative dP/dF as a
+// 9x9 matrix on column-major vec(F). With F = R S and R^T dR = [w]x, the rotation's change
+// solves (tr(S) I - S) w = axial(R^T dF - dF^T R).
+Mat9 corotated_stress_derivative(const Mat3& F, const Mat3& R, const Lame& lame) {
+  const Mat3 S = R.transpose() * F;
+  const double tr = S.trace();
+  const Mat3 G = tr * Mat3::Identity() - S;
+  Eigen::FullPivLU<Mat3> lu(G);
+  Mat9 T;
+  for (int e = 0; e < 9; ++e) {
+    Mat3 dF = Mat3::Zero();
+    dF(e % 3, e / 3) = 1.0;
+    const Mat3 A = R.transpose() * dF - dF.transpose() * R;
+    const Vec3 axial(A(2, 1), A(0, 2), A(1, 0));
+    Mat3 dR = Mat3::Zero();
+    if (lu.isInvertible()) {
+      const Vec3 w = lu.solve(axial);
+      Mat3 W;
+      W << 0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0;
+      dR = R * W;
+    }
+    const Mat3 dP = 2.0 * lame.mu * (dF - dR) + lame.lambda * (R.transpose() * dF).trace() * R +
+                    lame.lambda * (tr - 3.0) * dR;
+    T.col(e) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(dP.data());
+  }
+  return T;
+}
+
+}  // namespace
+
 void strain_energy_derivatives(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x,
-                               Vec12* gradient, Mat12* hessian, bool project_psd) {
-  const Vec6 C = strain_constraint(tet, x);
-  const Mat6x12 J = strain_jacobian(tet, x);
+                               Vec12* gradient, Mat12* hessian, bool project_psd, ElasticModel model) {
+  const Vec6 C = strain_constraint(tet, x, model);
+  const Mat6x12 J = strain_jacobian(tet, x, model);
   const Vec6 KC = K * C;
   if (gradient) *gradient = J.transpose() * KC;
   if (!hessian) return;
-  Mat12 H = J.transpose() * K * J;
-  // Second derivatives of C: each row is sqrt(V0) times a bilinear form in the b_k, times I3.
   const auto b = shape_rows(tet.dm_inv);
-  for (int k = 0; k < 4; ++k)
-    for (int l = 0; l < 4; ++l) {
-      double w = 0;
-      for (int i = 0; i < 3; ++i) w += KC[i] * b[k][i] * b[l][i];
-      for (int s = 0; s < 3; ++s) {
-        const int a = kShearA[s], c = kShearB[s];
-        w += KC[3 + s] * (b[k][a] * b[l][c] + b[k][c] * b[l][a]);
+  Mat12 H;
+  if (model == ElasticModel::Corotated) {
+    // H = V0 D^T (dP/dF) D with D = d vec(F) / dx: dF(c, i) / dx_k(c) = b_k[i].
+    // K holds the Lame parameters: K(0,1) = lambda, K(3,3) = mu.
+    const Lame lame{K(0, 1), K(3, 3)};
+    const Mat3 F = deformation_gradient(tet, x);
+    const Mat9 T = corotated_stress_derivative(F, polar_rotation(F), lame);
+    Eigen::Matrix<double, 9, 12> D = Eigen::Matrix<double, 9, 12>::Zero();
+    for (int k = 0; k < 4; ++k)
+      for (int i = 0; i < 3; ++i)
+        for (int c = 0; c < 3; ++c) D(3 * i + c, 3 * k + c) = b[k][i];
+    H = tet.volume * D.transpose() * T * D;
+  } else {
+    H = J.transpose() * K * J;
+    // Second derivatives of C: each row is sqrt(V0) times a bilinear form in the b_k, times I3.
+    for (int k = 0; k < 4; ++k)
+      for (int l = 0; l < 4; ++l) {
+        double w = 0;
+        for (int i = 0; i < 3; ++i) w += KC[i] * b[k][i] * b[l][i];
+        for (int s = 0; s < 3; ++s) {
+          const int a = kShearA[s], c = kShearB[s];
+          w += KC[3 + s] * (b[k][a] * b[l][c] + b[k][c] * b[l][a]);
+        }
+        H.block<3, 3>(3 * k, 3 * l).diagonal().array() += tet.sqrt_volume * w;
       }
-      H.block<3, 3>(3 * k, 3 * l).diagonal().array() += tet.sqrt_volume * w;
-    }
+  }
   if (project_psd) {
     Eigen::SelfAdjointEigenSolver<Mat12> eig(H);
     Vec12 ev = eig.eigenvalues().cwiseMax(0.0);

@@ -115,6 +115,7 @@ TEST(Service, SceneLifecycle) {
   EXPECT_EQ(created->spec().solver().iterations(), 4);
   EXPECT_NEAR(created->spec().material().poisson_ratio(), 0.4, 1e-12);  // default filled in
   EXPECT_EQ(created->spec().material().inertia_floor(), kDefaultInertiaFloor);  // default filled in
+  EXPECT_EQ(created->spec().material().model(), v1::ELASTIC_MODEL_STVK);  // default filled in
 
   // The server picks an id when none is given.
   v1::CreateSceneRequest anon = beam_request("");
@@ -169,6 +170,34 @@ TEST(Service, SceneLifecycle) {
   updated = c.update_scene(floor);
   EXPECT_EQ(updated.status.code, kInvalidArgument);
   EXPECT_NE(updated.status.message.find("material.inertia_floor"), std::string::npos) << updated.status.message;
+  {
+    // The strain model: switched live, the rest of the material kept, and it is what the scene
+    // steps with (the same steps from the same state end elsewhere).
+    ASSERT_TRUE(c.reset_scene("a").ok());
+    ASSERT_TRUE(c.step("a", 20).ok());
+    const auto stvk = positions_of(c, "a");
+    v1::UpdateSceneRequest corot;
+    corot.set_scene_id("a");
+    corot.mutable_material()->set_model(v1::ELASTIC_MODEL_COROTATED);
+    updated = c.update_scene(corot);
+    ASSERT_TRUE(updated.ok()) << updated.status.to_string();
+    EXPECT_EQ(updated->spec().material().model(), v1::ELASTIC_MODEL_COROTATED);
+    EXPECT_EQ(updated->spec().material().young_modulus(), 2e6);
+    EXPECT_EQ(updated->spec().material().inertia_floor(), 0.5);
+    ASSERT_TRUE(c.reset_scene("a").ok());
+    ASSERT_TRUE(c.step("a", 20).ok());
+    const auto corotated = positions_of(c, "a");
+    ASSERT_EQ(corotated.size(), stvk.size());
+    double moved = 0;
+    for (size_t i = 0; i < stvk.size(); ++i) moved = std::max(moved, std::abs(corotated[i] - stvk[i]));
+    EXPECT_GT(moved, 1e-9);
+    EXPECT_LT(moved, 1e-2);  // same material at small strain: close, not equal
+    corot.mutable_material()->set_model(static_cast<v1::ElasticModel>(7));
+    updated = c.update_scene(corot);
+    EXPECT_EQ(updated.status.code, kInvalidArgument);
+    EXPECT_NE(updated.status.message.find("material.model must be ELASTIC_MODEL_STVK or ELASTIC_MODEL_COROTATED, got 7"),
+              std::string::npos) << updated.status.message;
+  }
 
   auto reset = c.reset_scene("a");
   ASSERT_TRUE(reset.ok());
@@ -612,6 +641,7 @@ TEST(Service, RestartKeepsScenes) {
     auto resolved = beam_request("resolved");
     resolved.mutable_spec()->mutable_solver()->set_target_wave_courant_number(0.5);
     resolved.mutable_spec()->mutable_material()->set_inertia_floor(0);  // plain lumped masses, kept too
+    resolved.mutable_spec()->mutable_material()->set_model(v1::ELASTIC_MODEL_COROTATED);  // kept too
     ASSERT_TRUE(c.create_scene(resolved).ok());
     auto deleted = beam_request("deleted");
     ASSERT_TRUE(c.create_scene(deleted).ok());
@@ -640,6 +670,7 @@ TEST(Service, RestartKeepsScenes) {
     ASSERT_TRUE(r2.ok()) << r2.status.to_string();
     EXPECT_DOUBLE_EQ(r2->spec().solver().target_wave_courant_number(), 0.5);
     EXPECT_EQ(r2->spec().material().inertia_floor(), 0.0);
+    EXPECT_EQ(r2->spec().material().model(), v1::ELASTIC_MODEL_COROTATED);
     EXPECT_LE(r2->wave_courant_number(), 0.5 * (1 + 1e-9));
     EXPECT_GT(r2->spec().solver().substeps(), 2);  // chosen, not the request's 2
     EXPECT_EQ(c.get_scene("deleted").status.code, kNotFound);
@@ -714,6 +745,8 @@ TEST(Service, BadInputsGetTheRightStatus) {
        kInvalidArgument, "spec.material.inertia_floor must be in [0, 1] (a fraction of the mean vertex mass), got 2"},
       {"inertia floor nan", [](auto& r) { r.mutable_spec()->mutable_material()->set_inertia_floor(NAN); },
        kInvalidArgument, "spec.material.inertia_floor"},
+      {"unknown strain model", [](auto& r) { r.mutable_spec()->mutable_material()->set_model(static_cast<v1::ElasticModel>(9)); },
+       kInvalidArgument, "spec.material.model must be ELASTIC_MODEL_STVK or ELASTIC_MODEL_COROTATED, got 9"},
       {"unknown builtin", [](auto& r) { r.mutable_spec()->mutable_mesh()->set_builtin("beam9"); },
        kInvalidArgument, "spec.mesh.builtin 'beam9'"},
       {"no mesh", [](auto& r) { r.mutable_spec()->clear_mesh(); }, kInvalidArgument, "spec.mesh"},

@@ -270,3 +270,208 @@ TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
       EXPECT_LT((with[tet.v[k]] - x[tet.v[k]] - dx[k]).norm(), 1e-10 * (1 + dx[k].norm())) << t << "," << k;
   }
 }
+
+// ---- The corotated strain (ElasticModel::Corotated) ----
+
+namespace {
+
+// F with chosen singular values between two random rotations; a negative value inverts it.
+Mat3 f_with_singular_values(double s0, double s1, double s2) {
+  const Mat3 U = Eigen::Quaterniond::UnitRandom().toRotationMatrix();
+  const Mat3 V = Eigen::Quaterniond::UnitRandom().toRotationMatrix();
+  return U * Vec3(s0, s1, s2).asDiagonal() * V.transpose();
+}
+
+// mu |S - I|^2 + lambda/2 tr(S - I)^2 from the singular values s of F (S's eigenvalues, the
+// smallest negated when det F < 0), written independently of the 6-vector form.
+double corotated_density(const Mat3& F, const Lame& l) {
+  Eigen::SelfAdjointEigenSolver<Mat3> eig(F.transpose() * F);  // ascending
+  Vec3 s = eig.eigenvalues().cwiseMax(0.0).cwiseSqrt();
+  if (F.determinant() < 0) s[0] = -s[0];
+  const Vec3 e = s - Vec3::Ones();
+  return l.mu * e.squaredNorm() + 0.5 * l.lambda * e.sum() * e.sum();
+}
+
+}  // namespace
+
+TEST(Corotated, PolarRotationIsProperAndLeavesASymmetricStretch) {
+  // R must be a rotation (R^T R = I, det R = +1) with S = R^T F symmetric; for det F > 0 S is
+  // positive definite, for det F < 0 exactly its smallest-magnitude eigenvalue is negative.
+  srand(11);  // Quaterniond::UnitRandom draws from rand()
+  const double cases[][3] = {{1, 1, 1},       {1.01, 0.99, 1},  {2, 1, 0.5},     {5.5, 1, 0.07},
+                             {1e3, 1, 1},     {1, 1, 1e-4},     {1, 1, -0.3},    {2, 0.5, -0.1},
+                             {1, 1, -1},      {3, 1, -1e-6},    {1, 0.999999, 1}};
+  for (const auto& c : cases)
+    for (int rep = 0; rep < 5; ++rep) {
+      const Mat3 F = f_with_singular_values(c[0], c[1], c[2]);
+      const Mat3 R = polar_rotation(F);
+      EXPECT_LT((R.transpose() * R - Mat3::Identity()).norm(), 1e-12) << c[0] << " " << c[1] << " " << c[2];
+      EXPECT_NEAR(R.determinant(), 1.0, 1e-12);
+      const Mat3 S = R.transpose() * F;
+      EXPECT_LT((S - S.transpose()).norm(), 1e-10 * F.norm()) << c[0] << " " << c[1] << " " << c[2];
+      Eigen::SelfAdjointEigenSolver<Mat3> eig(0.5 * (S + S.transpose()));
+      const Vec3 ev = eig.eigenvalues();  // ascending
+      const Vec3 expect = Vec3(std::abs(c[0]), std::abs(c[1]), std::abs(c[2]));
+      // The eigenvalues of S are the singular values, the smallest negated when inverted.
+      std::array<double, 3> sv = {expect[0], expect[1], expect[2]};
+      std::sort(sv.begin(), sv.end());
+      if (c[2] < 0) sv[0] = -sv[0];
+      std::sort(sv.begin(), sv.end());
+      for (int i = 0; i < 3; ++i) EXPECT_NEAR(ev[i], sv[i], 1e-9 * expect.maxCoeff()) << c[0] << " " << c[1] << " " << c[2];
+    }
+}
+
+TEST(Corotated, RigidMotionGivesZeroStrainButAMirrorImageDoesNot) {
+  // Rotations of any angle (up to half a turn) give zero strain and zero residual through both
+  // the reference and the solver's kernel. A mirror image (det F = -1) has zero Green strain:
+  // the thesis's constraint cannot tell an inverted tet from its rest shape. The corotated
+  // strain sees it flipped through one direction: one principal strain of -2.
+  std::mt19937 rng(12);
+  srand(12);
+  for (int trial = 0; trial < 20; ++trial) {
+    const auto X = random_tet(rng);
+    const TetRest tet = make_rest(X);
+    const Eigen::Quaterniond q = Eigen::Quaterniond::UnitRandom();
+    std::array<Vec3, 4> x, mirrored;
+    for (int k = 0; k < 4; ++k) {
+      x[k] = q * X[k] + Vec3(0.5, -2, 1);
+      mirrored[k] = Vec3(-X[k].x(), X[k].y(), X[k].z());
+    }
+    EXPECT_LT(strain_constraint(tet, x, ElasticModel::Corotated).norm(), 1e-12);
+    std::vector<Vec3> xs(x.begin(), x.end());
+    EXPECT_LT(detail::residual_squared(tet, xs, Vec6::Zero(), Mat6::Identity(), ElasticModel::Corotated), 1e-24);
+    EXPECT_LT(strain_constraint(tet, mirrored, ElasticModel::StVK).norm(), 1e-12);
+    const Vec6 c = strain_vector(deformation_gradient(tet, mirrored), ElasticModel::Corotated);
+    // Trace of S - I is -2, its Frobenius norm 2 (engineering shears count twice in c).
+    EXPECT_NEAR(c[0] + c[1] + c[2], -2.0, 1e-9);
+    const double frob2 = c.head<3>().squaredNorm() + 0.5 * c.tail<3>().squaredNorm();
+    EXPECT_NEAR(frob2, 4.0, 1e-9);
+  }
+}
+
+TEST(Corotated, EnergyEqualsVolumeTimesCorotatedDensity) {
+  std::mt19937 rng(13);
+  const Lame l = lame_parameters(2.5e5, 0.42);
+  const Mat6 K = stvk_stiffness(l);
+  for (int trial = 0; trial < 50; ++trial) {
+    const auto X = random_tet(rng);
+    const TetRest tet = make_rest(X);
+    const auto x = deform(X, rng, trial < 40 ? 0.3 : 0.8);  // the last ones may be inverted
+    const double expected = tet.volume * corotated_density(deformation_gradient(tet, x), l);
+    EXPECT_NEAR(strain_energy(tet, K, x, ElasticModel::Corotated), expected, 1e-9 * std::abs(expected) + 1e-12);
+  }
+}
+
+TEST(Corotated, GradientAndHessianMatchFiniteDifferences) {
+  // The gradient J^T K C (J with R held fixed) is the exact energy gradient; the Hessian carries
+  // the rotation's derivative. Both against central differences, on deformed and inverted tets.
+  std::mt19937 rng(14);
+  const Mat6 K = stvk_stiffness(lame_parameters(1.0, 0.3));
+  int inverted = 0;
+  for (int trial = 0; trial < 16; ++trial) {
+    const TetRest tet = make_rest(random_tet(rng));
+    auto x = deform(random_tet(rng), rng, 0.2);
+    if (trial >= 12) std::swap(x[0], x[1]);  // mirrored order: det F < 0
+    inverted += volume_ratio(tet, x) < 0;
+    Vec12 g;
+    Mat12 H;
+    strain_energy_derivatives(tet, K, x, &g, &H, false, ElasticModel::Corotated);
+    const double eps = 1e-6;
+    for (int c = 0; c < 12; ++c) {
+      auto xp = x, xm = x;
+      xp[c / 3][c % 3] += eps;
+      xm[c / 3][c % 3] -= eps;
+      const double fd = (strain_energy(tet, K, xp, ElasticModel::Corotated) -
+                         strain_energy(tet, K, xm, ElasticModel::Corotated)) / (2 * eps);
+      EXPECT_NEAR(g[c], fd, 1e-6 * (1 + std::abs(fd))) << trial << "," << c;
+      Vec12 gp, gm;
+      strain_energy_derivatives(tet, K, xp, &gp, nullptr, false, ElasticModel::Corotated);
+      strain_energy_derivatives(tet, K, xm, &gm, nullptr, false, ElasticModel::Corotated);
+      const Vec12 col = (gp - gm) / (2 * eps);
+      for (int r = 0; r < 12; ++r) EXPECT_NEAR(H(r, c), col[r], 1e-5 * (1 + std::abs(col[r]))) << trial << "," << r << "," << c;
+    }
+  }
+  EXPECT_GE(inverted, 3) << "the inverted cases must be inverted, or they test nothing";
+}
+
+TEST(Corotated, AgreesWithStvkAtSmallStrainAndResistsCompressionWhereStvkGivesWay) {
+  // Same K: for F = R (I + e H) the two strains differ by O(e^2). Squashed along one axis to a
+  // stretch s, StVK's stress there ((lambda + 2 mu) (s^2 - 1) s / 2 for a uniaxial squash)
+  // falls back to zero as s -> 0; the corotated one ((lambda + 2 mu)(s - 1)) keeps growing.
+  std::mt19937 rng(15);
+  srand(15);
+  for (int trial = 0; trial < 10; ++trial) {
+    Mat3 H = Mat3::Random();
+    const Mat3 R = Eigen::Quaterniond::UnitRandom().toRotationMatrix();
+    for (double e : {1e-2, 1e-3}) {
+      const Mat3 F = R * (Mat3::Identity() + e * H);
+      const double diff = (strain_vector(F, ElasticModel::Corotated) - strain_vector(F, ElasticModel::StVK)).norm();
+      EXPECT_LT(diff, 10 * e * e * H.squaredNorm()) << e;
+    }
+  }
+  const TetRest tet = make_rest({Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1)});
+  const Mat6 K = stvk_stiffness(lame_parameters(1.0, 0.3));
+  auto force_on_apex = [&](double s, ElasticModel m) {  // -dE/dz of vertex 3 of the squashed tet
+    const std::array<Vec3, 4> y = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, s)};
+    Vec12 g;
+    strain_energy_derivatives(tet, K, y, &g, nullptr, false, m);
+    return -g[11];
+  };
+  // The push back (+z on the apex) at 60%, 30% and 5% of the height: StVK's is smaller at 5%
+  // than at 60%, the corotated one grows as the tet is squashed.
+  EXPECT_GT(force_on_apex(0.6, ElasticModel::StVK), force_on_apex(0.05, ElasticModel::StVK));
+  EXPECT_GT(force_on_apex(0.05, ElasticModel::Corotated), force_on_apex(0.3, ElasticModel::Corotated));
+  EXPECT_GT(force_on_apex(0.3, ElasticModel::Corotated), force_on_apex(0.6, ElasticModel::Corotated));
+  EXPECT_GT(force_on_apex(0.6, ElasticModel::Corotated), 0.0);
+}
+
+TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
+  // Scalar kernel (Jacobi) and SIMD pack (Gauss-Seidel) against [J W J^T + alpha~] dl =
+  // -C - alpha~ lambda, dx = W J^T dl, with the corotated J (R of the current positions).
+  TetMesh mesh;
+  std::mt19937 rng(16);
+  for (int t = 0; t < 3; ++t) {
+    const auto X = random_tet(rng);
+    for (const Vec3& p : X) mesh.vertices.push_back(p + Vec3(3.0 * t, 0, 0));
+    mesh.tets.push_back({4 * t, 4 * t + 1, 4 * t + 2, 4 * t + 3});
+  }
+  Material mat{2e5, 0.35, 900};
+  mat.model = ElasticModel::Corotated;
+  auto model = build_model(mesh, mat);
+  detail::PackedModel packed;
+  detail::ensure_packed(packed, *model);
+  ASSERT_EQ(packed.packs.size(), 1u);
+  std::vector<Vec3> x = mesh.vertices;
+  for (auto& p : x) p += 0.2 * Vec3(std::sin(7 * p.x()), std::cos(5 * p.y()), std::sin(3 * p.z()));
+  std::vector<Vec6> lambda(3, Vec6::Constant(1e-4)), dl(3, Vec6::Zero());
+  const Mat6 at = model->compliance * 3600.0;
+  std::vector<Vec3> xp = x;
+  std::vector<Vec6> lp = lambda;
+  detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0, true);
+  for (int t = 0; t < 3; ++t) {
+    const TetRest& tet = model->tets[t];
+    const auto xt = gather(x, tet.v);
+    const double w[4] = {model->inv_mass[tet.v[0]], model->inv_mass[tet.v[1]], model->inv_mass[tet.v[2]],
+                         model->inv_mass[tet.v[3]]};
+    const Mat6x12 J = strain_jacobian(tet, xt, ElasticModel::Corotated);
+    Eigen::Matrix<double, 12, 12> W = Eigen::Matrix<double, 12, 12>::Zero();
+    for (int k = 0; k < 4; ++k) W.block<3, 3>(3 * k, 3 * k) = w[k] * Mat3::Identity();
+    const Vec6 expected = (J * W * J.transpose() + at).ldlt().solve(
+        -strain_constraint(tet, xt, ElasticModel::Corotated) - at * lambda[t]);
+    const Vec12 move = W * J.transpose() * expected;
+    ASSERT_GT(expected.norm(), 1e-8);
+    EXPECT_LT((dl[t] - expected).norm(), 1e-10 * expected.norm()) << t;
+    for (int k = 0; k < 4; ++k)
+      EXPECT_LT((xp[tet.v[k]] - x[tet.v[k]] - move.segment<3>(3 * k)).norm(), 1e-10 * move.norm()) << t << "," << k;
+    detail::ProjectionParams params;
+    params.model = ElasticModel::Corotated;
+    params.alpha_tilde = at;
+    params.line_search = true;
+    const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+    Vec6 inc;
+    Vec3 dx[4];
+    detail::strain_increment(tet, p, w, lambda[t], params, inc, dx);
+    EXPECT_LT((inc - expected).norm(), 1e-10 * expected.norm()) << t;
+    for (int k = 0; k < 4; ++k) EXPECT_LT((dx[k] - move.segment<3>(3 * k)).norm(), 1e-10 * move.norm());
+  }
+}

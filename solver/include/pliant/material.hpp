@@ -5,12 +5,27 @@
 
 #include <Eigen/Core>
 
+#include <optional>
 #include <string>
+#include <string_view>
 
 namespace pliant {
 
 using Mat6 = Eigen::Matrix<double, 6, 6>;
 using Vec6 = Eigen::Matrix<double, 6, 1>;
+
+// Which strain measure the tet constraint uses; both have the same 6x6 stiffness K (Lame
+// parameters from E and nu), so they agree at small strain and differ at large strain:
+//  - StVK: Green strain E = 1/2 (F^T F - I), the thesis's constraint. Its compressive stress
+//    peaks at a stretch of 1/sqrt(3) and falls to zero at 0: a strongly compressed tet offers
+//    little resistance (docs/solver.md, "Real-time robustness").
+//  - Corotated: S - I with F = R S the polar decomposition (R a rotation, det R = +1), the
+//    strain of corotational FEM. Stress is linear in stretch, so compression is resisted all
+//    the way down; an inverted tet has a negative eigenvalue of S and is pushed back through it.
+enum class ElasticModel { StVK, Corotated };
+
+std::string_view to_string(ElasticModel m);
+std::optional<ElasticModel> parse_elastic_model(std::string_view s);  // "stvk" | "corotated"
 
 // Default inertia floor (fraction of the mean vertex mass), see Material::inertia_floor.
 inline constexpr double kDefaultInertiaFloor = 0.1;
@@ -26,6 +41,7 @@ struct Material {
   // lumped masses. Not an elastic property; it lives here because it is part of how the
   // density becomes vertex masses.
   double inertia_floor = kDefaultInertiaFloor;
+  ElasticModel model = ElasticModel::StVK;  // strain measure of the constraint (see above)
 };
 
 struct Lame {

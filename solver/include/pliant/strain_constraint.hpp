@@ -2,6 +2,8 @@
 // C = sqrt(V0) * c, c = (e_xx, e_yy, e_zz, g_yz, g_xz, g_xy), Green strain E = 1/2 (F^T F - I),
 // engineering shears g_ij = 2 E_ij = f_i . f_j (f_i the columns of F = D_s D_m^-1).
 // V0 is the REST volume (a constant), so grad C = sqrt(V0) grad c.
+// With ElasticModel::Corotated the strain is S - I instead (F = R S, the polar decomposition with
+// a proper rotation R), same Voigt order and engineering shears 2 S_ij, same stiffness K.
 // These are the reference (readable) versions used by tests and the Newton solver; the solver's
 // hot loop uses an algebraically equal fused form in projection.cpp.
 #pragma once
@@ -22,24 +24,50 @@ using Vec12 = Eigen::Matrix<double, 12, 1>;
 // Deformation gradient of a tet at positions x.
 Mat3 deformation_gradient(const TetRest& tet, const std::array<Vec3, 4>& x);
 
-// Strain vector c (no sqrt(V0) factor).
+// Green strain vector c (no sqrt(V0) factor).
 Vec6 strain_vector(const Mat3& F);
 
-// C(x) = sqrt(V0) c.
-Vec6 strain_constraint(const TetRest& tet, const std::array<Vec3, 4>& x);
+// Rotation R of the polar decomposition F = R S with det R = +1, also for an inverted F (then S
+// has one negative eigenvalue, the one of smallest magnitude: the tet is seen as flipped through
+// its thinnest direction, Irving et al. 2004). For a degenerate F (rank 2) the third column is
+// the cross product of the first two.
+Mat3 polar_rotation(const Mat3& F);
 
-// dC/dx, 6x12, columns ordered (x0, y0, z0, x1, ..., z3).
-Mat6x12 strain_jacobian(const TetRest& tet, const std::array<Vec3, 4>& x);
+// Its scaled Newton iteration (also run 4 lanes at once by the SIMD kernel): at most this many
+// iterations (then the SVD), the Frobenius scaling used while | |X|^2 - 3 | exceeds the band,
+// converged when the squared change of X falls below kPolarConverged (quadratic convergence:
+// a change of 1e-8 leaves an error of about 1e-16).
+inline constexpr int kMaxPolarIterations = 20;
+inline constexpr double kPolarScalingBand = 1e-2;
+inline constexpr double kPolarConverged = 1e-16;
+
+// Corotated strain vector of F with its rotation R: S = R^T F (symmetrised), c = (S00 - 1,
+// S11 - 1, S22 - 1, 2 S12, 2 S02, 2 S01).
+Vec6 corotated_strain_vector(const Mat3& F, const Mat3& R);
+
+// Strain vector of the given model.
+Vec6 strain_vector(const Mat3& F, ElasticModel model);
+
+// C(x) = sqrt(V0) c.
+Vec6 strain_constraint(const TetRest& tet, const std::array<Vec3, 4>& x,
+                       ElasticModel model = ElasticModel::StVK);
+
+// dC/dx, 6x12, columns ordered (x0, y0, z0, x1, ..., z3). For Corotated it is the derivative
+// with R held fixed; its transpose times K C is the exact energy gradient (d tr(S) / dF = R).
+Mat6x12 strain_jacobian(const TetRest& tet, const std::array<Vec3, 4>& x,
+                        ElasticModel model = ElasticModel::StVK);
 
 // Elastic energy of the tet, 1/2 C^T K C.
-double strain_energy(const TetRest& tet, const Mat6& stiffness, const std::array<Vec3, 4>& x);
+double strain_energy(const TetRest& tet, const Mat6& stiffness, const std::array<Vec3, 4>& x,
+                     ElasticModel model = ElasticModel::StVK);
 
 // Gradient (12) and Hessian (12x12) of that energy; the Hessian includes the second-derivative
-// terms of C. With project_psd the Hessian is made positive semi-definite (eigenvalue clamp)
-// so that Newton steps are descent directions far from equilibrium.
+// terms of C (for Corotated, those of the rotation). With project_psd the Hessian is made
+// positive semi-definite (eigenvalue clamp) so that Newton steps are descent directions far
+// from equilibrium.
 void strain_energy_derivatives(const TetRest& tet, const Mat6& stiffness,
                                const std::array<Vec3, 4>& x, Vec12* gradient, Mat12* hessian,
-                               bool project_psd);
+                               bool project_psd, ElasticModel model = ElasticModel::StVK);
 
 // Volume ratio det(F).
 double volume_ratio(const TetRest& tet, const std::array<Vec3, 4>& x);
