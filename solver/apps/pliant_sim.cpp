@@ -70,6 +70,7 @@ common options:
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
 static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)
+converge, static, reference, run: the JSON has "model" (the strain model).
 static, run: the JSON also has inertia_floor, added_inertia (what the floor adds, as a fraction
            of the total mass) and floored_vertices, rms_speed (mass-weighted, m/s), kinetic_energy (J) and
            wave_courant_number (c_p h / mean edge: the elements a pressure wave crosses per
@@ -242,6 +243,7 @@ int cmd_converge(const cli::Args& a) {
       .add("mesh", model->name)
       .add("tets", long(model->tet_count()))
       .add("young", mat.young)
+      .add("model", std::string(to_string(mat.model)))
       .add("dt", h)
       .add("omega", s.omega)
       .add("window", s.window)
@@ -342,6 +344,7 @@ int cmd_reference(const cli::Args& a) {
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   JsonLine j;
   j.add("mesh", model->name).add("young", mat.young).add("poisson", mat.poisson).add("density", mat.density)
+      .add("model", std::string(to_string(mat.model)))
       .add("tip_displacement", tip_displacement(*model, r.x)).add("newton_iterations", r.iterations)
       .add("converged", r.converged).add("gradient_norm", r.gradient_norm).add("wall_ms", ms)
       .add("inverted_tets", long(count_inverted(*model, r.x)));
