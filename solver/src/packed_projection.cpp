@@ -68,8 +68,8 @@ namespace {
 
 struct PackGeometry {
   v4d f[3][3];  // f[i][c]: component c of column i of F
-  v4d j[3][3];  // the Jacobian's columns, same layout: F's (StVK) or R's (Corotated)
-  v4d S00, S11, S22, S01, S02, S12;  // Gram matrix of those columns
+  v4d j[3][3];  // same layout: F's columns (StVK, the Jacobian's) or R's (Corotated)
+  v4d S00, S11, S22, S01, S02, S12;  // StVK: F^T F (what its 6x6 system is built from)
   v4d c[6];     // strain vector (no sqrt(V0))
 };
 
@@ -158,20 +158,14 @@ inline void pack_rotation(const v4d f[3][3], v4d r[3][3]) {
     for (int c = 0; c < 3; ++c) r[i][c] = X[i][c];
 }
 
-// Corotated strain from g.f: c = (r_i . f_i - 1, r_a . f_c + r_c . f_a), the Jacobian's columns
-// are R's.
+// Corotated strain from g.f: c = (r_i . f_i - 1, r_a . f_c + r_c . f_a), R's columns in g.j
+// (the Gram fields S.. are left unset: the corotated system is built from pack_corotated_rows).
 inline void corotated_strain(PackGeometry& g) {
   pack_rotation(g.f, g.j);
   for (int i = 0; i < 3; ++i) g.c[i] = column_dot(g.j[i], g.f[i]) - 1.0;
   g.c[3] = column_dot(g.j[1], g.f[2]) + column_dot(g.j[2], g.f[1]);
   g.c[4] = column_dot(g.j[0], g.f[2]) + column_dot(g.j[2], g.f[0]);
   g.c[5] = column_dot(g.j[0], g.f[1]) + column_dot(g.j[1], g.f[0]);
-  g.S00 = column_dot(g.j[0], g.j[0]);
-  g.S11 = column_dot(g.j[1], g.j[1]);
-  g.S22 = column_dot(g.j[2], g.j[2]);
-  g.S01 = column_dot(g.j[0], g.j[1]);
-  g.S02 = column_dot(g.j[0], g.j[2]);
-  g.S12 = column_dot(g.j[1], g.j[2]);
 }
 
 inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeometry& g, ElasticModel model) {
@@ -271,6 +265,69 @@ v4d residual_decreasing_step(const TetPack& p, const PackGeometry& g, const v4d 
   return step;
 }
 
+// Solves A y = rhs lane-wise (LDL^T, lower triangle of A), y scaled by lambda_scale; D gets the
+// pivots (a lane with a non-positive pivot is not positive definite).
+inline void ldlt_solve(const v4d A[6][6], const v4d rhs[6], double lambda_scale, v4d D[6], v4d y[6]) {
+  v4d L[6][6], invD[6];
+  for (int j = 0; j < 6; ++j) {
+    v4d d = A[j][j];
+    for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k] * D[k];
+    D[j] = d;
+    invD[j] = 1.0 / d;
+    for (int i = j + 1; i < 6; ++i) {
+      v4d s = A[i][j];
+      for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k] * D[k];
+      L[i][j] = s * invD[j];
+    }
+  }
+  v4d z[6];
+  for (int i = 0; i < 6; ++i) {
+    v4d s = rhs[i];
+    for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
+    z[i] = s;
+  }
+  for (int i = 5; i >= 0; --i) {
+    v4d s = z[i] * invD[i];
+    for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
+    y[i] = lambda_scale * s;
+  }
+}
+
+// The corotated constraint's rows Y_ik (corotated_rows in projection.hpp) for a pack: the
+// stretch S = sym(R^T F) from g (g.j holds R), Ginv per lane.
+inline void pack_corotated_rows(const TetPack& p, const PackGeometry& g, v4d Y[6][4][3]) {
+  const v4d S[6] = {column_dot(g.j[0], g.f[0]), column_dot(g.j[1], g.f[1]), column_dot(g.j[2], g.f[2]),
+                    0.5 * (column_dot(g.j[1], g.f[2]) + column_dot(g.j[2], g.f[1])),
+                    0.5 * (column_dot(g.j[0], g.f[2]) + column_dot(g.j[2], g.f[0])),
+                    0.5 * (column_dot(g.j[0], g.f[1]) + column_dot(g.j[1], g.f[0]))};
+  v4d Ginv[6];
+  for (int l = 0; l < 4; ++l) {
+    const double Sl[6] = {S[0][l], S[1][l], S[2][l], S[3][l], S[4][l], S[5][l]};
+    double Gl[6];
+    corotated_ginv(Sl, Gl);
+    for (int i = 0; i < 6; ++i) Ginv[i][l] = Gl[i];
+  }
+  v4d b[4][3];
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
+  for (int i = 0; i < 3; ++i) b[3][i] = -(b[0][i] + b[1][i] + b[2][i]);
+  corotated_rows(S, Ginv, b, Y);
+}
+
+// dx_k = w_k sqrt(V0) R sum_i y_i Y_ik.
+inline void pack_corotated_corrections(const TetPack& p, const PackGeometry& g, const v4d Y[6][4][3],
+                                       const v4d y[6], v4d dx[4][3]) {
+  for (int k = 0; k < 4; ++k) {
+    v4d v[3];
+    for (int c = 0; c < 3; ++c) {
+      v[c] = y[0] * Y[0][k][c];
+      for (int i = 1; i < 6; ++i) v[c] += y[i] * Y[i][k][c];
+    }
+    const v4d s = p.w[k] * p.sqrt_volume;
+    for (int c = 0; c < 3; ++c) dx[k][c] = s * (g.j[0][c] * v[0] + g.j[1][c] * v[1] + g.j[2][c] * v[2]);
+  }
+}
+
 }  // namespace
 
 int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
@@ -283,64 +340,53 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   pack_constraint(p, g, C);
   gather_lambda(p, lambda, lam);
 
-  const v4d S00 = g.S00, S11 = g.S11, S22 = g.S22, S01 = g.S01, S02 = g.S02, S12 = g.S12;
-  const v4d Q00 = p.Q[0], Q11 = p.Q[1], Q22 = p.Q[2], Q01 = p.Q[3], Q02 = p.Q[4], Q12 = p.Q[5];
-  const v4d V = p.volume;
   v4d A[6][6];
-  A[0][0] = V * (S00 * Q00) + at(0, 0);
-  A[1][0] = V * (S01 * Q01) + at(1, 0);
-  A[1][1] = V * (S11 * Q11) + at(1, 1);
-  A[2][0] = V * (S02 * Q02) + at(2, 0);
-  A[2][1] = V * (S12 * Q12) + at(2, 1);
-  A[2][2] = V * (S22 * Q22) + at(2, 2);
-  A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
-  A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
-  A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
-  A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
-  A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
-  A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
-  A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
-  A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
-  A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
-  A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
-  A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
-  A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
-  A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
-  A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
-  A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
-
+  v4d Y[6][4][3];  // corotated only
+  if (elastic == ElasticModel::Corotated) {
+    pack_corotated_rows(p, g, Y);
+    for (int i = 0; i < 6; ++i)
+      for (int j = 0; j <= i; ++j) {
+        v4d sum = p.w[0] * column_dot(Y[i][0], Y[j][0]);
+        for (int k = 1; k < 4; ++k) sum += p.w[k] * column_dot(Y[i][k], Y[j][k]);
+        A[i][j] = p.volume * sum + at(i, j);
+      }
+  } else {
+    const v4d S00 = g.S00, S11 = g.S11, S22 = g.S22, S01 = g.S01, S02 = g.S02, S12 = g.S12;
+    const v4d Q00 = p.Q[0], Q11 = p.Q[1], Q22 = p.Q[2], Q01 = p.Q[3], Q02 = p.Q[4], Q12 = p.Q[5];
+    const v4d V = p.volume;
+    A[0][0] = V * (S00 * Q00) + at(0, 0);
+    A[1][0] = V * (S01 * Q01) + at(1, 0);
+    A[1][1] = V * (S11 * Q11) + at(1, 1);
+    A[2][0] = V * (S02 * Q02) + at(2, 0);
+    A[2][1] = V * (S12 * Q12) + at(2, 1);
+    A[2][2] = V * (S22 * Q22) + at(2, 2);
+    A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
+    A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
+    A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
+    A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
+    A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
+    A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
+    A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
+    A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
+    A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
+    A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
+    A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
+    A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
+    A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
+    A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
+    A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
+  }
   v4d rhs[6];
   for (int r = 0; r < 6; ++r) {
     v4d s = -C[r];
     for (int c = 0; c < 6; ++c) s -= at(r, c) * lam[c];
     rhs[r] = s;
   }
-  // LDL^T, lane-wise.
-  v4d L[6][6], D[6], invD[6];
-  for (int j = 0; j < 6; ++j) {
-    v4d d = A[j][j];
-    for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k] * D[k];
-    D[j] = d;
-    invD[j] = 1.0 / d;
-    for (int i = j + 1; i < 6; ++i) {
-      v4d s = A[i][j];
-      for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k] * D[k];
-      L[i][j] = s * invD[j];
-    }
-  }
-  v4d z[6], y[6];
-  for (int i = 0; i < 6; ++i) {
-    v4d s = rhs[i];
-    for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
-    z[i] = s;
-  }
-  for (int i = 5; i >= 0; --i) {
-    v4d s = z[i] * invD[i];
-    for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
-    y[i] = lambda_scale * s;
-  }
+  v4d D[6], y[6];
+  ldlt_solve(A, rhs, lambda_scale, D, y);
   v4d dx[4][3];
-  pack_corrections(p, g, y, dx);
+  if (elastic == ElasticModel::Corotated) pack_corotated_corrections(p, g, Y, y, dx);
+  else pack_corrections(p, g, y, dx);
   v4d step = splat(1.0);
   if (line_search && elastic == ElasticModel::StVK) step = residual_decreasing_step(p, g, C, lam, y, dx, at);
   // det F before the projection, for the inversion floor.
@@ -377,7 +423,13 @@ void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vec
   v4d y[6];
   gather_lambda(p, dl, y);
   v4d dx[4][3];
-  pack_corrections(p, g, y, dx);
+  if (model == ElasticModel::Corotated) {
+    v4d Y[6][4][3];
+    pack_corotated_rows(p, g, Y);
+    pack_corotated_corrections(p, g, Y, y, dx);
+  } else {
+    pack_corrections(p, g, y, dx);
+  }
   for (int l = 0; l < p.lanes; ++l)
     for (int k = 0; k < 4; ++k) {
       Vec3& q = x[p.v[k][l]];

@@ -118,12 +118,71 @@ Vec6 corotated_from_columns(const Vec3 f[3], Vec3 r[3]) {
   return c;
 }
 
+void corotated_ginv(const double S[6], double Ginv[6]) {
+  Mat3 Sm;
+  Sm << S[0], S[5], S[4], S[5], S[1], S[3], S[4], S[3], S[2];
+  const Mat3 Gi = corotated_rotation_inverse(Sm);
+  Ginv[0] = Gi(0, 0), Ginv[1] = Gi(1, 1), Ginv[2] = Gi(2, 2), Ginv[3] = Gi(1, 2), Ginv[4] = Gi(0, 2), Ginv[5] = Gi(0, 1);
+}
+
+namespace {
+
+// The corotated projection of one tet: A = V0 sum_k w_k Y_k^T Y_k + alpha~ (Y from
+// corotated_rows), dx_k = w_k sqrt(V0) R sum_i dlambda_i Y_ik. No line search (see
+// kMaxHalvings).
+void corotated_increment(const TetRest& tet, const Vec3 f[3], const Vec3 b[4], const double w[4],
+                         const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda, Vec3 dx[4]) {
+  Vec3 r[3];
+  const Vec6 C = tet.sqrt_volume * corotated_from_columns(f, r);
+  double S[6];
+  S[0] = r[0].dot(f[0]), S[1] = r[1].dot(f[1]), S[2] = r[2].dot(f[2]);
+  S[3] = 0.5 * (r[1].dot(f[2]) + r[2].dot(f[1]));
+  S[4] = 0.5 * (r[0].dot(f[2]) + r[2].dot(f[0]));
+  S[5] = 0.5 * (r[0].dot(f[1]) + r[1].dot(f[0]));
+  double Ginv[6];
+  corotated_ginv(S, Ginv);
+  double bk[4][3];
+  for (int k = 0; k < 4; ++k)
+    for (int c = 0; c < 3; ++c) bk[k][c] = b[k][c];
+  double Y[6][4][3];
+  corotated_rows(S, Ginv, bk, Y);
+  double A[6][6];
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j <= i; ++j) {
+      double sum = 0;
+      for (int k = 0; k < 4; ++k)
+        sum += w[k] * (Y[i][k][0] * Y[j][k][0] + Y[i][k][1] * Y[j][k][1] + Y[i][k][2] * Y[j][k][2]);
+      A[i][j] = tet.volume * sum + params.alpha_tilde(i, j);
+    }
+  const Vec6 rhs_v = -C - params.alpha_tilde * lambda_t;
+  double rhs[6], y[6];
+  for (int i = 0; i < 6; ++i) rhs[i] = rhs_v[i];
+  if (!ldlt_solve6(A, rhs, y)) {
+    dlambda.setZero();
+    for (int k = 0; k < 4; ++k) dx[k].setZero();
+    return;
+  }
+  for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
+  for (int k = 0; k < 4; ++k) {
+    double v[3] = {0, 0, 0};
+    for (int i = 0; i < 6; ++i)
+      for (int c = 0; c < 3; ++c) v[c] += dlambda[i] * Y[i][k][c];
+    dx[k] = (w[k] * tet.sqrt_volume) * (r[0] * v[0] + r[1] * v[1] + r[2] * v[2]);
+  }
+}
+
+}  // namespace
+
 void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w[4],
                       const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda,
                       Vec3 dx[4], double* det_f) {
   Vec3 f[3], b[4], g[3];
   geometry(tet, p, f, b);
   if (det_f) *det_f = f[0].dot(f[1].cross(f[2]));
+  if (params.model == ElasticModel::Corotated) {
+    corotated_increment(tet, f, b, w, lambda_t, params, dlambda, dx);
+    return;
+  }
   double S[3][3];
   const Vec6 C = tet.sqrt_volume * model_strain(params.model, f, g, S);
 
@@ -172,7 +231,7 @@ void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w
   }
   for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
   position_corrections(tet, g, b, w, dlambda, dx);
-  if (params.line_search && params.model == ElasticModel::StVK) {
+  if (params.line_search) {
     const double a = residual_decreasing_step(tet, f, C, lambda_t, dlambda, dx, params.alpha_tilde);
     if (a != 1.0) {
       dlambda *= a;

@@ -94,20 +94,53 @@ Vec6 strain_constraint(const TetRest& tet, const std::array<Vec3, 4>& x, Elastic
 
 Mat6x12 strain_jacobian(const TetRest& tet, const std::array<Vec3, 4>& x, ElasticModel model) {
   const Mat3 F = deformation_gradient(tet, x);
-  // Green strain: d(|f_i|^2 / 2) = f_i . df_i, d(f_a . f_c) = f_c . df_a + f_a . df_c; the
-  // corotated rows r_i . f_i and r_a . f_c + r_c . f_a (R fixed) have R's columns in the same
-  // places.
-  const Mat3 G = model == ElasticModel::Corotated ? polar_rotation(F) : F;
   const auto b = shape_rows(tet.dm_inv);
   Mat6x12 J;
+  if (model == ElasticModel::Corotated) {
+    // Row i of c is <E_i, S> (E_i = e_p e_p^T, or e_a e_c^T + e_c e_a^T for a shear), and its
+    // gradient in F is R (E_i - 2 [u_i]x), u_i = (tr(S) I - S)^-1 axial(skew(E_i S)): the
+    // first term holds R fixed, the second is the rotation's change (docs/solver.md).
+    const Mat3 R = polar_rotation(F);
+    const Mat3 S = corotated_stretch(F, R);
+    const Mat3 Ginv = corotated_rotation_inverse(S);
+    for (int i = 0; i < 6; ++i) {
+      Mat3 E = Mat3::Zero();
+      if (i < 3) E(i, i) = 1;
+      else E(kShearA[i - 3], kShearB[i - 3]) = E(kShearB[i - 3], kShearA[i - 3]) = 1;
+      const Mat3 M = E * S;
+      const Vec3 u = Ginv * Vec3(0.5 * (M(2, 1) - M(1, 2)), 0.5 * (M(0, 2) - M(2, 0)), 0.5 * (M(1, 0) - M(0, 1)));
+      Mat3 U;
+      U << 0, -u[2], u[1], u[2], 0, -u[0], -u[1], u[0], 0;
+      const Mat3 D = R * (E - 2.0 * U);
+      for (int k = 0; k < 4; ++k) J.block<1, 3>(i, 3 * k) = (D * b[k].transpose()).transpose();
+    }
+    return tet.sqrt_volume * J;
+  }
+  // Green strain: d(|f_i|^2 / 2) = f_i . df_i, d(f_a . f_c) = f_c . df_a + f_a . df_c.
   for (int k = 0; k < 4; ++k) {
-    for (int i = 0; i < 3; ++i) J.block<1, 3>(i, 3 * k) = (G.col(i) * b[k][i]).transpose();
+    for (int i = 0; i < 3; ++i) J.block<1, 3>(i, 3 * k) = (F.col(i) * b[k][i]).transpose();
     for (int s = 0; s < 3; ++s) {
       const int a = kShearA[s], c = kShearB[s];
-      J.block<1, 3>(3 + s, 3 * k) = (G.col(c) * b[k][a] + G.col(a) * b[k][c]).transpose();
+      J.block<1, 3>(3 + s, 3 * k) = (F.col(c) * b[k][a] + F.col(a) * b[k][c]).transpose();
     }
   }
   return tet.sqrt_volume * J;
+}
+
+Mat3 corotated_stretch(const Mat3& F, const Mat3& R) {
+  const Mat3 S = R.transpose() * F;
+  return 0.5 * (S + S.transpose());
+}
+
+Mat3 corotated_rotation_inverse(const Mat3& S) {
+  const Mat3 G = S.trace() * Mat3::Identity() - S;
+  const double t = G.trace() / 3.0;
+  const double det = G.determinant();
+  // G's eigenvalues are s_i + s_j (pairs of S's): positive unless the tet is inverted. Near a
+  // zero the rotation is ill-defined (R turns by large angles for tiny changes of F): the
+  // rotation term is dropped there, leaving R held fixed.
+  if (!(det > kRotationConditionLimit * t * t * t)) return Mat3::Zero();
+  return G.inverse();
 }
 
 double strain_energy(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x, ElasticModel model) {

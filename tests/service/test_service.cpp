@@ -190,8 +190,7 @@ TEST(Service, SceneLifecycle) {
     ASSERT_EQ(corotated.size(), stvk.size());
     double moved = 0;
     for (size_t i = 0; i < stvk.size(); ++i) moved = std::max(moved, std::abs(corotated[i] - stvk[i]));
-    EXPECT_GT(moved, 1e-9);
-    EXPECT_LT(moved, 1e-2);  // same material at small strain: close, not equal
+    EXPECT_GT(moved, 1e-6);  // 2 x 4 budget at 2 MPa: far from converged, so the models part by mm
     corot.mutable_material()->set_model(static_cast<v1::ElasticModel>(7));
     updated = c.update_scene(corot);
     EXPECT_EQ(updated.status.code, kInvalidArgument);

@@ -362,9 +362,29 @@ TEST(Corotated, EnergyEqualsVolumeTimesCorotatedDensity) {
   }
 }
 
+TEST(Corotated, JacobianMatchesFiniteDifferences) {
+  // dC/dx including the rotation's change, against central differences of C (R recomputed).
+  std::mt19937 rng(17);
+  for (int trial = 0; trial < 20; ++trial) {
+    const TetRest tet = make_rest(random_tet(rng));
+    auto x = deform(random_tet(rng), rng, 0.25);
+    if (trial >= 15) std::swap(x[0], x[1]);  // inverted
+    const Mat6x12 J = strain_jacobian(tet, x, ElasticModel::Corotated);
+    const double eps = 1e-6;
+    for (int c = 0; c < 12; ++c) {
+      auto xp = x, xm = x;
+      xp[c / 3][c % 3] += eps;
+      xm[c / 3][c % 3] -= eps;
+      const Vec6 fd = (strain_constraint(tet, xp, ElasticModel::Corotated) -
+                       strain_constraint(tet, xm, ElasticModel::Corotated)) / (2 * eps);
+      for (int r = 0; r < 6; ++r) EXPECT_NEAR(J(r, c), fd[r], 1e-6 * (1 + std::abs(fd[r]))) << trial << ": " << r << "," << c;
+    }
+  }
+}
+
 TEST(Corotated, GradientAndHessianMatchFiniteDifferences) {
-  // The gradient J^T K C (J with R held fixed) is the exact energy gradient; the Hessian carries
-  // the rotation's derivative. Both against central differences, on deformed and inverted tets.
+  // The gradient J^T K C is the exact energy gradient; the Hessian carries the rotation's
+  // derivative. Both against central differences, on deformed and inverted tets.
   std::mt19937 rng(14);
   const Mat6 K = stvk_stiffness(lame_parameters(1.0, 0.3));
   int inverted = 0;
@@ -427,7 +447,7 @@ TEST(Corotated, AgreesWithStvkAtSmallStrainAndResistsCompressionWhereStvkGivesWa
 
 TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
   // Scalar kernel (Jacobi) and SIMD pack (Gauss-Seidel) against [J W J^T + alpha~] dl =
-  // -C - alpha~ lambda, dx = W J^T dl, with the corotated J (R of the current positions).
+  // -C - alpha~ lambda, dx = W J^T dl, with the corotated J of the current positions.
   TetMesh mesh;
   std::mt19937 rng(16);
   for (int t = 0; t < 3; ++t) {

@@ -45,6 +45,15 @@ inline constexpr double kPolarConverged = 1e-16;
 // S11 - 1, S22 - 1, 2 S12, 2 S02, 2 S01).
 Vec6 corotated_strain_vector(const Mat3& F, const Mat3& R);
 
+// The symmetric stretch S = sym(R^T F), and the inverse of tr(S) I - S, which maps a change of
+// F to the rotation's change (R^T dR = [w]x with (tr(S) I - S) w = axial(R^T dF - dF^T R)).
+// The inverse is returned as zero (rotation held fixed) where det(tr(S) I - S) falls below
+// kRotationConditionLimit x (its trace / 3)^3: only an inverted tet with two opposite singular
+// values gets there.
+Mat3 corotated_stretch(const Mat3& F, const Mat3& R);
+Mat3 corotated_rotation_inverse(const Mat3& S);
+inline constexpr double kRotationConditionLimit = 1e-3;
+
 // Strain vector of the given model.
 Vec6 strain_vector(const Mat3& F, ElasticModel model);
 
@@ -52,8 +61,9 @@ Vec6 strain_vector(const Mat3& F, ElasticModel model);
 Vec6 strain_constraint(const TetRest& tet, const std::array<Vec3, 4>& x,
                        ElasticModel model = ElasticModel::StVK);
 
-// dC/dx, 6x12, columns ordered (x0, y0, z0, x1, ..., z3). For Corotated it is the derivative
-// with R held fixed; its transpose times K C is the exact energy gradient (d tr(S) / dF = R).
+// dC/dx, 6x12, columns ordered (x0, y0, z0, x1, ..., z3). For Corotated it includes the
+// rotation's change, so that it is orthogonal to rigid rotations (the sweeps conserve angular
+// momentum); J^T K C is the energy gradient 2 mu (F - R) + lambda tr(S - I) R either way.
 Mat6x12 strain_jacobian(const TetRest& tet, const std::array<Vec3, 4>& x,
                         ElasticModel model = ElasticModel::StVK);
 
