@@ -226,7 +226,7 @@ inline v4d lane_residual_squared(const v4d C[6], const v4d lam[6], const Mat6& a
 
 // Step length along the projection's increment (y for lambda, dx for the corners), per lane:
 // see kMaxHalvings in projection.hpp. StVK only.
-v4d residual_decreasing_step(const TetPack& p, const PackGeometry& g, const v4d C[6], const v4d lam[6],
+v4d residual_decreasing_step(ElasticModel model, const TetPack& p, const PackGeometry& g, const v4d C[6], const v4d lam[6],
                              const v4d y[6], const v4d dx[4][3], const Mat6& at) {
   const v4d before = lane_residual_squared(C, lam, at);
   // dF[i][c]: change of column i, component c of F for the full step.
@@ -250,7 +250,8 @@ v4d residual_decreasing_step(const TetPack& p, const PackGeometry& g, const v4d 
     PackGeometry n;
     for (int i = 0; i < 3; ++i)
       for (int c = 0; c < 3; ++c) n.f[i][c] = g.f[i][c] + trial * dF[i][c];
-    green_strain(n);
+    if (model == ElasticModel::Corotated) corotated_strain(n);
+    else green_strain(n);
     v4d Cn[6], ln[6];
     pack_constraint(p, n, Cn);
     for (int r = 0; r < 6; ++r) ln[r] = lam[r] + trial * y[r];
@@ -388,7 +389,7 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   if (elastic == ElasticModel::Corotated) pack_corotated_corrections(p, g, Y, y, dx);
   else pack_corrections(p, g, y, dx);
   v4d step = splat(1.0);
-  if (line_search && elastic == ElasticModel::StVK) step = residual_decreasing_step(p, g, C, lam, y, dx, at);
+  if (line_search) step = residual_decreasing_step(elastic, p, g, C, lam, y, dx, at);
   // det F before the projection, for the inversion floor.
   const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
                   g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +

@@ -80,7 +80,7 @@ inline void position_corrections(const TetRest& tet, const Vec3 f[3], const Vec3
 }
 
 // Step length for one tet's increment (see kMaxHalvings in projection.hpp).
-double residual_decreasing_step(const TetRest& tet, const Vec3 f[3], const Vec6& C, const Vec6& lambda_t,
+double residual_decreasing_step(ElasticModel model, const TetRest& tet, const Vec3 f[3], const Vec6& C, const Vec6& lambda_t,
                                 const Vec6& dlambda, const Vec3 dx[4], const Mat6& at) {
   const Mat3& B = tet.dm_inv;
   const Vec3 d0 = dx[0] - dx[3], d1 = dx[1] - dx[3], d2 = dx[2] - dx[3];
@@ -96,7 +96,8 @@ double residual_decreasing_step(const TetRest& tet, const Vec3 f[3], const Vec6&
   for (int h = 0; h <= kMaxHalvings; ++h) {
     const Vec3 fn[3] = {f[0] + a * dF[0], f[1] + a * dF[1], f[2] + a * dF[2]};
     double S[3][3];
-    const Vec6 r = tet.sqrt_volume * strain_from_columns(fn, S) + at * (lambda_t + a * dlambda);
+    Vec3 gn[3];
+    const Vec6 r = tet.sqrt_volume * model_strain(model, fn, gn, S) + at * (lambda_t + a * dlambda);
     if (r.squaredNorm() <= before || h == kMaxHalvings) break;
     a *= 0.5;
   }
@@ -128,8 +129,7 @@ void corotated_ginv(const double S[6], double Ginv[6]) {
 namespace {
 
 // The corotated projection of one tet: A = V0 sum_k w_k Y_k^T Y_k + alpha~ (Y from
-// corotated_rows), dx_k = w_k sqrt(V0) R sum_i dlambda_i Y_ik. No line search (see
-// kMaxHalvings).
+// corotated_rows), dx_k = w_k sqrt(V0) R sum_i dlambda_i Y_ik, with the line search.
 void corotated_increment(const TetRest& tet, const Vec3 f[3], const Vec3 b[4], const double w[4],
                          const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda, Vec3 dx[4]) {
   Vec3 r[3];
@@ -168,6 +168,14 @@ void corotated_increment(const TetRest& tet, const Vec3 f[3], const Vec3 b[4], c
     for (int i = 0; i < 6; ++i)
       for (int c = 0; c < 3; ++c) v[c] += dlambda[i] * Y[i][k][c];
     dx[k] = (w[k] * tet.sqrt_volume) * (r[0] * v[0] + r[1] * v[1] + r[2] * v[2]);
+  }
+  if (params.line_search) {
+    const double a = residual_decreasing_step(ElasticModel::Corotated, tet, f, C, lambda_t, dlambda, dx,
+                                              params.alpha_tilde);
+    if (a != 1.0) {
+      dlambda *= a;
+      for (int k = 0; k < 4; ++k) dx[k] *= a;
+    }
   }
 }
 
@@ -232,7 +240,7 @@ void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w
   for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
   position_corrections(tet, g, b, w, dlambda, dx);
   if (params.line_search) {
-    const double a = residual_decreasing_step(tet, f, C, lambda_t, dlambda, dx, params.alpha_tilde);
+    const double a = residual_decreasing_step(params.model, tet, f, C, lambda_t, dlambda, dx, params.alpha_tilde);
     if (a != 1.0) {
       dlambda *= a;
       for (int k = 0; k < 4; ++k) dx[k] *= a;

@@ -11,6 +11,7 @@
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
+#include <iostream>
 #include <random>
 
 using namespace pliant;
@@ -447,7 +448,8 @@ TEST(Corotated, AgreesWithStvkAtSmallStrainAndResistsCompressionWhereStvkGivesWa
 
 TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
   // Scalar kernel (Jacobi) and SIMD pack (Gauss-Seidel) against [J W J^T + alpha~] dl =
-  // -C - alpha~ lambda, dx = W J^T dl, with the corotated J of the current positions.
+  // -C - alpha~ lambda, dx = W J^T dl, with the corotated J of the current positions (line
+  // search off); with the line search on, the two kernels take the same steps.
   TetMesh mesh;
   std::mt19937 rng(16);
   for (int t = 0; t < 3; ++t) {
@@ -467,7 +469,10 @@ TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
   const Mat6 at = model->compliance * 3600.0;
   std::vector<Vec3> xp = x;
   std::vector<Vec6> lp = lambda;
-  detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0, true);
+  detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0, false);
+  std::vector<Vec3> xs = x;  // the pack with the line search
+  std::vector<Vec6> ls = lambda, dls(3, Vec6::Zero());
+  detail::project_pack(packed.packs[0], xs, ls, dls, *model, at, 1.0, 0.0, true);
   for (int t = 0; t < 3; ++t) {
     const TetRest& tet = model->tets[t];
     const auto xt = gather(x, tet.v);
@@ -486,12 +491,71 @@ TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
     detail::ProjectionParams params;
     params.model = ElasticModel::Corotated;
     params.alpha_tilde = at;
-    params.line_search = true;
     const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
     Vec6 inc;
     Vec3 dx[4];
     detail::strain_increment(tet, p, w, lambda[t], params, inc, dx);
     EXPECT_LT((inc - expected).norm(), 1e-10 * expected.norm()) << t;
     for (int k = 0; k < 4; ++k) EXPECT_LT((dx[k] - move.segment<3>(3 * k)).norm(), 1e-10 * move.norm());
+    params.line_search = true;
+    detail::strain_increment(tet, p, w, lambda[t], params, inc, dx);
+    EXPECT_LT((inc - dls[t]).norm(), 1e-10 * inc.norm()) << t;
+    for (int k = 0; k < 4; ++k) EXPECT_LT((xs[tet.v[k]] - x[tet.v[k]] - dx[k]).norm(), 1e-10 * move.norm());
   }
+}
+
+TEST(Corotated, LineSearchShortensStepsThatWouldRaiseTheResidual) {
+  // Slivers (one corner 1% of the edge above the opposite face, as the thesis hippo has) moved
+  // by a few % of an edge, stiff material (the constraint dominates): there F is far from a
+  // rotation and the exact-Jacobian step can overshoot where the rotation turns fast. With the
+  // line search no tet's own residual grows, some steps are shortened, and both kernels agree.
+  std::mt19937 rng(18);
+  int shortened = 0, grew_without = 0;
+  for (int trial = 0; trial < 40; ++trial) {
+    TetMesh mesh;
+    for (int t = 0; t < 4; ++t) {
+      auto X = random_tet(rng);
+      const Vec3 n = (X[1] - X[0]).cross(X[2] - X[0]).normalized();
+      X[3] = (X[0] + X[1] + X[2]) / 3.0 + 0.01 * n;  // a sliver
+      for (const Vec3& p : X) mesh.vertices.push_back(p + Vec3(3.0 * t, 0, 0));
+      mesh.tets.push_back({4 * t, 4 * t + 1, 4 * t + 2, 4 * t + 3});
+    }
+    Material mat{1e9, 0.3, 1000};
+    mat.model = ElasticModel::Corotated;
+    auto model = build_model(mesh, mat);
+    detail::PackedModel packed;
+    detail::ensure_packed(packed, *model);
+    std::vector<Vec3> x = mesh.vertices;
+    std::uniform_real_distribution<double> u(-0.05, 0.05);
+    for (auto& p : x) p += Vec3(u(rng), u(rng), u(rng));
+    const Mat6 at = model->compliance * 3600.0;
+    const std::vector<Vec6> lambda(4, Vec6::Zero());
+    std::vector<Vec3> with = x, without = x;
+    std::vector<Vec6> lw = lambda, lo = lambda, dl(4, Vec6::Zero()), dlo(4, Vec6::Zero());
+    detail::project_pack(packed.packs[0], with, lw, dl, *model, at, 1.0, 0.0, true);
+    detail::project_pack(packed.packs[0], without, lo, dlo, *model, at, 1.0, 0.0, false);
+    for (int t = 0; t < 4; ++t) {
+      const TetRest& tet = model->tets[t];
+      const double before = detail::residual_squared(tet, x, lambda[t], at, ElasticModel::Corotated);
+      EXPECT_LE(detail::residual_squared(tet, with, lw[t], at, ElasticModel::Corotated), before * (1 + 1e-12));
+      grew_without += detail::residual_squared(tet, without, lo[t], at, ElasticModel::Corotated) > before;
+      shortened += dl[t].norm() < 0.99 * dlo[t].norm();
+      const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
+      const double w[4] = {model->inv_mass[tet.v[0]], model->inv_mass[tet.v[1]], model->inv_mass[tet.v[2]],
+                           model->inv_mass[tet.v[3]]};
+      detail::ProjectionParams params;
+      params.model = ElasticModel::Corotated;
+      params.alpha_tilde = at;
+      params.line_search = true;
+      Vec6 inc;
+      Vec3 dx[4];
+      detail::strain_increment(tet, p, w, lambda[t], params, inc, dx);
+      EXPECT_LT((inc - dl[t]).norm(), 1e-9 * (1 + inc.norm())) << trial << "," << t;
+      for (int k = 0; k < 4; ++k) EXPECT_LT((with[tet.v[k]] - x[tet.v[k]] - dx[k]).norm(), 1e-9 * (1 + dx[k].norm()));
+    }
+  }
+  EXPECT_GE(grew_without, 1) << "no full step raised a residual: the cases test nothing";
+  EXPECT_GE(shortened, 1);
+  std::cout << "[ line search ] " << shortened << " of 160 steps shortened, " << grew_without
+            << " full steps raised the residual\n";
 }
