@@ -128,6 +128,32 @@ void corotated_ginv(const double S[6], double Ginv[6]) {
 
 namespace {
 
+// dlambda from A dlambda = -C - alpha~ lambda (scaled by lambda_scale); false (and everything
+// zero) when A is not positive definite.
+bool solve_increment(const double A[6][6], const Vec6& C, const Vec6& lambda_t, const ProjectionParams& params,
+                     Vec6& dlambda, Vec3 dx[4]) {
+  const Vec6 rhs_v = -C - params.alpha_tilde * lambda_t;
+  double rhs[6], y[6];
+  for (int i = 0; i < 6; ++i) rhs[i] = rhs_v[i];
+  if (!ldlt_solve6(A, rhs, y)) {
+    dlambda.setZero();
+    for (int k = 0; k < 4; ++k) dx[k].setZero();
+    return false;
+  }
+  for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
+  return true;
+}
+
+// Shortens the step (dlambda and dx together) when the line search asks for it.
+void apply_line_search(const TetRest& tet, const Vec3 f[3], const Vec6& C, const Vec6& lambda_t,
+                       const ProjectionParams& params, Vec6& dlambda, Vec3 dx[4]) {
+  if (!params.line_search) return;
+  const double a = residual_decreasing_step(params.model, tet, f, C, lambda_t, dlambda, dx, params.alpha_tilde);
+  if (a == 1.0) return;
+  dlambda *= a;
+  for (int k = 0; k < 4; ++k) dx[k] *= a;
+}
+
 // The corotated projection of one tet: A = V0 sum_k w_k Y_k^T Y_k + alpha~ (Y from
 // corotated_rows), dx_k = w_k sqrt(V0) R sum_i dlambda_i Y_ik, with the line search.
 void corotated_increment(const TetRest& tet, const Vec3 f[3], const Vec3 b[4], const double w[4],
@@ -154,29 +180,14 @@ void corotated_increment(const TetRest& tet, const Vec3 f[3], const Vec3 b[4], c
         sum += w[k] * (Y[i][k][0] * Y[j][k][0] + Y[i][k][1] * Y[j][k][1] + Y[i][k][2] * Y[j][k][2]);
       A[i][j] = tet.volume * sum + params.alpha_tilde(i, j);
     }
-  const Vec6 rhs_v = -C - params.alpha_tilde * lambda_t;
-  double rhs[6], y[6];
-  for (int i = 0; i < 6; ++i) rhs[i] = rhs_v[i];
-  if (!ldlt_solve6(A, rhs, y)) {
-    dlambda.setZero();
-    for (int k = 0; k < 4; ++k) dx[k].setZero();
-    return;
-  }
-  for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
+  if (!solve_increment(A, C, lambda_t, params, dlambda, dx)) return;
   for (int k = 0; k < 4; ++k) {
     double v[3] = {0, 0, 0};
     for (int i = 0; i < 6; ++i)
       for (int c = 0; c < 3; ++c) v[c] += dlambda[i] * Y[i][k][c];
     dx[k] = (w[k] * tet.sqrt_volume) * (r[0] * v[0] + r[1] * v[1] + r[2] * v[2]);
   }
-  if (params.line_search) {
-    const double a = residual_decreasing_step(ElasticModel::Corotated, tet, f, C, lambda_t, dlambda, dx,
-                                              params.alpha_tilde);
-    if (a != 1.0) {
-      dlambda *= a;
-      for (int k = 0; k < 4; ++k) dx[k] *= a;
-    }
-  }
+  apply_line_search(tet, f, C, lambda_t, params, dlambda, dx);
 }
 
 }  // namespace
@@ -229,23 +240,9 @@ void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w
   A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
   A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
   A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
-  const Vec6 rhs_v = -C - params.alpha_tilde * lambda_t;
-  double rhs[6], y[6];
-  for (int i = 0; i < 6; ++i) rhs[i] = rhs_v[i];
-  if (!ldlt_solve6(A, rhs, y)) {
-    dlambda.setZero();
-    for (int k = 0; k < 4; ++k) dx[k].setZero();
-    return;
-  }
-  for (int i = 0; i < 6; ++i) dlambda[i] = params.lambda_scale * y[i];
+  if (!solve_increment(A, C, lambda_t, params, dlambda, dx)) return;
   position_corrections(tet, g, b, w, dlambda, dx);
-  if (params.line_search) {
-    const double a = residual_decreasing_step(params.model, tet, f, C, lambda_t, dlambda, dx, params.alpha_tilde);
-    if (a != 1.0) {
-      dlambda *= a;
-      for (int k = 0; k < 4; ++k) dx[k] *= a;
-    }
-  }
+  apply_line_search(tet, f, C, lambda_t, params, dlambda, dx);
 }
 
 bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::vector<double>& inv_mass,
