@@ -301,12 +301,17 @@ inline void pack_corotated_rows(const TetPack& p, const PackGeometry& g, v4d Y[6
                     0.5 * (column_dot(g.j[1], g.f[2]) + column_dot(g.j[2], g.f[1])),
                     0.5 * (column_dot(g.j[0], g.f[2]) + column_dot(g.j[2], g.f[0])),
                     0.5 * (column_dot(g.j[0], g.f[1]) + column_dot(g.j[1], g.f[0]))};
-  v4d Ginv[6];
+  // Ginv = (tr(S) I - S)^-1 by cofactors, zero in the lanes where corotated_rotation_inverse
+  // gives zero (same test).
+  const v4d G00 = S[1] + S[2], G11 = S[0] + S[2], G22 = S[0] + S[1], G12 = -S[3], G02 = -S[4], G01 = -S[5];
+  v4d Ginv[6] = {G11 * G22 - G12 * G12, G00 * G22 - G02 * G02, G00 * G11 - G01 * G01,
+                 G02 * G01 - G00 * G12, G01 * G12 - G11 * G02, G02 * G12 - G22 * G01};
+  const v4d det = G00 * Ginv[0] + G01 * Ginv[5] + G02 * Ginv[4];
+  const v4d third = (G00 + G11 + G22) * (1.0 / 3.0);
   for (int l = 0; l < 4; ++l) {
-    const double Sl[6] = {S[0][l], S[1][l], S[2][l], S[3][l], S[4][l], S[5][l]};
-    double Gl[6];
-    corotated_ginv(Sl, Gl);
-    for (int i = 0; i < 6; ++i) Ginv[i][l] = Gl[i];
+    const bool ok = det[l] > kRotationConditionLimit * third[l] * third[l] * third[l];
+    const double inv = ok ? 1.0 / det[l] : 0.0;
+    for (int i = 0; i < 6; ++i) Ginv[i][l] *= inv;
   }
   v4d b[4][3];
   for (int k = 0; k < 3; ++k)
