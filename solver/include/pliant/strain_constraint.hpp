@@ -29,8 +29,8 @@ Vec6 strain_vector(const Mat3& F);
 
 // Rotation R of the polar decomposition F = R S with det R = +1, also for an inverted F (then S
 // has one negative eigenvalue, the one of smallest magnitude: the tet is seen as flipped through
-// its thinnest direction, Irving et al. 2004). For a degenerate F (rank 2) the third column is
-// the cross product of the first two.
+// its thinnest direction, Irving et al. 2004). A degenerate F (rank 2 or less) gets the SVD's
+// completion of U, made proper.
 Mat3 polar_rotation(const Mat3& F);
 
 // Its scaled Newton iteration (also run 4 lanes at once by the SIMD kernel): at most this many
