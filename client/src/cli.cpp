@@ -74,7 +74,7 @@ Scene flags (create and update):
   --inertia-floor F     inertia of a free vertex at least F x the mean vertex mass (weight
                         unchanged; default 0.1, 0 = plain lumped masses)
   --model stvk|corotated  strain of the tet constraint (default stvk, the thesis's;
-                        corotated resists strong compression, 2-2.4x the cost per iteration)
+                        corotated resists strong compression, 2-2.2x the cost per iteration)
   --fix I,J,..          fixed vertex indices;   --fix-box X0,Y0,Z0,X1,Y1,Z1   fixed box
   --fix-x-below X       fix every vertex with x <= X (a cantilever's clamped end)
   --gravity GX,GY,GZ    m/s^2 (default 0,-9.81,0)

@@ -294,9 +294,13 @@ inline void ldlt_solve(const v4d A[6][6], const v4d rhs[6], double lambda_scale,
   }
 }
 
-// The corotated constraint's rows Y_ik (corotated_rows in projection.hpp) for a pack: the
-// stretch S = sym(R^T F) from g (g.j holds R), Ginv per lane.
-inline void pack_corotated_rows(const TetPack& p, const PackGeometry& g, v4d Y[6][4][3]) {
+// The corotated constraint for a pack (corotated_rows in projection.hpp gives the rows
+// Y_ik = E_i b_k - 2 u_i x b_k): the stretch S = sym(R^T F) from g (g.j holds R), Ginv per lane,
+// the rotation axes u_i, and the lower triangle of A = V0 sum_k w_k Y_ik . Y_jk + alpha~ summed
+// over the corners in closed form with Q = sum_k w_k b_k b_k^T:
+//   sum_k w_k Y_ik . Y_jk = tr(E_i E_j Q) - 2 (u_j . v_i + u_i . v_j) + 4 ((u_i . u_j) tr Q - u_i^T Q u_j),
+// v_i = sum_k w_k b_k x (E_i b_k) = 2 axial(skew(E_i Q)).
+inline void pack_corotated_axes(const PackGeometry& g, v4d u[6][3]) {
   const v4d S[6] = {column_dot(g.j[0], g.f[0]), column_dot(g.j[1], g.f[1]), column_dot(g.j[2], g.f[2]),
                     0.5 * (column_dot(g.j[1], g.f[2]) + column_dot(g.j[2], g.f[1])),
                     0.5 * (column_dot(g.j[0], g.f[2]) + column_dot(g.j[2], g.f[0])),
@@ -313,24 +317,65 @@ inline void pack_corotated_rows(const TetPack& p, const PackGeometry& g, v4d Y[6
     const double inv = ok ? 1.0 / det[l] : 0.0;
     for (int i = 0; i < 6; ++i) Ginv[i][l] *= inv;
   }
+  corotated_axes(S, Ginv, u);
+}
+
+inline void pack_corotated_system(const TetPack& p, const PackGeometry& g, const Mat6& at, v4d A[6][6],
+                                  v4d u[6][3]) {
+  pack_corotated_axes(g, u);
+  // Q in the 00 11 22 12 02 01 order of corotated_axials (the pack stores 00 11 22 01 02 12).
+  const v4d Q00 = p.Q[0], Q11 = p.Q[1], Q22 = p.Q[2], Q01 = p.Q[3], Q02 = p.Q[4], Q12 = p.Q[5];
+  const v4d Qs[6] = {Q00, Q11, Q22, Q12, Q02, Q01};
+  v4d v[6][3];
+  corotated_axials(Qs, v);  // half of v_i
+  const v4d trQ = Q00 + Q11 + Q22;
+  v4d Qu[6][3];
+  for (int i = 0; i < 6; ++i) {
+    Qu[i][0] = Q00 * u[i][0] + Q01 * u[i][1] + Q02 * u[i][2];
+    Qu[i][1] = Q01 * u[i][0] + Q11 * u[i][1] + Q12 * u[i][2];
+    Qu[i][2] = Q02 * u[i][0] + Q12 * u[i][1] + Q22 * u[i][2];
+  }
+  // tr(E_i E_j Q): the StVK system's Q terms with F^T F = I.
+  const v4d zero = splat(0.0);
+  const v4d A0[6][6] = {
+      {Q00, zero, zero, zero, zero, zero},
+      {zero, Q11, zero, zero, zero, zero},
+      {zero, zero, Q22, zero, zero, zero},
+      {zero, Q12, Q12, Q11 + Q22, zero, zero},
+      {Q02, zero, Q02, Q01, Q00 + Q22, zero},
+      {Q01, Q01, zero, Q02, Q12, Q00 + Q11}};
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j <= i; ++j) {
+      // v holds half of v_i: -2 (u_j . v_i + u_i . v_j) = -4 (u_j . v~_i + u_i . v~_j).
+      const v4d cross_terms = column_dot(u[j], v[i]) + column_dot(u[i], v[j]);
+      const v4d rot = column_dot(u[i], u[j]) * trQ - column_dot(u[i], Qu[j]);
+      A[i][j] = p.volume * (A0[i][j] - 4.0 * cross_terms + 4.0 * rot) + at(i, j);
+    }
+}
+
+// dx_k = w_k sqrt(V0) R (P - 2 [U]x) b_k, P the symmetric 3x3 of the increment y, U = sum_i y_i u_i
+// (= w_k sqrt(V0) R sum_i y_i Y_ik).
+inline void pack_corotated_corrections(const TetPack& p, const PackGeometry& g, const v4d u[6][3],
+                                       const v4d y[6], v4d dx[4][3]) {
+  v4d U[3];
+  for (int c = 0; c < 3; ++c) {
+    U[c] = y[0] * u[0][c];
+    for (int i = 1; i < 6; ++i) U[c] += y[i] * u[i][c];
+  }
+  const v4d two = splat(2.0);
+  const v4d P[3][3] = {{y[0], y[5] + two * U[2], y[4] - two * U[1]},
+                       {y[5] - two * U[2], y[1], y[3] + two * U[0]},
+                       {y[4] + two * U[1], y[3] - two * U[0], y[2]}};
+  v4d M[3][3];  // M[i][c]: component c of column i of R P
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) M[i][c] = g.j[0][c] * P[0][i] + g.j[1][c] * P[1][i] + g.j[2][c] * P[2][i];
   v4d b[4][3];
   for (int k = 0; k < 3; ++k)
     for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
   for (int i = 0; i < 3; ++i) b[3][i] = -(b[0][i] + b[1][i] + b[2][i]);
-  corotated_rows(S, Ginv, b, Y);
-}
-
-// dx_k = w_k sqrt(V0) R sum_i y_i Y_ik.
-inline void pack_corotated_corrections(const TetPack& p, const PackGeometry& g, const v4d Y[6][4][3],
-                                       const v4d y[6], v4d dx[4][3]) {
   for (int k = 0; k < 4; ++k) {
-    v4d v[3];
-    for (int c = 0; c < 3; ++c) {
-      v[c] = y[0] * Y[0][k][c];
-      for (int i = 1; i < 6; ++i) v[c] += y[i] * Y[i][k][c];
-    }
     const v4d s = p.w[k] * p.sqrt_volume;
-    for (int c = 0; c < 3; ++c) dx[k][c] = s * (g.j[0][c] * v[0] + g.j[1][c] * v[1] + g.j[2][c] * v[2]);
+    for (int c = 0; c < 3; ++c) dx[k][c] = s * (M[0][c] * b[k][0] + M[1][c] * b[k][1] + M[2][c] * b[k][2]);
   }
 }
 
@@ -347,15 +392,9 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   gather_lambda(p, lambda, lam);
 
   v4d A[6][6];
-  v4d Y[6][4][3];  // corotated only
+  v4d u[6][3];  // corotated only: the rotation axes of the rows
   if (elastic == ElasticModel::Corotated) {
-    pack_corotated_rows(p, g, Y);
-    for (int i = 0; i < 6; ++i)
-      for (int j = 0; j <= i; ++j) {
-        v4d sum = p.w[0] * column_dot(Y[i][0], Y[j][0]);
-        for (int k = 1; k < 4; ++k) sum += p.w[k] * column_dot(Y[i][k], Y[j][k]);
-        A[i][j] = p.volume * sum + at(i, j);
-      }
+    pack_corotated_system(p, g, at, A, u);
   } else {
     const v4d S00 = g.S00, S11 = g.S11, S22 = g.S22, S01 = g.S01, S02 = g.S02, S12 = g.S12;
     const v4d Q00 = p.Q[0], Q11 = p.Q[1], Q22 = p.Q[2], Q01 = p.Q[3], Q02 = p.Q[4], Q12 = p.Q[5];
@@ -391,7 +430,7 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   v4d D[6], y[6];
   ldlt_solve(A, rhs, lambda_scale, D, y);
   v4d dx[4][3];
-  if (elastic == ElasticModel::Corotated) pack_corotated_corrections(p, g, Y, y, dx);
+  if (elastic == ElasticModel::Corotated) pack_corotated_corrections(p, g, u, y, dx);
   else pack_corrections(p, g, y, dx);
   v4d step = splat(1.0);
   if (line_search) step = residual_decreasing_step(elastic, p, g, C, lam, y, dx, at);
@@ -430,9 +469,9 @@ void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vec
   gather_lambda(p, dl, y);
   v4d dx[4][3];
   if (model == ElasticModel::Corotated) {
-    v4d Y[6][4][3];
-    pack_corotated_rows(p, g, Y);
-    pack_corotated_corrections(p, g, Y, y, dx);
+    v4d u[6][3];
+    pack_corotated_axes(g, u);
+    pack_corotated_corrections(p, g, u, y, dx);
   } else {
     pack_corrections(p, g, y, dx);
   }

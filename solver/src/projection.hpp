@@ -60,35 +60,53 @@ Vec6 corotated_from_columns(const Vec3 f[3], Vec3 r[3]);
 // row i's gradient in F is R P_i with P_i = E_i - 2 [u_i]x, u_i = Ginv axial(skew(E_i S))
 // (strain_jacobian in strain_constraint.cpp), so dC_i/dx_k = sqrt(V0) R Y_ik with
 // Y_ik = P_i b_k. S and Ginv (the inverse of tr(S) I - S) are symmetric, stored 00 11 22 12 02 01.
+// a_i = axial(skew(E_i M)) for the six E_i and a symmetric M (00 11 22 12 02 01): with E_i's
+// rows e_r s^T, a_i = 1/2 sum_r (row r of M) x e_r.
 template <class T>
-inline void corotated_rows(const T S[6], const T Ginv[6], const T b[4][3], T Y[6][4][3]) {
-  // Rows of S, and s x e_r for a row s.
-  const T row[3][3] = {{S[0], S[5], S[4]}, {S[5], S[1], S[3]}, {S[4], S[3], S[2]}};
-  auto cross_e = [](const T s[3], int r, T out[3]) {
+inline void corotated_axials(const T M[6], T a[6][3]) {
+  const T row[3][3] = {{M[0], M[5], M[4]}, {M[5], M[1], M[3]}, {M[4], M[3], M[2]}};
+  auto cross_e = [](const T s[3], int r, T out[3]) {  // s x e_r
     if (r == 0) { out[0] = s[0] * 0.0; out[1] = s[2]; out[2] = -s[1]; }
     else if (r == 1) { out[0] = -s[2]; out[1] = s[0] * 0.0; out[2] = s[0]; }
     else { out[0] = s[1]; out[1] = -s[0]; out[2] = s[0] * 0.0; }
   };
   constexpr int kA[6] = {0, 1, 2, 1, 0, 0}, kC[6] = {0, 1, 2, 2, 2, 1};
   for (int i = 0; i < 6; ++i) {
-    // a_i = axial(skew(E_i S)) = 1/2 sum over E_i's rows r (= e_r s^T) of s x e_r.
-    T a[3], t[3];
+    T t[3];
     if (i < 3) {
-      cross_e(row[i], i, a);
-      for (int c = 0; c < 3; ++c) a[c] = 0.5 * a[c];
+      cross_e(row[i], i, a[i]);
+      for (int c = 0; c < 3; ++c) a[i][c] = 0.5 * a[i][c];
     } else {
-      cross_e(row[kC[i]], kA[i], a);
+      cross_e(row[kC[i]], kA[i], a[i]);
       cross_e(row[kA[i]], kC[i], t);
-      for (int c = 0; c < 3; ++c) a[c] = 0.5 * (a[c] + t[c]);
+      for (int c = 0; c < 3; ++c) a[i][c] = 0.5 * (a[i][c] + t[c]);
     }
-    const T u[3] = {Ginv[0] * a[0] + Ginv[5] * a[1] + Ginv[4] * a[2],
-                    Ginv[5] * a[0] + Ginv[1] * a[1] + Ginv[3] * a[2],
-                    Ginv[4] * a[0] + Ginv[3] * a[1] + Ginv[2] * a[2]};
+  }
+}
+
+// u_i = Ginv axial(skew(E_i S)): the rotation's share of row i (see corotated_rows).
+template <class T>
+inline void corotated_axes(const T S[6], const T Ginv[6], T u[6][3]) {
+  T a[6][3];
+  corotated_axials(S, a);
+  for (int i = 0; i < 6; ++i) {
+    u[i][0] = Ginv[0] * a[i][0] + Ginv[5] * a[i][1] + Ginv[4] * a[i][2];
+    u[i][1] = Ginv[5] * a[i][0] + Ginv[1] * a[i][1] + Ginv[3] * a[i][2];
+    u[i][2] = Ginv[4] * a[i][0] + Ginv[3] * a[i][1] + Ginv[2] * a[i][2];
+  }
+}
+
+template <class T>
+inline void corotated_rows(const T S[6], const T Ginv[6], const T b[4][3], T Y[6][4][3]) {
+  constexpr int kA[6] = {0, 1, 2, 1, 0, 0}, kC[6] = {0, 1, 2, 2, 2, 1};
+  T u[6][3];
+  corotated_axes(S, Ginv, u);
+  for (int i = 0; i < 6; ++i)
     for (int k = 0; k < 4; ++k) {
       const T* bk = b[k];
       // E_i b_k - 2 u_i x b_k
-      T y[3] = {-2.0 * (u[1] * bk[2] - u[2] * bk[1]), -2.0 * (u[2] * bk[0] - u[0] * bk[2]),
-                -2.0 * (u[0] * bk[1] - u[1] * bk[0])};
+      T y[3] = {-2.0 * (u[i][1] * bk[2] - u[i][2] * bk[1]), -2.0 * (u[i][2] * bk[0] - u[i][0] * bk[2]),
+                -2.0 * (u[i][0] * bk[1] - u[i][1] * bk[0])};
       if (i < 3) y[i] += bk[i];
       else {
         y[kA[i]] += bk[kC[i]];
@@ -96,7 +114,6 @@ inline void corotated_rows(const T S[6], const T Ginv[6], const T b[4][3], T Y[6
       }
       for (int c = 0; c < 3; ++c) Y[i][k][c] = y[c];
     }
-  }
 }
 
 // Ginv of a stretch S (00 11 22 12 02 01) for one tet, zero where the rotation is ill-defined
