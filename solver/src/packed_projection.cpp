@@ -197,9 +197,8 @@ inline void gather_lambda(const TetPack& p, const std::vector<Vec6>& lambda, v4d
   }
 }
 
-// dx_k = w_k sqrt(V0) (G P) b_k, P the symmetric 3x3 of the increment y, G the Jacobian's columns.
-inline void pack_corrections(const TetPack& p, const PackGeometry& g, const v4d y[6], v4d dx[4][3]) {
-  const v4d P[3][3] = {{y[0], y[5], y[4]}, {y[5], y[1], y[3]}, {y[4], y[3], y[2]}};
+// dx_k = w_k sqrt(V0) (G P) b_k for a 3x3 P (P[m][i]) and G's columns in g.j.
+inline void pack_move_corners(const TetPack& p, const PackGeometry& g, const v4d P[3][3], v4d dx[4][3]) {
   v4d M[3][3];  // M[i][c]: component c of column i of G P
   for (int i = 0; i < 3; ++i)
     for (int c = 0; c < 3; ++c) M[i][c] = g.j[0][c] * P[0][i] + g.j[1][c] * P[1][i] + g.j[2][c] * P[2][i];
@@ -211,6 +210,12 @@ inline void pack_corrections(const TetPack& p, const PackGeometry& g, const v4d 
     const v4d s = p.w[k] * p.sqrt_volume;
     for (int c = 0; c < 3; ++c) dx[k][c] = s * (M[0][c] * b[k][0] + M[1][c] * b[k][1] + M[2][c] * b[k][2]);
   }
+}
+
+// StVK: dx_k = w_k sqrt(V0) (F P) b_k, P the symmetric 3x3 of the increment y.
+inline void pack_corrections(const TetPack& p, const PackGeometry& g, const v4d y[6], v4d dx[4][3]) {
+  const v4d P[3][3] = {{y[0], y[5], y[4]}, {y[5], y[1], y[3]}, {y[4], y[3], y[2]}};
+  pack_move_corners(p, g, P, dx);
 }
 
 // ||C + alpha~ lambda||^2 per lane.
@@ -366,17 +371,7 @@ inline void pack_corotated_corrections(const TetPack& p, const PackGeometry& g, 
   const v4d P[3][3] = {{y[0], y[5] + two * U[2], y[4] - two * U[1]},
                        {y[5] - two * U[2], y[1], y[3] + two * U[0]},
                        {y[4] + two * U[1], y[3] - two * U[0], y[2]}};
-  v4d M[3][3];  // M[i][c]: component c of column i of R P
-  for (int i = 0; i < 3; ++i)
-    for (int c = 0; c < 3; ++c) M[i][c] = g.j[0][c] * P[0][i] + g.j[1][c] * P[1][i] + g.j[2][c] * P[2][i];
-  v4d b[4][3];
-  for (int k = 0; k < 3; ++k)
-    for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
-  for (int i = 0; i < 3; ++i) b[3][i] = -(b[0][i] + b[1][i] + b[2][i]);
-  for (int k = 0; k < 4; ++k) {
-    const v4d s = p.w[k] * p.sqrt_volume;
-    for (int c = 0; c < 3; ++c) dx[k][c] = s * (M[0][c] * b[k][0] + M[1][c] * b[k][1] + M[2][c] * b[k][2]);
-  }
+  pack_move_corners(p, g, P, dx);  // g.j holds R
 }
 
 }  // namespace
