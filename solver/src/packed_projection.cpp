@@ -68,29 +68,32 @@ namespace {
 
 struct PackGeometry {
   v4d f[3][3];  // f[i][c]: component c of column i of F
-  v4d j[3][3];  // same layout: F's columns (StVK, the Jacobian's) or R's (Corotated)
-  v4d S00, S11, S22, S01, S02, S12;  // StVK: F^T F (what its 6x6 system is built from)
+  v4d r[3][3];  // Corotated: R's columns, same layout
+  v4d S[6];     // StVK: F^T F, 00 11 22 01 02 12 (what its 6x6 system is built from)
   v4d c[6];     // strain vector (no sqrt(V0))
 };
 
 inline v4d column_dot(const v4d a[3], const v4d b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
-// Green strain from g.f (StVK): the Jacobian's columns are F's.
+// Green strain from g.f (StVK).
 inline void green_strain(PackGeometry& g) {
-  for (int i = 0; i < 3; ++i)
-    for (int c = 0; c < 3; ++c) g.j[i][c] = g.f[i][c];
-  g.S00 = column_dot(g.f[0], g.f[0]);
-  g.S11 = column_dot(g.f[1], g.f[1]);
-  g.S22 = column_dot(g.f[2], g.f[2]);
-  g.S01 = column_dot(g.f[0], g.f[1]);
-  g.S02 = column_dot(g.f[0], g.f[2]);
-  g.S12 = column_dot(g.f[1], g.f[2]);
-  g.c[0] = 0.5 * g.S00 - 0.5;
-  g.c[1] = 0.5 * g.S11 - 0.5;
-  g.c[2] = 0.5 * g.S22 - 0.5;
-  g.c[3] = g.S12;
-  g.c[4] = g.S02;
-  g.c[5] = g.S01;
+  g.S[0] = column_dot(g.f[0], g.f[0]);
+  g.S[1] = column_dot(g.f[1], g.f[1]);
+  g.S[2] = column_dot(g.f[2], g.f[2]);
+  g.S[3] = column_dot(g.f[0], g.f[1]);
+  g.S[4] = column_dot(g.f[0], g.f[2]);
+  g.S[5] = column_dot(g.f[1], g.f[2]);
+  g.c[0] = 0.5 * g.S[0] - 0.5;
+  g.c[1] = 0.5 * g.S[1] - 0.5;
+  g.c[2] = 0.5 * g.S[2] - 0.5;
+  g.c[3] = g.S[5];
+  g.c[4] = g.S[4];
+  g.c[5] = g.S[3];
+}
+
+inline v4d pack_det(const v4d f[3][3]) {
+  return f[0][0] * (f[1][1] * f[2][2] - f[1][2] * f[2][1]) - f[0][1] * (f[1][0] * f[2][2] - f[1][2] * f[2][0]) +
+         f[0][2] * (f[1][0] * f[2][1] - f[1][1] * f[2][0]);
 }
 
 inline void cross(const v4d a[3], const v4d b[3], v4d out[3]) {
@@ -158,17 +161,17 @@ inline void pack_rotation(const v4d f[3][3], v4d r[3][3]) {
     for (int c = 0; c < 3; ++c) r[i][c] = X[i][c];
 }
 
-// Corotated strain from g.f: c = (r_i . f_i - 1, r_a . f_c + r_c . f_a), R's columns in g.j
-// (the Gram fields S.. are left unset: the corotated system is built from pack_corotated_rows).
+// Corotated strain from g.f: c = (r_i . f_i - 1, r_a . f_c + r_c . f_a), R's columns in g.r.
 inline void corotated_strain(PackGeometry& g) {
-  pack_rotation(g.f, g.j);
-  for (int i = 0; i < 3; ++i) g.c[i] = column_dot(g.j[i], g.f[i]) - 1.0;
-  g.c[3] = column_dot(g.j[1], g.f[2]) + column_dot(g.j[2], g.f[1]);
-  g.c[4] = column_dot(g.j[0], g.f[2]) + column_dot(g.j[2], g.f[0]);
-  g.c[5] = column_dot(g.j[0], g.f[1]) + column_dot(g.j[1], g.f[0]);
+  pack_rotation(g.f, g.r);
+  for (int i = 0; i < 3; ++i) g.c[i] = column_dot(g.r[i], g.f[i]) - 1.0;
+  g.c[3] = column_dot(g.r[1], g.f[2]) + column_dot(g.r[2], g.f[1]);
+  g.c[4] = column_dot(g.r[0], g.f[2]) + column_dot(g.r[2], g.f[0]);
+  g.c[5] = column_dot(g.r[0], g.f[1]) + column_dot(g.r[1], g.f[0]);
 }
 
-inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeometry& g, ElasticModel model) {
+// F's columns of the pack's tets at x.
+inline void pack_deformation(const TetPack& p, const std::vector<Vec3>& x, v4d f[3][3]) {
   v4d px[4][3];
   for (int k = 0; k < 4; ++k)
     for (int l = 0; l < 4; ++l) {
@@ -181,7 +184,11 @@ inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeom
   for (int k = 0; k < 3; ++k)
     for (int c = 0; c < 3; ++c) d[k][c] = px[k][c] - px[3][c];
   for (int i = 0; i < 3; ++i)
-    for (int c = 0; c < 3; ++c) g.f[i][c] = d[0][c] * p.B[i] + d[1][c] * p.B[3 + i] + d[2][c] * p.B[6 + i];
+    for (int c = 0; c < 3; ++c) f[i][c] = d[0][c] * p.B[i] + d[1][c] * p.B[3 + i] + d[2][c] * p.B[6 + i];
+}
+
+inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeometry& g, ElasticModel model) {
+  pack_deformation(p, x, g.f);
   if (model == ElasticModel::Corotated) corotated_strain(g);
   else green_strain(g);
 }
@@ -197,11 +204,11 @@ inline void gather_lambda(const TetPack& p, const std::vector<Vec6>& lambda, v4d
   }
 }
 
-// dx_k = w_k sqrt(V0) (G P) b_k for a 3x3 P (P[m][i]) and G's columns in g.j.
-inline void pack_move_corners(const TetPack& p, const PackGeometry& g, const v4d P[3][3], v4d dx[4][3]) {
+// dx_k = w_k sqrt(V0) (G P) b_k for a 3x3 P (P[m][i]) and G's columns.
+inline void pack_move_corners(const TetPack& p, const v4d G[3][3], const v4d P[3][3], v4d dx[4][3]) {
   v4d M[3][3];  // M[i][c]: component c of column i of G P
   for (int i = 0; i < 3; ++i)
-    for (int c = 0; c < 3; ++c) M[i][c] = g.j[0][c] * P[0][i] + g.j[1][c] * P[1][i] + g.j[2][c] * P[2][i];
+    for (int c = 0; c < 3; ++c) M[i][c] = G[0][c] * P[0][i] + G[1][c] * P[1][i] + G[2][c] * P[2][i];
   v4d b[4][3];
   for (int k = 0; k < 3; ++k)
     for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
@@ -215,7 +222,7 @@ inline void pack_move_corners(const TetPack& p, const PackGeometry& g, const v4d
 // StVK: dx_k = w_k sqrt(V0) (F P) b_k, P the symmetric 3x3 of the increment y.
 inline void pack_corrections(const TetPack& p, const PackGeometry& g, const v4d y[6], v4d dx[4][3]) {
   const v4d P[3][3] = {{y[0], y[5], y[4]}, {y[5], y[1], y[3]}, {y[4], y[3], y[2]}};
-  pack_move_corners(p, g, P, dx);
+  pack_move_corners(p, g.f, P, dx);
 }
 
 // ||C + alpha~ lambda||^2 per lane.
@@ -230,7 +237,7 @@ inline v4d lane_residual_squared(const v4d C[6], const v4d lam[6], const Mat6& a
 }
 
 // Step length along the projection's increment (y for lambda, dx for the corners), per lane:
-// see kMaxHalvings in projection.hpp. StVK only.
+// see kMaxHalvings in projection.hpp.
 v4d residual_decreasing_step(ElasticModel model, const TetPack& p, const PackGeometry& g, const v4d C[6], const v4d lam[6],
                              const v4d y[6], const v4d dx[4][3], const Mat6& at) {
   const v4d before = lane_residual_squared(C, lam, at);
@@ -300,16 +307,16 @@ inline void ldlt_solve(const v4d A[6][6], const v4d rhs[6], double lambda_scale,
 }
 
 // The corotated constraint for a pack (corotated_rows in projection.hpp gives the rows
-// Y_ik = E_i b_k - 2 u_i x b_k): the stretch S = sym(R^T F) from g (g.j holds R), Ginv per lane,
+// Y_ik = E_i b_k - 2 u_i x b_k): the stretch S = sym(R^T F) from g (g.r holds R), Ginv per lane,
 // the rotation axes u_i, and the lower triangle of A = V0 sum_k w_k Y_ik . Y_jk + alpha~ summed
 // over the corners in closed form with Q = sum_k w_k b_k b_k^T:
 //   sum_k w_k Y_ik . Y_jk = tr(E_i E_j Q) - 2 (u_j . v_i + u_i . v_j) + 4 ((u_i . u_j) tr Q - u_i^T Q u_j),
 // v_i = sum_k w_k b_k x (E_i b_k) = 2 axial(skew(E_i Q)).
 inline void pack_corotated_axes(const PackGeometry& g, v4d u[6][3]) {
-  const v4d S[6] = {column_dot(g.j[0], g.f[0]), column_dot(g.j[1], g.f[1]), column_dot(g.j[2], g.f[2]),
-                    0.5 * (column_dot(g.j[1], g.f[2]) + column_dot(g.j[2], g.f[1])),
-                    0.5 * (column_dot(g.j[0], g.f[2]) + column_dot(g.j[2], g.f[0])),
-                    0.5 * (column_dot(g.j[0], g.f[1]) + column_dot(g.j[1], g.f[0]))};
+  const v4d S[6] = {column_dot(g.r[0], g.f[0]), column_dot(g.r[1], g.f[1]), column_dot(g.r[2], g.f[2]),
+                    0.5 * (column_dot(g.r[1], g.f[2]) + column_dot(g.r[2], g.f[1])),
+                    0.5 * (column_dot(g.r[0], g.f[2]) + column_dot(g.r[2], g.f[0])),
+                    0.5 * (column_dot(g.r[0], g.f[1]) + column_dot(g.r[1], g.f[0]))};
   // Ginv = (tr(S) I - S)^-1 by cofactors, zero in the lanes where corotated_rotation_inverse
   // gives zero (same test).
   const v4d G00 = S[1] + S[2], G11 = S[0] + S[2], G22 = S[0] + S[1], G12 = -S[3], G02 = -S[4], G01 = -S[5];
@@ -371,7 +378,7 @@ inline void pack_corotated_corrections(const TetPack& p, const PackGeometry& g, 
   const v4d P[3][3] = {{y[0], y[5] + two * U[2], y[4] - two * U[1]},
                        {y[5] - two * U[2], y[1], y[3] + two * U[0]},
                        {y[4] + two * U[1], y[3] - two * U[0], y[2]}};
-  pack_move_corners(p, g, P, dx);  // g.j holds R
+  pack_move_corners(p, g.r, P, dx);
 }
 
 }  // namespace
@@ -391,30 +398,7 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   if (elastic == ElasticModel::Corotated) {
     pack_corotated_system(p, g, at, A, u);
   } else {
-    const v4d S00 = g.S00, S11 = g.S11, S22 = g.S22, S01 = g.S01, S02 = g.S02, S12 = g.S12;
-    const v4d Q00 = p.Q[0], Q11 = p.Q[1], Q22 = p.Q[2], Q01 = p.Q[3], Q02 = p.Q[4], Q12 = p.Q[5];
-    const v4d V = p.volume;
-    A[0][0] = V * (S00 * Q00) + at(0, 0);
-    A[1][0] = V * (S01 * Q01) + at(1, 0);
-    A[1][1] = V * (S11 * Q11) + at(1, 1);
-    A[2][0] = V * (S02 * Q02) + at(2, 0);
-    A[2][1] = V * (S12 * Q12) + at(2, 1);
-    A[2][2] = V * (S22 * Q22) + at(2, 2);
-    A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
-    A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
-    A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
-    A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
-    A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
-    A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
-    A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
-    A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
-    A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
-    A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
-    A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
-    A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
-    A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
-    A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
-    A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
+    stvk_system(g.S, p.Q, p.volume, at, A);
   }
   v4d rhs[6];
   for (int r = 0; r < 6; ++r) {
@@ -429,10 +413,7 @@ int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lamb
   else pack_corrections(p, g, y, dx);
   v4d step = splat(1.0);
   if (line_search) step = residual_decreasing_step(elastic, p, g, C, lam, y, dx, at);
-  // det F before the projection, for the inversion floor.
-  const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
-                  g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
-                  g.f[0][2] * (g.f[1][0] * g.f[2][1] - g.f[1][1] * g.f[2][0]);
+  const v4d det = pack_det(g.f);  // before the projection, for the inversion floor
 
   int floor_hits = 0;
   for (int l = 0; l < p.lanes; ++l) {
@@ -481,11 +462,9 @@ void pack_apply_increment(const TetPack& p, std::vector<Vec3>& x, const std::vec
 
 int pack_volume_floor(const TetPack& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
                       std::vector<int32_t>* hit) {
-  PackGeometry g;
-  pack_geometry(p, x, g, ElasticModel::StVK);  // only det F is used
-  const v4d det = g.f[0][0] * (g.f[1][1] * g.f[2][2] - g.f[1][2] * g.f[2][1]) -
-                  g.f[0][1] * (g.f[1][0] * g.f[2][2] - g.f[1][2] * g.f[2][0]) +
-                  g.f[0][2] * (g.f[1][0] * g.f[2][1] - g.f[1][1] * g.f[2][0]);
+  v4d f[3][3];
+  pack_deformation(p, x, f);
+  const v4d det = pack_det(f);
   int hits = 0;
   for (int l = 0; l < p.lanes; ++l)
     if (det[l] < floor && enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, floor)) {

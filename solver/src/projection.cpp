@@ -16,25 +16,23 @@ inline void geometry(const TetRest& tet, const Vec3* const p[4], Vec3 f[3], Vec3
   b[3] = -(b[0] + b[1] + b[2]);
 }
 
-inline Vec6 strain_from_columns(const Vec3 f[3], double S[3][3]) {
-  for (int i = 0; i < 3; ++i)
-    for (int j = i; j < 3; ++j) S[i][j] = S[j][i] = f[i].dot(f[j]);
+// Green strain from F's columns; S receives F^T F (00 11 22 01 02 12).
+inline Vec6 strain_from_columns(const Vec3 f[3], double S[6]) {
+  S[0] = f[0].squaredNorm(), S[1] = f[1].squaredNorm(), S[2] = f[2].squaredNorm();
+  S[3] = f[0].dot(f[1]), S[4] = f[0].dot(f[2]), S[5] = f[1].dot(f[2]);
   Vec6 c;
-  c << 0.5 * (S[0][0] - 1.0), 0.5 * (S[1][1] - 1.0), 0.5 * (S[2][2] - 1.0), S[1][2], S[0][2], S[0][1];
+  c << 0.5 * (S[0] - 1.0), 0.5 * (S[1] - 1.0), 0.5 * (S[2] - 1.0), S[5], S[4], S[3];
   return c;
 }
 
-// c of the model from F's columns; g receives the Jacobian's columns (F's for StVK, R's for
-// Corotated) and S their Gram matrix (what the 6x6 system is built from).
-inline Vec6 model_strain(ElasticModel model, const Vec3 f[3], Vec3 g[3], double S[3][3]) {
-  if (model == ElasticModel::StVK) {
-    for (int i = 0; i < 3; ++i) g[i] = f[i];
-    return strain_from_columns(f, S);
+// c of the model from F's columns.
+inline Vec6 model_strain(ElasticModel model, const Vec3 f[3]) {
+  if (model == ElasticModel::Corotated) {
+    Vec3 r[3];
+    return corotated_from_columns(f, r);
   }
-  const Vec6 c = corotated_from_columns(f, g);
-  for (int i = 0; i < 3; ++i)
-    for (int j = i; j < 3; ++j) S[i][j] = S[j][i] = g[i].dot(g[j]);
-  return c;
+  double S[6];
+  return strain_from_columns(f, S);
 }
 
 // Solves A y = rhs for symmetric positive definite 6x6 A (lower triangle used) by LDL^T with
@@ -67,7 +65,7 @@ inline bool ldlt_solve6(const double A[6][6], const double rhs[6], double y[6]) 
   return true;
 }
 
-// dx_k = w_k sqrt(V0) (G P) b_k, P the symmetric 3x3 of the increment, G the Jacobian's columns.
+// StVK: dx_k = w_k sqrt(V0) (F P) b_k, P the symmetric 3x3 of the increment.
 inline void position_corrections(const TetRest& tet, const Vec3 f[3], const Vec3 b[4],
                                  const double w[4], const Vec6& dl, Vec3 dx[4]) {
   double P[3][3] = {{dl[0], dl[5], dl[4]}, {dl[5], dl[1], dl[3]}, {dl[4], dl[3], dl[2]}};
@@ -95,9 +93,7 @@ double residual_decreasing_step(ElasticModel model, const TetRest& tet, const Ve
   double a = 1.0;
   for (int h = 0; h <= kMaxHalvings; ++h) {
     const Vec3 fn[3] = {f[0] + a * dF[0], f[1] + a * dF[1], f[2] + a * dF[2]};
-    double S[3][3];
-    Vec3 gn[3];
-    const Vec6 r = tet.sqrt_volume * model_strain(model, fn, gn, S) + at * (lambda_t + a * dlambda);
+    const Vec6 r = tet.sqrt_volume * model_strain(model, fn) + at * (lambda_t + a * dlambda);
     if (r.squaredNorm() <= before || h == kMaxHalvings) break;
     a *= 0.5;
   }
@@ -119,14 +115,16 @@ Vec6 corotated_from_columns(const Vec3 f[3], Vec3 r[3]) {
   return c;
 }
 
+namespace {
+
+// Ginv of a stretch S (00 11 22 12 02 01), zero where the rotation is ill-defined
+// (corotated_rotation_inverse in strain_constraint.hpp).
 void corotated_ginv(const double S[6], double Ginv[6]) {
   Mat3 Sm;
   Sm << S[0], S[5], S[4], S[5], S[1], S[3], S[4], S[3], S[2];
   const Mat3 Gi = corotated_rotation_inverse(Sm);
   Ginv[0] = Gi(0, 0), Ginv[1] = Gi(1, 1), Ginv[2] = Gi(2, 2), Ginv[3] = Gi(1, 2), Ginv[4] = Gi(0, 2), Ginv[5] = Gi(0, 1);
 }
-
-namespace {
 
 // dlambda from A dlambda = -C - alpha~ lambda (scaled by lambda_scale); false (and everything
 // zero) when A is not positive definite.
@@ -195,53 +193,25 @@ void corotated_increment(const TetRest& tet, const Vec3 f[3], const Vec3 b[4], c
 void strain_increment(const TetRest& tet, const Vec3* const p[4], const double w[4],
                       const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda,
                       Vec3 dx[4], double* det_f) {
-  Vec3 f[3], b[4], g[3];
+  Vec3 f[3], b[4];
   geometry(tet, p, f, b);
   if (det_f) *det_f = f[0].dot(f[1].cross(f[2]));
   if (params.model == ElasticModel::Corotated) {
     corotated_increment(tet, f, b, w, lambda_t, params, dlambda, dx);
     return;
   }
-  double S[3][3];
-  const Vec6 C = tet.sqrt_volume * model_strain(params.model, f, g, S);
-
-  double Q[3][3] = {};
+  double S[6];
+  const Vec6 C = tet.sqrt_volume * strain_from_columns(f, S);
+  double Q[6] = {0, 0, 0, 0, 0, 0};  // 00 11 22 01 02 12
   for (int k = 0; k < 4; ++k) {
     if (w[k] == 0) continue;
-    for (int i = 0; i < 3; ++i)
-      for (int j = i; j < 3; ++j) Q[i][j] += w[k] * b[k][i] * b[k][j];
+    Q[0] += w[k] * b[k][0] * b[k][0], Q[1] += w[k] * b[k][1] * b[k][1], Q[2] += w[k] * b[k][2] * b[k][2];
+    Q[3] += w[k] * b[k][0] * b[k][1], Q[4] += w[k] * b[k][0] * b[k][2], Q[5] += w[k] * b[k][1] * b[k][2];
   }
-
-  // A = V0 * sum over the row terms of S_ab Q_ij, + alpha~ (lower triangle; spelled out so the
-  // compiler keeps everything in registers).
-  const double S00 = S[0][0], S11 = S[1][1], S22 = S[2][2], S01 = S[0][1], S02 = S[0][2], S12 = S[1][2];
-  const double Q00 = Q[0][0], Q11 = Q[1][1], Q22 = Q[2][2], Q01 = Q[0][1], Q02 = Q[0][2], Q12 = Q[1][2];
-  const double V = tet.volume;
-  const Mat6& at = params.alpha_tilde;
   double A[6][6];
-  A[0][0] = V * (S00 * Q00) + at(0, 0);
-  A[1][0] = V * (S01 * Q01) + at(1, 0);
-  A[1][1] = V * (S11 * Q11) + at(1, 1);
-  A[2][0] = V * (S02 * Q02) + at(2, 0);
-  A[2][1] = V * (S12 * Q12) + at(2, 1);
-  A[2][2] = V * (S22 * Q22) + at(2, 2);
-  A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
-  A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
-  A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
-  A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
-  A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
-  A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
-  A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
-  A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
-  A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
-  A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
-  A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
-  A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
-  A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
-  A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
-  A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
+  stvk_system(S, Q, tet.volume, params.alpha_tilde, A);
   if (!solve_increment(A, C, lambda_t, params, dlambda, dx)) return;
-  position_corrections(tet, g, b, w, dlambda, dx);
+  position_corrections(tet, f, b, w, dlambda, dx);
   apply_line_search(tet, f, C, lambda_t, params, dlambda, dx);
 }
 
@@ -269,10 +239,9 @@ bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::v
 double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Vec6& lambda_t,
                         const Mat6& alpha_tilde, ElasticModel model) {
   const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-  Vec3 f[3], b[4], g[3];
+  Vec3 f[3], b[4];
   geometry(tet, p, f, b);
-  double S[3][3];
-  const Vec6 r = tet.sqrt_volume * model_strain(model, f, g, S) + alpha_tilde * lambda_t;
+  const Vec6 r = tet.sqrt_volume * model_strain(model, f) + alpha_tilde * lambda_t;
   return r.squaredNorm();
 }
 

@@ -116,8 +116,34 @@ inline void corotated_rows(const T S[6], const T Ginv[6], const T b[4][3], T Y[6
     }
 }
 
-// Ginv of a stretch S (00 11 22 12 02 01) for one tet, zero where the rotation is ill-defined
-// (corotated_rotation_inverse in strain_constraint.hpp).
-void corotated_ginv(const double S[6], double Ginv[6]);
+// The StVK 6x6 system, lower triangle: A = V0 (bilinear terms in S = F^T F and
+// Q = sum_k w_k b_k b_k^T) + alpha~, for one tet (T = double) or a pack (T = 4-lane vector).
+// S and Q are stored 00 11 22 01 02 12.
+template <class T>
+inline void stvk_system(const T S[6], const T Q[6], const T& V, const Mat6& at, T A[6][6]) {
+  const T &S00 = S[0], &S11 = S[1], &S22 = S[2], &S01 = S[3], &S02 = S[4], &S12 = S[5];
+  const T &Q00 = Q[0], &Q11 = Q[1], &Q22 = Q[2], &Q01 = Q[3], &Q02 = Q[4], &Q12 = Q[5];
+  A[0][0] = V * (S00 * Q00) + at(0, 0);
+  A[1][0] = V * (S01 * Q01) + at(1, 0);
+  A[1][1] = V * (S11 * Q11) + at(1, 1);
+  A[2][0] = V * (S02 * Q02) + at(2, 0);
+  A[2][1] = V * (S12 * Q12) + at(2, 1);
+  A[2][2] = V * (S22 * Q22) + at(2, 2);
+  A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
+  A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
+  A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
+  A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
+  A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
+  A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
+  A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
+  A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
+  A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
+  A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
+  A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
+  A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
+  A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
+  A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
+  A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
+}
 
 }  // namespace pliant::detail
