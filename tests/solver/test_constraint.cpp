@@ -41,6 +41,23 @@ std::array<Vec3, 4> deform(const std::array<Vec3, 4>& X, std::mt19937& rng, doub
   return x;
 }
 
+// Tets side by side, 3 apart along x, sharing no vertex: they land in one colour, so up to four
+// of them make one SIMD pack.
+TetMesh disjoint_tets(const std::vector<std::array<Vec3, 4>>& rest) {
+  TetMesh mesh;
+  for (size_t t = 0; t < rest.size(); ++t) {
+    for (const Vec3& p : rest[t]) mesh.vertices.push_back(p + Vec3(3.0 * double(t), 0, 0));
+    const int32_t v = int32_t(4 * t);
+    mesh.tets.push_back({v, v + 1, v + 2, v + 3});
+  }
+  return mesh;
+}
+
+// The inverse masses of a tet's corners, as the kernels take them.
+std::array<double, 4> corner_inverse_masses(const BodyModel& model, const TetRest& tet) {
+  return {model.inv_mass[tet.v[0]], model.inv_mass[tet.v[1]], model.inv_mass[tet.v[2]], model.inv_mass[tet.v[3]]};
+}
+
 // psi_StVK from the Green strain tensor, written independently of the 6-vector form.
 double stvk_density(const Mat3& F, const Lame& l) {
   const Mat3 E = 0.5 * (F.transpose() * F - Mat3::Identity());
@@ -175,13 +192,9 @@ TEST(StrainConstraint, FusedKernelMatchesDefinition) {
 TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
   // The SIMD Gauss-Seidel pack (4 tets of one colour) must give each tet the same increment
   // and corrections as the scalar kernel; padding lanes must not write.
-  TetMesh mesh;
   std::mt19937 rng(6);
-  for (int t = 0; t < 3; ++t) {  // 3 disjoint tets: one pack with a padding lane
-    const auto X = random_tet(rng);
-    for (const Vec3& p : X) mesh.vertices.push_back(p + Vec3(3.0 * t, 0, 0));
-    mesh.tets.push_back({4 * t, 4 * t + 1, 4 * t + 2, 4 * t + 3});
-  }
+  // 3 disjoint tets: one pack with a padding lane
+  const TetMesh mesh = disjoint_tets({random_tet(rng), random_tet(rng), random_tet(rng)});
   auto model = build_model(mesh, Material{2e5, 0.35, 900});
   ASSERT_EQ(model->colours.size(), 1u);
   detail::PackedModel packed;
@@ -198,8 +211,8 @@ TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
   for (int t = 0; t < 3; ++t) {
     const TetRest& tet = model->tets[t];
     const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-    const double w[4] = {model->inv_mass[tet.v[0]], model->inv_mass[tet.v[1]], model->inv_mass[tet.v[2]],
-                         model->inv_mass[tet.v[3]]};
+    const std::array<double, 4> wa = corner_inverse_masses(*model, tet);
+    const double* w = wa.data();
     detail::ProjectionParams params;
     params.alpha_tilde = at;
     Vec6 expected;
@@ -218,13 +231,9 @@ TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
   // residual grows. With the line search the step is shortened until that residual does not
   // grow; a mildly strained tet (step below kSmallStep) is projected exactly as before. Both
   // kernels (SIMD pack and scalar) must agree.
-  TetMesh mesh;
   const double squash[3] = {0.2, 0.5, 0.97};
   const std::array<Vec3, 4> X = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1)};
-  for (int t = 0; t < 3; ++t) {
-    for (const Vec3& p : X) mesh.vertices.push_back(p + Vec3(3.0 * t, 0, 0));
-    mesh.tets.push_back({4 * t, 4 * t + 1, 4 * t + 2, 4 * t + 3});
-  }
+  const TetMesh mesh = disjoint_tets({X, X, X});
   auto model = build_model(mesh, Material{1e9, 0.3, 1000});  // stiff: the constraint dominates
   detail::PackedModel packed;
   detail::ensure_packed(packed, *model);
@@ -258,8 +267,8 @@ TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
     }
     // The scalar kernel (Jacobi sweep) takes the same shortened step.
     const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-    const double w[4] = {model->inv_mass[tet.v[0]], model->inv_mass[tet.v[1]], model->inv_mass[tet.v[2]],
-                         model->inv_mass[tet.v[3]]};
+    const std::array<double, 4> wa = corner_inverse_masses(*model, tet);
+    const double* w = wa.data();
     detail::ProjectionParams params;
     params.alpha_tilde = at;
     params.line_search = true;
@@ -450,13 +459,8 @@ TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
   // Scalar kernel (Jacobi) and SIMD pack (Gauss-Seidel) against [J W J^T + alpha~] dl =
   // -C - alpha~ lambda, dx = W J^T dl, with the corotated J of the current positions (line
   // search off); with the line search on, the two kernels take the same steps.
-  TetMesh mesh;
   std::mt19937 rng(16);
-  for (int t = 0; t < 3; ++t) {
-    const auto X = random_tet(rng);
-    for (const Vec3& p : X) mesh.vertices.push_back(p + Vec3(3.0 * t, 0, 0));
-    mesh.tets.push_back({4 * t, 4 * t + 1, 4 * t + 2, 4 * t + 3});
-  }
+  const TetMesh mesh = disjoint_tets({random_tet(rng), random_tet(rng), random_tet(rng)});
   Material mat{2e5, 0.35, 900};
   mat.model = ElasticModel::Corotated;
   auto model = build_model(mesh, mat);
@@ -476,8 +480,8 @@ TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
   for (int t = 0; t < 3; ++t) {
     const TetRest& tet = model->tets[t];
     const auto xt = gather(x, tet.v);
-    const double w[4] = {model->inv_mass[tet.v[0]], model->inv_mass[tet.v[1]], model->inv_mass[tet.v[2]],
-                         model->inv_mass[tet.v[3]]};
+    const std::array<double, 4> wa = corner_inverse_masses(*model, tet);
+    const double* w = wa.data();
     const Mat6x12 J = strain_jacobian(tet, xt, ElasticModel::Corotated);
     Eigen::Matrix<double, 12, 12> W = Eigen::Matrix<double, 12, 12>::Zero();
     for (int k = 0; k < 4; ++k) W.block<3, 3>(3 * k, 3 * k) = w[k] * Mat3::Identity();
@@ -512,14 +516,13 @@ TEST(Corotated, LineSearchShortensStepsThatWouldRaiseTheResidual) {
   std::mt19937 rng(18);
   int shortened = 0, grew_without = 0;
   for (int trial = 0; trial < 40; ++trial) {
-    TetMesh mesh;
-    for (int t = 0; t < 4; ++t) {
-      auto X = random_tet(rng);
+    std::vector<std::array<Vec3, 4>> slivers(4);
+    for (auto& X : slivers) {
+      X = random_tet(rng);
       const Vec3 n = (X[1] - X[0]).cross(X[2] - X[0]).normalized();
       X[3] = (X[0] + X[1] + X[2]) / 3.0 + 0.01 * n;  // a sliver
-      for (const Vec3& p : X) mesh.vertices.push_back(p + Vec3(3.0 * t, 0, 0));
-      mesh.tets.push_back({4 * t, 4 * t + 1, 4 * t + 2, 4 * t + 3});
     }
+    const TetMesh mesh = disjoint_tets(slivers);
     Material mat{1e9, 0.3, 1000};
     mat.model = ElasticModel::Corotated;
     auto model = build_model(mesh, mat);
@@ -541,8 +544,8 @@ TEST(Corotated, LineSearchShortensStepsThatWouldRaiseTheResidual) {
       grew_without += detail::residual_squared(tet, without, lo[t], at, ElasticModel::Corotated) > before;
       shortened += dl[t].norm() < 0.99 * dlo[t].norm();
       const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-      const double w[4] = {model->inv_mass[tet.v[0]], model->inv_mass[tet.v[1]], model->inv_mass[tet.v[2]],
-                           model->inv_mass[tet.v[3]]};
+      const std::array<double, 4> wa = corner_inverse_masses(*model, tet);
+      const double* w = wa.data();
       detail::ProjectionParams params;
       params.model = ElasticModel::Corotated;
       params.alpha_tilde = at;
