@@ -41,6 +41,9 @@ std::string validate(const Material& m) {
     os << "material.density must be a finite value > 0 kg/m^3, got " << m.density;
   else if (!std::isfinite(m.inertia_floor) || m.inertia_floor < 0 || m.inertia_floor > 1)
     os << "material.inertia_floor must be in [0, 1] (a fraction of the mean vertex mass), got " << m.inertia_floor;
+  else if (!std::isfinite(m.support_inertia) || m.support_inertia < 0 || m.support_inertia > 1)
+    os << "material.support_inertia must be in [0, 1] (a fraction of the mass a vertex supports), got "
+       << m.support_inertia;
   else if (m.model != ElasticModel::StVK && m.model != ElasticModel::Corotated)
     os << "material.model must be stvk or corotated, got " << int(m.model);
   return os.str();

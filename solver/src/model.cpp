@@ -25,6 +25,40 @@ size_t BodyModel::floored_vertices() const {
   return n;
 }
 
+std::vector<double> supported_mass(const BodyModel& m) {
+  const size_t nv = m.vertex_count();
+  // Vertex adjacency over the tets' edges (compressed rows; duplicates are harmless).
+  std::vector<int32_t> start(nv + 1, 0);
+  for (const TetRest& t : m.tets)
+    for (int k = 0; k < 4; ++k) start[t.v[k] + 1] += 3;
+  for (size_t i = 0; i < nv; ++i) start[i + 1] += start[i];
+  std::vector<int32_t> next(start.begin(), start.end() - 1), adjacent(start[nv]);
+  for (const TetRest& t : m.tets)
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b)
+        if (a != b) adjacent[next[t.v[a]]++] = t.v[b];
+  // Breadth-first distance from the fixed vertices.
+  std::vector<int32_t> distance(nv, -1), queue;
+  queue.reserve(nv);
+  for (size_t i = 0; i < nv; ++i)
+    if (i < m.fixed.size() && m.fixed[i]) distance[i] = 0, queue.push_back(int32_t(i));
+  for (size_t q = 0; q < queue.size(); ++q) {
+    const int32_t i = queue[q];
+    for (int32_t k = start[i]; k < start[i + 1]; ++k)
+      if (distance[adjacent[k]] < 0) distance[adjacent[k]] = distance[i] + 1, queue.push_back(adjacent[k]);
+  }
+  const int32_t deepest = queue.empty() ? 0 : distance[queue.back()];
+  std::vector<double> beyond(deepest + 2, 0.0);  // mass at distance >= d
+  std::vector<int32_t> count(deepest + 1, 0);
+  for (size_t i = 0; i < nv; ++i)
+    if (distance[i] > 0 && m.mass[i] > 0) beyond[distance[i]] += m.mass[i], count[distance[i]]++;
+  for (int32_t d = deepest - 1; d >= 0; --d) beyond[d] += beyond[d + 1];
+  std::vector<double> carried(nv, 0.0);
+  for (size_t i = 0; i < nv; ++i)
+    if (distance[i] > 0 && m.mass[i] > 0) carried[i] = beyond[distance[i]] / count[distance[i]];
+  return carried;
+}
+
 double BodyModel::total_mass() const {
   double m = 0;
   for (double v : mass) m += v;
@@ -96,16 +130,23 @@ void set_material(BodyModel& m, const Material& material) {
   m.mass.assign(m.rest_positions.size(), 0.0);
   for (const TetRest& t : m.tets)
     for (int k = 0; k < 4; ++k) m.mass[t.v[k]] += material.density * t.volume / 4.0;
+}
+
+// Inertia (the floor and the support share over the lumped mass) and its inverse; needs the
+// material's masses and the fixed vertices.
+void set_inertia(BodyModel& m) {
   double total = 0;
   size_t used = 0;
   for (double v : m.mass)
     if (v > 0) total += v, ++used;
-  const double floor = used > 0 ? material.inertia_floor * total / double(used) : 0.0;
+  const double floor = used > 0 ? m.material.inertia_floor * total / double(used) : 0.0;
   m.inertia.resize(m.mass.size());
   for (size_t i = 0; i < m.mass.size(); ++i) m.inertia[i] = m.mass[i] > 0 ? std::max(m.mass[i], floor) : 0.0;
-}
-
-void set_inverse_inertia(BodyModel& m) {
+  if (m.material.support_inertia > 0) {
+    const std::vector<double> carried = supported_mass(m);
+    for (size_t i = 0; i < m.mass.size(); ++i)
+      if (m.mass[i] > 0) m.inertia[i] = std::max(m.inertia[i], m.material.support_inertia * carried[i]);
+  }
   m.inv_mass.resize(m.inertia.size());
   for (size_t i = 0; i < m.inertia.size(); ++i)
     m.inv_mass[i] = (m.fixed[i] || m.inertia[i] <= 0) ? 0.0 : 1.0 / m.inertia[i];
@@ -114,7 +155,6 @@ void set_inverse_inertia(BodyModel& m) {
 void set_fixed(BodyModel& m, const FixedSelection& sel) {
   m.fixed.assign(m.rest_positions.size(), 0);
   for (int32_t i : select_vertices(m.rest_positions, sel)) m.fixed[i] = 1;
-  set_inverse_inertia(m);
 }
 
 }  // namespace
@@ -170,6 +210,7 @@ std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material
   m->surface = boundary_triangles(mesh.tets);
   set_material(*m, material);
   set_fixed(*m, fixed);
+  set_inertia(*m);
   m->colours = colour_tets(m->tets, nv);
   return m;
 }
@@ -178,7 +219,7 @@ std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Mat
   auto m = std::make_shared<BodyModel>(model);
   m->id = next_model_id();
   set_material(*m, material);
-  set_inverse_inertia(*m);
+  set_inertia(*m);
   return m;
 }
 
@@ -186,6 +227,7 @@ std::shared_ptr<const BodyModel> with_fixed(const BodyModel& model, const FixedS
   auto m = std::make_shared<BodyModel>(model);
   m->id = next_model_id();
   set_fixed(*m, fixed);
+  set_inertia(*m);
   return m;
 }
 

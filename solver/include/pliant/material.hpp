@@ -41,6 +41,15 @@ struct Material {
   // lumped masses. Not an elastic property; it lives here because it is part of how the
   // density becomes vertex masses.
   double inertia_floor = kDefaultInertiaFloor;
+  // Support inertia, in [0, 1]: a free vertex's inertia is at least this fraction of the mass
+  // it carries to the fixed vertices (the mass of the body at and beyond its distance from
+  // them, in edges, shared among the vertices at that distance; supported_mass in model.hpp).
+  // Like the floor it leaves the weight alone, so a converged equilibrium does not depend on
+  // it. Under a budget that does not resolve a stiff material (one iteration per substep, wave
+  // Courant number above 1) it lets the supports hold the body instead of letting the band
+  // next to them stretch and flutter, at the price of slower motion near the supports
+  // (docs/solver.md, "Support inertia"). 0 = off, the default.
+  double support_inertia = 0.0;
   ElasticModel model = ElasticModel::StVK;  // strain measure of the constraint (see above)
 };
 

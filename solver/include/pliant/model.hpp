@@ -39,7 +39,8 @@ struct BodyModel {
   std::vector<Vec3> rest_positions;
   std::vector<TetRest> tets;
   std::vector<double> mass;       // lumped: each tet gives rho*V0/4 to each vertex (its weight)
-  std::vector<double> inertia;    // max(mass, material.inertia_floor x mean vertex mass)
+  std::vector<double> inertia;    // max(mass, material.inertia_floor x mean vertex mass,
+                                  //     material.support_inertia x supported_mass)
   std::vector<double> inv_mass;   // 1 / inertia; 0 for fixed vertices
   std::vector<uint8_t> fixed;     // 1 for fixed vertices
   std::vector<Triangle> surface;  // boundary triangles, outward
@@ -81,6 +82,13 @@ double pressure_wave_speed(const BodyModel& model);
 // this is well below 1; above, the solve is far from converged and the body is too soft
 // (docs/solver.md, "Accuracy of a real-time budget").
 double wave_courant_number(const BodyModel& model, double substep);
+
+// The mass each vertex carries to the fixed vertices, kg: vertices are grouped by their
+// distance from the fixed ones in tet edges (breadth-first); a vertex at distance d gets the
+// mass of every vertex at distance >= d divided by the number of vertices at distance d. A
+// hanging chain of equal masses gets, at link k from the top, the mass of the links below it.
+// 0 for fixed vertices and for those no path of edges connects to a fixed vertex.
+std::vector<double> supported_mass(const BodyModel& model);
 
 // Indices of vertices selected by the selection (sorted, unique).
 std::vector<int32_t> select_vertices(const std::vector<Vec3>& positions, const FixedSelection& sel);
