@@ -47,6 +47,9 @@ common options:
   --density RHO       kg/m^3 (default 1000)
   --inertia-floor F   a free vertex's inertia is at least F x the mean vertex mass, its weight
                       stays its mass (default 0.1; 0: plain lumped masses)
+  --support-inertia K a free vertex's inertia is at least K x the mass it carries to the
+                      clamp, its weight stays its mass (default 0: off; 1 lets one iteration
+                      per substep hold a stiff body up, slowing motion near the clamp)
   --model M           strain of the tet constraint: stvk (Green strain, the thesis's; default)
                       | corotated (S - I of F = R S: resists compression down to zero volume)
   --method X          xpbd | sor | lambda-sor | chebyshev | anderson | anderson-sor | extrapolation
@@ -71,20 +74,22 @@ common options:
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
 static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)
 converge, static, reference, run: the JSON has "model" (the strain model).
-static, run: the JSON also has inertia_floor, added_inertia (what the floor adds, as a fraction
-           of the total mass) and floored_vertices, rms_speed (mass-weighted, m/s), kinetic_energy (J) and
+static, run: the JSON also has inertia_floor, support_inertia, added_inertia (what the two
+           add, as a fraction of the total mass) and floored_vertices, rms_speed (mass-weighted, m/s), kinetic_energy (J) and
            wave_courant_number (c_p h / mean edge: the elements a pressure wave crosses per
            substep; with 1 iteration per substep the body is too soft above ~0.3)
-run:       --steps N  --out DIR  --every K   (last line: JSON with ms_per_step, inverted_tets at
-           the end, max_inverted_tets and steps_with_inverted over all steps, max_speed at the
-           end and peak_speed over all steps, m/s)
+run:       --steps N  --out DIR  --every K  --tip-csv FILE (last line: JSON with ms_per_step,
+           inverted_tets at the end, max_inverted_tets and steps_with_inverted over all steps,
+           max_speed at the end and peak_speed over all steps, m/s, and tip_first_turn_s: when
+           the tip's y first turns back, s, the first half swing of a body let go from rest, or
+           null; --tip-csv writes step, t, tip dx/dy/dz, max speed, kinetic energy per step)
 )";
 
 const std::set<std::string> kValued = {
     "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
     "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
-    "steps", "out", "every", "inversion-floor", "inertia-floor", "model"};
+    "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model"};
 const std::set<std::string> kFlags = {"help", "progress", "no-line-search"};
 
 // A JSON object written field by field, numbers in full precision, nan/inf as null.
@@ -129,6 +134,7 @@ Material material_from(const cli::Args& a) {
   m.poisson = a.number("poisson", 0.4);
   m.density = a.number("density", 1000);
   m.inertia_floor = a.number("inertia-floor", kDefaultInertiaFloor);
+  m.support_inertia = a.number("support-inertia", 0.0);
   if (auto v = a.str("model")) {
     auto e = parse_elastic_model(*v);
     if (!e) throw cli::UsageError("--model: unknown model '" + *v + "' (stvk, corotated)");
@@ -324,7 +330,8 @@ int cmd_static(const cli::Args& a) {
       .add("method", std::string(to_string(s.method))).add("substeps", substeps).add("iterations", s.iterations)
       .add("dt", s.dt).add("tip_displacement", tip_displacement(*model, r.state.x)).add("steps", r.steps)
       .add("wave_courant_number", wave_courant_number(*model, s.dt / substeps))
-      .add("inertia_floor", mat.inertia_floor).add("added_inertia", model->added_inertia())
+      .add("inertia_floor", mat.inertia_floor).add("support_inertia", mat.support_inertia)
+      .add("added_inertia", model->added_inertia())
       .add("floored_vertices", long(model->floored_vertices()))
       .add("max_speed", r.max_speed).add("rms_speed", rms_speed(*model, r.state))
       .add("kinetic_energy", kinetic_energy(*model, r.state)).add("at_rest", r.at_rest).add("diverged", r.diverged)
@@ -384,9 +391,24 @@ int cmd_run(const cli::Args& a) {
     write_vtk_legacy(frame, (std::filesystem::path(out) / name).string(), true);
     ++written;
   };
+  std::ofstream tip_csv;
+  if (const std::string path = a.str("tip-csv", ""); !path.empty()) {
+    tip_csv.open(path);
+    if (!tip_csv) throw cli::UsageError("--tip-csv: cannot write '" + path + "'");
+    tip_csv << "step,t_s,tip_dx_m,tip_dy_m,tip_dz_m,max_speed_m_s,kinetic_energy_j\n";
+  }
   write(0);
+  // The tip's first turning point in y (a parabola through the three samples around it).
+  double y_before = 0, y_last = 0, first_turn = std::nan("");
   for (int k = 1; k <= steps; ++k) {
     const StepReport r = stepper.step(*model, state, s);
+    const Vec3 tip = tip_displacement(*model, state.x);
+    if (k >= 2 && std::isnan(first_turn) && (y_last - y_before) * (tip.y() - y_last) < 0) {
+      const double curvature = y_before - 2 * y_last + tip.y();
+      first_turn = (k - 1 + (curvature != 0 ? 0.5 * (y_before - tip.y()) / curvature : 0.0)) * s.dt;
+    }
+    y_before = y_last;
+    y_last = tip.y();
     wall += r.wall_ms;
     diverged += r.diverged;
     const size_t inverted = count_inverted(*model, state.x);
@@ -395,6 +417,12 @@ int cmd_run(const cli::Args& a) {
     speed = max_speed(state);
     peak_speed = std::max(peak_speed, speed);
     if (k % every == 0) write(k);
+    if (tip_csv.is_open()) {
+      char line[256];
+      std::snprintf(line, sizeof line, "%d,%.10g,%.10g,%.10g,%.10g,%.6g,%.6g\n", k, k * s.dt, tip.x(), tip.y(),
+                    tip.z(), speed, kinetic_energy(*model, state));
+      tip_csv << line;
+    }
     if (spdlog::should_log(spdlog::level::debug)) {
       // Where the speed is: a few light vertices jittering, or the body moving.
       size_t fast = 0, fastest = 0;
@@ -455,18 +483,19 @@ int cmd_run(const cli::Args& a) {
     }
   }
   JsonLine j;
-  j.add("mesh", model->name).add("model", std::string(to_string(mat.model)))
+  j.add("mesh", model->name).add("young", mat.young).add("model", std::string(to_string(mat.model)))
       .add("steps", steps).add("frames", written).add("out", out)
       .add("ms_per_step", wall / steps).add("diverged_steps", diverged)
       .add("substeps", substeps)
       .add("wave_courant_number", wave_courant_number(*model, s.dt / substeps))
-      .add("inertia_floor", mat.inertia_floor).add("added_inertia", model->added_inertia())
+      .add("inertia_floor", mat.inertia_floor).add("support_inertia", mat.support_inertia)
+      .add("added_inertia", model->added_inertia())
       .add("floored_vertices", long(model->floored_vertices()))
       .add("tip_displacement", tip_displacement(*model, state.x))
       .add("inverted_tets", long(count_inverted(*model, state.x)))
       .add("max_inverted_tets", long(worst_inverted)).add("steps_with_inverted", steps_with_inverted)
       .add("max_speed", speed).add("peak_speed", peak_speed).add("rms_speed", rms_speed(*model, state))
-      .add("kinetic_energy", kinetic_energy(*model, state));
+      .add("kinetic_energy", kinetic_energy(*model, state)).add("tip_first_turn_s", first_turn);
   std::cout << j.str() << std::endl;
   return 0;
 }
