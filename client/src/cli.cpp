@@ -73,6 +73,9 @@ Scene flags (create and update):
   --young PA --poisson NU --density KG_M3     material
   --inertia-floor F     inertia of a free vertex at least F x the mean vertex mass (weight
                         unchanged; default 0.1, 0 = plain lumped masses)
+  --support-inertia K   inertia of a free vertex at least K x the mass it carries to the
+                        fixed vertices (weight unchanged; default 0 = off; 1 holds a stiff
+                        body up under a small budget, slower motion near the fixed vertices)
   --model stvk|corotated  strain of the tet constraint (default stvk, the thesis's;
                         corotated resists strong compression, 2-2.2x the cost per iteration)
   --fix I,J,..          fixed vertex indices;   --fix-box X0,Y0,Z0,X1,Y1,Z1   fixed box
@@ -234,8 +237,10 @@ void print_scene(const v1::Scene& s, bool json) {
               v1::Method_Name(so.method()).c_str(), v1::Sweep_Name(so.sweep()).c_str(), so.substeps(),
               so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
   std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
-  std::printf("inertia    floor %g of the mean vertex mass: %u light vertices raised, +%.3g%% inertia\n",
-              sp.material().inertia_floor(), s.floored_vertices(), 100 * s.added_inertia());
+  std::printf("inertia    floor %g of the mean vertex mass, support %g of the mass carried to the fixed vertices: "
+              "%u vertices raised, +%.4g%% inertia\n",
+              sp.material().inertia_floor(), sp.material().support_inertia(), s.floored_vertices(),
+              100 * s.added_inertia());
   // What the number means with this many iterations (a rough guide measured on the beams,
   // docs/solver.md): under_resolution = wave_courant_number / sqrt(iterations).
   const double co = s.wave_courant_number();
@@ -310,6 +315,7 @@ bool read_settings(Args& a, v1::SolverSettings* so, v1::TickSettings* tick, v1::
   num("poisson", [&](double x) { mat->set_poisson_ratio(x); });
   num("density", [&](double x) { mat->set_density(x); });
   num("inertia-floor", [&](double x) { mat->set_inertia_floor(x); });
+  num("support-inertia", [&](double x) { mat->set_support_inertia(x); });
   if (auto v = a.get("model")) {
     if (*v == "stvk") mat->set_model(v1::ELASTIC_MODEL_STVK);
     else if (*v == "corotated") mat->set_model(v1::ELASTIC_MODEL_COROTATED);

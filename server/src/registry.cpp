@@ -177,6 +177,7 @@ Error merge_material(const v1::Material& p, const std::string& prefix, Material&
   if (p.has_poisson_ratio()) m.poisson = p.poisson_ratio();
   if (p.has_density()) m.density = p.density();
   if (p.has_inertia_floor()) m.inertia_floor = p.inertia_floor();
+  if (p.has_support_inertia()) m.support_inertia = p.support_inertia();
   switch (p.model()) {
     case v1::ELASTIC_MODEL_UNSPECIFIED: break;
     case v1::ELASTIC_MODEL_STVK: m.model = ElasticModel::StVK; break;
@@ -194,6 +195,10 @@ Error merge_material(const v1::Material& p, const std::string& prefix, Material&
   if (!(m.inertia_floor >= 0 && m.inertia_floor <= 1))
     return invalid(fmt::format("{}.inertia_floor must be in [0, 1] (a fraction of the mean vertex mass), got {}",
                                prefix, m.inertia_floor));
+  if (!(m.support_inertia >= 0 && m.support_inertia <= 1))
+    return invalid(fmt::format(
+        "{}.support_inertia must be in [0, 1] (a fraction of the mass a vertex carries to the fixed vertices), got {}",
+        prefix, m.support_inertia));
   return {};
 }
 
@@ -337,6 +342,7 @@ void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* sp
   m->set_poisson_ratio(model.material.poisson);
   m->set_density(model.material.density);
   m->set_inertia_floor(model.material.inertia_floor);
+  m->set_support_inertia(model.material.support_inertia);
   m->set_model(model.material.model == ElasticModel::Corotated ? v1::ELASTIC_MODEL_COROTATED : v1::ELASTIC_MODEL_STVK);
   auto* f = spec->mutable_fixed();
   for (int32_t i : cfg.fixed.indices) f->add_indices(i);
@@ -568,11 +574,18 @@ void warn_if_under_resolved(const std::string& id, const BodyModel& model, const
   SolverSettings resolved = s;
   resolved.target_wave_courant_number = 0.3;
   const int enough = effective_substeps(model, resolved);
+  const bool fixed = std::find(model.fixed.begin(), model.fixed.end(), 1) != model.fixed.end();
+  const char* support = model.material.support_inertia > 0
+                            ? "; its support inertia holds its rest shape near the converged one, motion near the "
+                              "fixed vertices is slower (docs/solver.md, \"Support inertia\")"
+                        : fixed ? "; or material.support_inertia 1 holds it up near its converged rest shape at the "
+                                  "price of slower motion near the fixed vertices (docs/solver.md, \"Support inertia\")"
+                                : "";
   spdlog::warn("scene '{}': a pressure wave crosses {:.2g} elements per substep (E {:g} Pa, {} substeps x {} "
                "iterations per {:g} s tick): the body will be softer than its material; about {} substeps "
                "of 1 iteration would resolve it (wave_courant_number 0.3; docs/solver.md, \"Accuracy of a "
-               "real-time budget\")",
-               id, co, model.material.young, substeps, s.iterations, s.dt, enough);
+               "real-time budget\"){}",
+               id, co, model.material.young, substeps, s.iterations, s.dt, enough, support);
 }
 
 }  // namespace

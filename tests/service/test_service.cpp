@@ -115,6 +115,8 @@ TEST(Service, SceneLifecycle) {
   EXPECT_EQ(created->spec().solver().iterations(), 4);
   EXPECT_NEAR(created->spec().material().poisson_ratio(), 0.4, 1e-12);  // default filled in
   EXPECT_EQ(created->spec().material().inertia_floor(), kDefaultInertiaFloor);  // default filled in
+  EXPECT_TRUE(created->spec().material().has_support_inertia());                 // default filled in
+  EXPECT_EQ(created->spec().material().support_inertia(), 0.0);
   EXPECT_EQ(created->spec().material().model(), v1::ELASTIC_MODEL_STVK);  // default filled in
 
   // The server picks an id when none is given.
@@ -170,6 +172,34 @@ TEST(Service, SceneLifecycle) {
   updated = c.update_scene(floor);
   EXPECT_EQ(updated.status.code, kInvalidArgument);
   EXPECT_NE(updated.status.message.find("material.inertia_floor"), std::string::npos) << updated.status.message;
+  {
+    // Support inertia: set live, the rest of the material kept, reported like the floor (the
+    // library's model with both), and bad values named.
+    v1::UpdateSceneRequest support;
+    support.set_scene_id("a");
+    support.mutable_material()->set_support_inertia(1.0);
+    updated = c.update_scene(support);
+    ASSERT_TRUE(updated.ok()) << updated.status.to_string();
+    EXPECT_EQ(updated->spec().material().support_inertia(), 1.0);
+    EXPECT_EQ(updated->spec().material().inertia_floor(), 0.5);
+    Material m{2e6, 0.4, 1000};
+    m.inertia_floor = 0.5;
+    m.support_inertia = 1.0;
+    auto local = build_model(*builtin_mesh("beam1"), m, clamp_below_x(1e-3));
+    EXPECT_GT(local->added_inertia(), 1.0);  // beam1 clamped at one end: about 10x its mass
+    EXPECT_EQ(updated->floored_vertices(), local->floored_vertices());
+    EXPECT_DOUBLE_EQ(updated->added_inertia(), local->added_inertia());
+    support.mutable_material()->set_support_inertia(1.5);
+    auto bad = c.update_scene(support);
+    EXPECT_EQ(bad.status.code, kInvalidArgument);
+    EXPECT_NE(bad.status.message.find("material.support_inertia must be in [0, 1]"), std::string::npos)
+        << bad.status.message;
+    EXPECT_NE(bad.status.message.find("got 1.5"), std::string::npos) << bad.status.message;
+    support.mutable_material()->set_support_inertia(0.0);
+    updated = c.update_scene(support);
+    ASSERT_TRUE(updated.ok()) << updated.status.to_string();
+    EXPECT_EQ(updated->spec().material().support_inertia(), 0.0);
+  }
   {
     // The strain model: switched live, the rest of the material kept, and it is what the scene
     // steps with (the same steps from the same state end elsewhere).
@@ -640,6 +670,7 @@ TEST(Service, RestartKeepsScenes) {
     auto resolved = beam_request("resolved");
     resolved.mutable_spec()->mutable_solver()->set_target_wave_courant_number(0.5);
     resolved.mutable_spec()->mutable_material()->set_inertia_floor(0);  // plain lumped masses, kept too
+    resolved.mutable_spec()->mutable_material()->set_support_inertia(0.25);  // kept too
     resolved.mutable_spec()->mutable_material()->set_model(v1::ELASTIC_MODEL_COROTATED);  // kept too
     ASSERT_TRUE(c.create_scene(resolved).ok());
     auto deleted = beam_request("deleted");
@@ -669,6 +700,7 @@ TEST(Service, RestartKeepsScenes) {
     ASSERT_TRUE(r2.ok()) << r2.status.to_string();
     EXPECT_DOUBLE_EQ(r2->spec().solver().target_wave_courant_number(), 0.5);
     EXPECT_EQ(r2->spec().material().inertia_floor(), 0.0);
+    EXPECT_EQ(r2->spec().material().support_inertia(), 0.25);
     EXPECT_EQ(r2->spec().material().model(), v1::ELASTIC_MODEL_COROTATED);
     EXPECT_LE(r2->wave_courant_number(), 0.5 * (1 + 1e-9));
     EXPECT_GT(r2->spec().solver().substeps(), 2);  // chosen, not the request's 2
@@ -742,6 +774,10 @@ TEST(Service, BadInputsGetTheRightStatus) {
        kInvalidArgument, "spec.material.density"},
       {"inertia floor 2", [](auto& r) { r.mutable_spec()->mutable_material()->set_inertia_floor(2); },
        kInvalidArgument, "spec.material.inertia_floor must be in [0, 1] (a fraction of the mean vertex mass), got 2"},
+      {"support inertia -1", [](auto& r) { r.mutable_spec()->mutable_material()->set_support_inertia(-1); },
+       kInvalidArgument,
+       "spec.material.support_inertia must be in [0, 1] (a fraction of the mass a vertex carries to the fixed "
+       "vertices), got -1"},
       {"inertia floor nan", [](auto& r) { r.mutable_spec()->mutable_material()->set_inertia_floor(NAN); },
        kInvalidArgument, "spec.material.inertia_floor"},
       {"unknown strain model", [](auto& r) { r.mutable_spec()->mutable_material()->set_model(static_cast<v1::ElasticModel>(9)); },
