@@ -10,6 +10,7 @@
 //
 // Usage: pliant_haptic_fidelity [--young E1,E2,...] [--poisson NU] [--budgets 4x2,8x1,...]
 //                               [--reference SxI] [--seconds S] [--clamp bottom|end]
+//                               [--support-inertia K]   (Material::support_inertia, default 0)
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/client/haptic.hpp"
 #include "pliant/model.hpp"
@@ -111,7 +112,7 @@ std::vector<std::string> split(const std::string& s) {
 int usage() {
   std::fprintf(stderr,
                "usage: pliant_haptic_fidelity [--young E1,E2,...] [--poisson NU] [--budgets 4x2,8x1,...] "
-               "[--reference SxI] [--seconds S] [--clamp bottom|end]\n");
+               "[--reference SxI] [--seconds S] [--clamp bottom|end] [--support-inertia K]\n");
   return 2;
 }
 
@@ -124,6 +125,7 @@ int main(int argc, char** argv) {
   std::vector<Budget> budgets{{defaults.create_substeps, defaults.create_iterations}, {8, 1}, {16, 1}};
   Budget reference{512, 1};
   double seconds = 3;
+  double support_inertia = 0;
   std::string clamp = defaults.create_clamp == haptic::BridgeOptions::Clamp::End ? "end" : "bottom";
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -144,6 +146,7 @@ int main(int argc, char** argv) {
       if (!parse_budget(v, &reference)) return usage();
     } else if (a == "--seconds") seconds = std::atof(v.c_str());
     else if (a == "--clamp") clamp = v;
+    else if (a == "--support-inertia") support_inertia = std::atof(v.c_str());
     else return usage();
   }
   if (seconds < 0.75) seconds = 0.75;
@@ -155,8 +158,8 @@ int main(int argc, char** argv) {
   else return usage();
   const double hz = defaults.create_tick_hz;
   std::printf("scene: %s, %s fixed, nu = %g, %g Hz ticks, sphere r = 5 mm pressed 3 mm over the tip, "
-              "%g s; bridge default budget %d x %d\n",
-              mesh.name.c_str(), clamp == "end" ? "x <= 1 mm" : "bottom face y <= 1 mm", poisson, hz, seconds, defaults.create_substeps, defaults.create_iterations);
+              "%g s; bridge default budget %d x %d; support inertia %g\n",
+              mesh.name.c_str(), clamp == "end" ? "x <= 1 mm" : "bottom face y <= 1 mm", poisson, hz, seconds, defaults.create_substeps, defaults.create_iterations, support_inertia);
   std::printf("| E | substeps x iterations | force at rest | reference (%s) | error | tick ms mean / p99 |\n",
               reference.name().c_str());
   std::printf("|---|---|---|---|---|---|\n");
@@ -164,6 +167,7 @@ int main(int argc, char** argv) {
     Material mat;
     mat.young = e;
     mat.poisson = poisson;
+    mat.support_inertia = support_inertia;
     auto model = build_model(mesh, mat, fixed);
     const Outcome ref = press(model, reference, hz, seconds);
     // Is the reference converged? The same scene at half its substeps.
