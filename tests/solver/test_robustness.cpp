@@ -137,17 +137,22 @@ TEST(ResolvedBudget, HippoSettlesWithNoInvertedTet) {
   EXPECT_EQ(count_inverted(*model, r.state.x), 0u);
 }
 
-TEST(SupportInertia, TheArmadilloComesToRestAtTheDefaultBudget) {
-  // Item 10's hardest case: the thesis armadillo at 10 MPa hanging from its first 10% of x under
-  // the default 64 x 1 (a pressure wave crosses 15 elements per substep). Without the support
-  // inertia a band of vertices next to the clamp never settles (3.2 m/s after 400 ticks, the
-  // tip 11 cm down against 5.8 mm converged: docs/solver.md, "Real-time robustness"). With
-  // support_inertia 1 it comes to rest in about 130 ticks, no tet inverted, the tip about 2x the
+class SupportInertiaMatrix : public ::testing::TestWithParam<std::tuple<const char*, double>> {};
+
+TEST_P(SupportInertiaMatrix, ComesToRestWithNoInvertedTetAtTheDefaultBudget) {
+  // Item 10 brought to rest on both thesis models at every E, under the default 64 x 1 at
+  // 60 Hz, with support_inertia 1 (docs/solver.md, "Support inertia"). Without it the armadillo
+  // at 1 and 10 MPa never settles: a band of vertices next to the clamp keeps moving at 2.6 /
+  // 3.2 m/s after 400 ticks, and both models' 10 kPa runs keep a spot creeping at mm/s
+  // (docs/data/rest_matrix.jsonl). Measured with it: at rest after 113-185 ticks, none inverted
+  // (docs/data/rest_matrix_support.jsonl). The armadillo at 10 MPa also hangs within 3x of the
   // Newton equilibrium's |tip| of 5.8 mm ([-1.5, -5.6] mm: `pliant-sim reference --mesh
-  // armadillo --young 1e7 --fix-x-max -0.04936`, 200 s, too slow to repeat here).
-  const TetMesh mesh = resolve_mesh("armadillo");
+  // armadillo --young 1e7 --fix-x-max -0.04936`, 200 s, too slow to repeat here), measured 2.05x,
+  // where the default material hangs it 11 cm down.
+  const auto [name, young] = GetParam();
+  const TetMesh mesh = resolve_mesh(name);
   const Aabb box = bounding_box(mesh.vertices);
-  Material material{1e7, 0.4, 1000};
+  Material material{young, 0.4, 1000};
   material.support_inertia = 1;
   auto model = build_model(mesh, material, clamp_below_x(box.min.x() + 0.1 * box.extent().x()));
   SolverSettings s;  // the default budget: 64 x 1 per 60 Hz tick
@@ -156,11 +161,23 @@ TEST(SupportInertia, TheArmadilloComesToRestAtTheDefaultBudget) {
   s.record_residuals = false;
   ASSERT_EQ(effective_substeps(*model, s), 64);
   ASSERT_EQ(s.iterations, 1);
-  const RestResult r = run_to_rest(*model, s, 250, 1e-3);
+  const RestResult r = run_to_rest(*model, s, 300, 1e-3);
   EXPECT_FALSE(r.diverged);
   EXPECT_TRUE(r.at_rest) << "max speed " << r.max_speed << " after " << r.steps << " ticks";
   EXPECT_EQ(count_inverted(*model, r.state.x), 0u);
-  const double tip = tip_displacement(*model, r.state.x).norm();
-  EXPECT_GT(tip, 5.8e-3);  // no stiffer than the material
-  EXPECT_LT(tip, 3 * 5.8e-3);
+  if (std::string(name) == "armadillo" && young == 1e7) {
+    const double tip = tip_displacement(*model, r.state.x).norm();
+    EXPECT_GT(tip, 5.8e-3);  // no stiffer than the material
+    EXPECT_LT(tip, 3 * 5.8e-3);
+  }
 }
+
+INSTANTIATE_TEST_SUITE_P(SupportInertia, SupportInertiaMatrix,
+                         ::testing::Combine(::testing::Values("hippo", "armadillo"),
+                                            ::testing::Values(1e4, 1e5, 1e6, 1e7)),
+                         [](const auto& info) {
+                           std::string name(std::get<0>(info.param));
+                           name += "_E";
+                           name += std::to_string(int(std::log10(std::get<1>(info.param))));
+                           return name;
+                         });
