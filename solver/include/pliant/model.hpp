@@ -86,7 +86,7 @@ double wave_courant_number(const BodyModel& model, double substep);
 // The mass each vertex carries to the fixed vertices, kg: vertices are grouped by their
 // distance from the fixed ones in tet edges (breadth-first); a vertex at distance d gets the
 // mass of every vertex at distance >= d divided by the number of vertices at distance d. A
-// hanging chain of equal masses gets, at link k from the top, the mass of the links below it.
+// hanging chain of equal masses gets, at each mass, the mass of the chain from it down.
 // 0 for fixed vertices and for those no path of edges connects to a fixed vertex.
 std::vector<double> supported_mass(const BodyModel& model);
 
