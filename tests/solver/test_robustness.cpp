@@ -10,6 +10,8 @@
 
 #include <algorithm>
 #include <iostream>
+#include <string>
+#include <tuple>
 
 using namespace pliant;
 
@@ -90,7 +92,7 @@ struct Hung {
   RestResult rest;
 };
 
-Hung hang_at_default_budget(const char* name, const Material& material) {
+Hung hang_at_default_budget(const std::string& name, const Material& material) {
   const TetMesh mesh = resolve_mesh(name);
   const Aabb box = bounding_box(mesh.vertices);
   Hung h;
@@ -158,7 +160,7 @@ TEST(ResolvedBudget, HippoSettlesWithNoInvertedTet) {
   EXPECT_EQ(count_inverted(*model, r.state.x), 0u);
 }
 
-class SupportInertiaMatrix : public ::testing::TestWithParam<std::tuple<const char*, double>> {};
+class SupportInertiaMatrix : public ::testing::TestWithParam<std::tuple<std::string, double>> {};
 
 TEST_P(SupportInertiaMatrix, ComesToRestWithNoInvertedTetAtTheDefaultBudget) {
   // Item 10 brought to rest on both thesis models at every E, under the default 64 x 1 at
@@ -175,7 +177,7 @@ TEST_P(SupportInertiaMatrix, ComesToRestWithNoInvertedTetAtTheDefaultBudget) {
   material.support_inertia = 1;
   const Hung h = hang_at_default_budget(name, material);
   expect_at_rest_upright(h);
-  if (std::string(name) == "armadillo" && young == 1e7) {
+  if (name == "armadillo" && young == 1e7) {
     const double tip = tip_displacement(*h.model, h.rest.state.x).norm();
     EXPECT_GT(tip, 5.8e-3);  // no stiffer than the material
     EXPECT_LT(tip, 3 * 5.8e-3);
@@ -183,11 +185,10 @@ TEST_P(SupportInertiaMatrix, ComesToRestWithNoInvertedTetAtTheDefaultBudget) {
 }
 
 INSTANTIATE_TEST_SUITE_P(SupportInertia, SupportInertiaMatrix,
-                         ::testing::Combine(::testing::Values("hippo", "armadillo"),
+                         ::testing::Combine(::testing::Values(std::string("hippo"), std::string("armadillo")),
                                             ::testing::Values(1e4, 1e5, 1e6, 1e7)),
                          [](const auto& info) {
-                           std::string name(std::get<0>(info.param));
-                           name += "_E";
+                           std::string name = std::get<0>(info.param) + "_E";
                            name += std::to_string(int(std::log10(std::get<1>(info.param))));
                            return name;
                          });
