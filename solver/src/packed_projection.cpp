@@ -70,6 +70,7 @@ struct PackGeometry {
   v4d f[3][3];  // f[i][c]: component c of column i of F
   v4d r[3][3];  // Corotated: R's columns, same layout
   v4d S[6];     // StVK: F^T F, 00 11 22 01 02 12 (what its 6x6 system is built from)
+  v4d stretch[6];  // Corotated: S = sym(R^T F), 00 11 22 12 02 01 (what its system is built from)
   v4d c[6];     // strain vector (no sqrt(V0))
 };
 
@@ -161,13 +162,23 @@ inline void pack_rotation(const v4d f[3][3], v4d r[3][3]) {
     for (int c = 0; c < 3; ++c) r[i][c] = X[i][c];
 }
 
-// Corotated strain from g.f: c = (r_i . f_i - 1, r_a . f_c + r_c . f_a), R's columns in g.r.
+// Corotated strain from g.f: R's columns in g.r, the stretch S = sym(R^T F) in g.stretch, and
+// c = (S_ii - 1, 2 S_ac).
 inline void corotated_strain(PackGeometry& g) {
   pack_rotation(g.f, g.r);
-  for (int i = 0; i < 3; ++i) g.c[i] = column_dot(g.r[i], g.f[i]) - 1.0;
-  g.c[3] = column_dot(g.r[1], g.f[2]) + column_dot(g.r[2], g.f[1]);
-  g.c[4] = column_dot(g.r[0], g.f[2]) + column_dot(g.r[2], g.f[0]);
-  g.c[5] = column_dot(g.r[0], g.f[1]) + column_dot(g.r[1], g.f[0]);
+  v4d* S = g.stretch;
+  for (int i = 0; i < 3; ++i) S[i] = column_dot(g.r[i], g.f[i]);
+  S[3] = 0.5 * (column_dot(g.r[1], g.f[2]) + column_dot(g.r[2], g.f[1]));
+  S[4] = 0.5 * (column_dot(g.r[0], g.f[2]) + column_dot(g.r[2], g.f[0]));
+  S[5] = 0.5 * (column_dot(g.r[0], g.f[1]) + column_dot(g.r[1], g.f[0]));
+  for (int i = 0; i < 3; ++i) g.c[i] = S[i] - 1.0;
+  for (int i = 3; i < 6; ++i) g.c[i] = 2.0 * S[i];
+}
+
+// The strain of the model from g.f.
+inline void pack_strain(PackGeometry& g, ElasticModel model) {
+  if (model == ElasticModel::Corotated) corotated_strain(g);
+  else green_strain(g);
 }
 
 // F's columns of the pack's tets at x.
@@ -189,8 +200,7 @@ inline void pack_deformation(const TetPack& p, const std::vector<Vec3>& x, v4d f
 
 inline void pack_geometry(const TetPack& p, const std::vector<Vec3>& x, PackGeometry& g, ElasticModel model) {
   pack_deformation(p, x, g.f);
-  if (model == ElasticModel::Corotated) corotated_strain(g);
-  else green_strain(g);
+  pack_strain(g, model);
 }
 
 inline void pack_constraint(const TetPack& p, const PackGeometry& g, v4d C[6]) {
@@ -262,8 +272,7 @@ v4d residual_decreasing_step(ElasticModel model, const TetPack& p, const PackGeo
     PackGeometry n;
     for (int i = 0; i < 3; ++i)
       for (int c = 0; c < 3; ++c) n.f[i][c] = g.f[i][c] + trial * dF[i][c];
-    if (model == ElasticModel::Corotated) corotated_strain(n);
-    else green_strain(n);
+    pack_strain(n, model);
     v4d Cn[6], ln[6];
     pack_constraint(p, n, Cn);
     for (int r = 0; r < 6; ++r) ln[r] = lam[r] + trial * y[r];
@@ -307,16 +316,13 @@ inline void ldlt_solve(const v4d A[6][6], const v4d rhs[6], double lambda_scale,
 }
 
 // The corotated constraint for a pack (corotated_rows in projection.hpp gives the rows
-// Y_ik = E_i b_k - 2 u_i x b_k): the stretch S = sym(R^T F) from g (g.r holds R), Ginv per lane,
+// Y_ik = E_i b_k - 2 u_i x b_k): from the stretch S = sym(R^T F) in g, Ginv per lane,
 // the rotation axes u_i, and the lower triangle of A = V0 sum_k w_k Y_ik . Y_jk + alpha~ summed
 // over the corners in closed form with Q = sum_k w_k b_k b_k^T:
 //   sum_k w_k Y_ik . Y_jk = tr(E_i E_j Q) - 2 (u_j . v_i + u_i . v_j) + 4 ((u_i . u_j) tr Q - u_i^T Q u_j),
 // v_i = sum_k w_k b_k x (E_i b_k) = 2 axial(skew(E_i Q)).
 inline void pack_corotated_axes(const PackGeometry& g, v4d u[6][3]) {
-  const v4d S[6] = {column_dot(g.r[0], g.f[0]), column_dot(g.r[1], g.f[1]), column_dot(g.r[2], g.f[2]),
-                    0.5 * (column_dot(g.r[1], g.f[2]) + column_dot(g.r[2], g.f[1])),
-                    0.5 * (column_dot(g.r[0], g.f[2]) + column_dot(g.r[2], g.f[0])),
-                    0.5 * (column_dot(g.r[0], g.f[1]) + column_dot(g.r[1], g.f[0]))};
+  const v4d* S = g.stretch;
   // Ginv = (tr(S) I - S)^-1 by cofactors, zero in the lanes where corotated_rotation_inverse
   // gives zero (same test).
   const v4d G00 = S[1] + S[2], G11 = S[0] + S[2], G22 = S[0] + S[1], G12 = -S[3], G02 = -S[4], G01 = -S[5];

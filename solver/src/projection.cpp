@@ -25,14 +25,10 @@ inline Vec6 strain_from_columns(const Vec3 f[3], double S[6]) {
   return c;
 }
 
-// c of the model from F's columns.
-inline Vec6 model_strain(ElasticModel model, const Vec3 f[3]) {
-  if (model == ElasticModel::Corotated) {
-    Vec3 r[3];
-    return corotated_from_columns(f, r);
-  }
-  double S[6];
-  return strain_from_columns(f, S);
+inline Mat3 matrix_of_columns(const Vec3 f[3]) {
+  Mat3 F;
+  for (int i = 0; i < 3; ++i) F.col(i) = f[i];
+  return F;
 }
 
 // Solves A y = rhs for symmetric positive definite 6x6 A (lower triangle used) by LDL^T with
@@ -93,37 +89,11 @@ double residual_decreasing_step(ElasticModel model, const TetRest& tet, const Ve
   double a = 1.0;
   for (int h = 0; h <= kMaxHalvings; ++h) {
     const Vec3 fn[3] = {f[0] + a * dF[0], f[1] + a * dF[1], f[2] + a * dF[2]};
-    const Vec6 r = tet.sqrt_volume * model_strain(model, fn) + at * (lambda_t + a * dlambda);
+    const Vec6 r = tet.sqrt_volume * strain_vector(matrix_of_columns(fn), model) + at * (lambda_t + a * dlambda);
     if (r.squaredNorm() <= before || h == kMaxHalvings) break;
     a *= 0.5;
   }
   return a;
-}
-
-}  // namespace
-
-Vec6 corotated_from_columns(const Vec3 f[3], Vec3 r[3]) {
-  Mat3 F;
-  for (int i = 0; i < 3; ++i) F.col(i) = f[i];
-  const Mat3 R = polar_rotation(F);
-  for (int i = 0; i < 3; ++i) r[i] = R.col(i);
-  Vec6 c;
-  for (int i = 0; i < 3; ++i) c[i] = r[i].dot(f[i]) - 1.0;
-  c[3] = r[1].dot(f[2]) + r[2].dot(f[1]);
-  c[4] = r[0].dot(f[2]) + r[2].dot(f[0]);
-  c[5] = r[0].dot(f[1]) + r[1].dot(f[0]);
-  return c;
-}
-
-namespace {
-
-// Ginv of a stretch S (00 11 22 12 02 01), zero where the rotation is ill-defined
-// (corotated_rotation_inverse in strain_constraint.hpp).
-void corotated_ginv(const double S[6], double Ginv[6]) {
-  Mat3 Sm;
-  Sm << S[0], S[5], S[4], S[5], S[1], S[3], S[4], S[3], S[2];
-  const Mat3 Gi = corotated_rotation_inverse(Sm);
-  Ginv[0] = Gi(0, 0), Ginv[1] = Gi(1, 1), Ginv[2] = Gi(2, 2), Ginv[3] = Gi(1, 2), Ginv[4] = Gi(0, 2), Ginv[5] = Gi(0, 1);
 }
 
 // dlambda from A dlambda = -C - alpha~ lambda (scaled by lambda_scale); false (and everything
@@ -156,15 +126,14 @@ void apply_line_search(const TetRest& tet, const Vec3 f[3], const Vec6& C, const
 // corotated_rows), dx_k = w_k sqrt(V0) R sum_i dlambda_i Y_ik, with the line search.
 void corotated_increment(const TetRest& tet, const Vec3 f[3], const Vec3 b[4], const double w[4],
                          const Vec6& lambda_t, const ProjectionParams& params, Vec6& dlambda, Vec3 dx[4]) {
-  Vec3 r[3];
-  const Vec6 C = tet.sqrt_volume * corotated_from_columns(f, r);
-  double S[6];
-  S[0] = r[0].dot(f[0]), S[1] = r[1].dot(f[1]), S[2] = r[2].dot(f[2]);
-  S[3] = 0.5 * (r[1].dot(f[2]) + r[2].dot(f[1]));
-  S[4] = 0.5 * (r[0].dot(f[2]) + r[2].dot(f[0]));
-  S[5] = 0.5 * (r[0].dot(f[1]) + r[1].dot(f[0]));
-  double Ginv[6];
-  corotated_ginv(S, Ginv);
+  const Mat3 F = matrix_of_columns(f);
+  const Mat3 R = polar_rotation(F);
+  const Mat3 Sm = corotated_stretch(F, R);
+  const Mat3 Gm = corotated_rotation_inverse(Sm);
+  const Vec6 C = tet.sqrt_volume * corotated_strain_vector(Sm);
+  // Symmetric matrices as corotated_rows takes them: 00 11 22 12 02 01.
+  const double S[6] = {Sm(0, 0), Sm(1, 1), Sm(2, 2), Sm(1, 2), Sm(0, 2), Sm(0, 1)};
+  const double Ginv[6] = {Gm(0, 0), Gm(1, 1), Gm(2, 2), Gm(1, 2), Gm(0, 2), Gm(0, 1)};
   double bk[4][3];
   for (int k = 0; k < 4; ++k)
     for (int c = 0; c < 3; ++c) bk[k][c] = b[k][c];
@@ -183,7 +152,7 @@ void corotated_increment(const TetRest& tet, const Vec3 f[3], const Vec3 b[4], c
     double v[3] = {0, 0, 0};
     for (int i = 0; i < 6; ++i)
       for (int c = 0; c < 3; ++c) v[c] += dlambda[i] * Y[i][k][c];
-    dx[k] = (w[k] * tet.sqrt_volume) * (r[0] * v[0] + r[1] * v[1] + r[2] * v[2]);
+    dx[k] = (w[k] * tet.sqrt_volume) * (R * Vec3(v[0], v[1], v[2]));
   }
   apply_line_search(tet, f, C, lambda_t, params, dlambda, dx);
 }
@@ -241,7 +210,7 @@ double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Ve
   const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
   Vec3 f[3], b[4];
   geometry(tet, p, f, b);
-  const Vec6 r = tet.sqrt_volume * model_strain(model, f) + alpha_tilde * lambda_t;
+  const Vec6 r = tet.sqrt_volume * strain_vector(matrix_of_columns(f), model) + alpha_tilde * lambda_t;
   return r.squaredNorm();
 }
 

@@ -52,10 +52,6 @@ bool enforce_volume_floor(const TetRest& tet, std::vector<Vec3>& x, const std::v
 double residual_squared(const TetRest& tet, const std::vector<Vec3>& x, const Vec6& lambda_t,
                         const Mat6& alpha_tilde, ElasticModel model = ElasticModel::StVK);
 
-// The corotated strain of F given by its columns f, and the columns r of its rotation:
-// c = (r_i . f_i - 1, r_a . f_c + r_c . f_a).
-Vec6 corotated_from_columns(const Vec3 f[3], Vec3 r[3]);
-
 // The corotated constraint's Jacobian, written for the kernels (T = double or a 4-lane vector):
 // row i's gradient in F is R P_i with P_i = E_i - 2 [u_i]x, u_i = Ginv axial(skew(E_i S))
 // (strain_jacobian in strain_constraint.cpp), so dC_i/dx_k = sqrt(V0) R Y_ik with

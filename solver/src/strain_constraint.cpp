@@ -11,6 +11,17 @@ namespace {
 constexpr int kShearA[3] = {1, 0, 0};
 constexpr int kShearB[3] = {2, 2, 1};
 
+// [v]x, the matrix of v x ., and axial(M), the vector of M's skew part: [axial(M)]x = (M - M^T) / 2.
+Mat3 cross_matrix(const Vec3& v) {
+  Mat3 m;
+  m << 0, -v[2], v[1], v[2], 0, -v[0], -v[1], v[0], 0;
+  return m;
+}
+
+Vec3 axial(const Mat3& M) {
+  return 0.5 * Vec3(M(2, 1) - M(1, 2), M(0, 2) - M(2, 0), M(1, 0) - M(0, 1));
+}
+
 // b_k: derivative of F's columns with respect to vertex k is b_k[i] * I (column i).
 std::array<Eigen::RowVector3d, 4> shape_rows(const Mat3& B) {
   std::array<Eigen::RowVector3d, 4> b;
@@ -76,16 +87,16 @@ Mat3 polar_rotation(const Mat3& F) {
   return polar_rotation_svd(F);
 }
 
-Vec6 corotated_strain_vector(const Mat3& F, const Mat3& R) {
-  const Mat3 S = R.transpose() * F;
+Vec6 corotated_strain_vector(const Mat3& S) {
   Vec6 c;
   for (int i = 0; i < 3; ++i) c[i] = S(i, i) - 1.0;
-  for (int s = 0; s < 3; ++s) c[3 + s] = S(kShearA[s], kShearB[s]) + S(kShearB[s], kShearA[s]);
+  for (int s = 0; s < 3; ++s) c[3 + s] = 2.0 * S(kShearA[s], kShearB[s]);
   return c;
 }
 
 Vec6 strain_vector(const Mat3& F, ElasticModel model) {
-  return model == ElasticModel::Corotated ? corotated_strain_vector(F, polar_rotation(F)) : strain_vector(F);
+  if (model != ElasticModel::Corotated) return strain_vector(F);
+  return corotated_strain_vector(corotated_stretch(F, polar_rotation(F)));
 }
 
 Vec6 strain_constraint(const TetRest& tet, const std::array<Vec3, 4>& x, ElasticModel model) {
@@ -107,11 +118,7 @@ Mat6x12 strain_jacobian(const TetRest& tet, const std::array<Vec3, 4>& x, Elasti
       Mat3 E = Mat3::Zero();
       if (i < 3) E(i, i) = 1;
       else E(kShearA[i - 3], kShearB[i - 3]) = E(kShearB[i - 3], kShearA[i - 3]) = 1;
-      const Mat3 M = E * S;
-      const Vec3 u = Ginv * Vec3(0.5 * (M(2, 1) - M(1, 2)), 0.5 * (M(0, 2) - M(2, 0)), 0.5 * (M(1, 0) - M(0, 1)));
-      Mat3 U;
-      U << 0, -u[2], u[1], u[2], 0, -u[0], -u[1], u[0], 0;
-      const Mat3 D = R * (E - 2.0 * U);
+      const Mat3 D = R * (E - 2.0 * cross_matrix(Ginv * axial(E * S)));
       for (int k = 0; k < 4; ++k) J.block<1, 3>(i, 3 * k) = (D * b[k].transpose()).transpose();
     }
     return tet.sqrt_volume * J;
@@ -157,23 +164,16 @@ using Mat9 = Eigen::Matrix<double, 9, 9>;
 // 9x9 matrix on column-major vec(F). With F = R S and R^T dR = [w]x, the rotation's change
 // solves (tr(S) I - S) w = axial(R^T dF - dF^T R).
 Mat9 corotated_stress_derivative(const Mat3& F, const Mat3& R, const Lame& lame) {
-  const Mat3 S = R.transpose() * F;
+  const Mat3 S = corotated_stretch(F, R);
   const double tr = S.trace();
-  const Mat3 G = tr * Mat3::Identity() - S;
-  Eigen::FullPivLU<Mat3> lu(G);
+  // Zero where the rotation is ill-defined: R held fixed, as in strain_jacobian.
+  const Mat3 Ginv = corotated_rotation_inverse(S);
   Mat9 T;
   for (int e = 0; e < 9; ++e) {
     Mat3 dF = Mat3::Zero();
     dF(e % 3, e / 3) = 1.0;
-    const Mat3 A = R.transpose() * dF - dF.transpose() * R;
-    const Vec3 axial(A(2, 1), A(0, 2), A(1, 0));
-    Mat3 dR = Mat3::Zero();
-    if (lu.isInvertible()) {
-      const Vec3 w = lu.solve(axial);
-      Mat3 W;
-      W << 0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0;
-      dR = R * W;
-    }
+    // axial(R^T dF - dF^T R) = 2 axial(R^T dF), R^T dF - dF^T R being skew.
+    const Mat3 dR = R * cross_matrix(Ginv * (2.0 * axial(R.transpose() * dF)));
     const Mat3 dP = 2.0 * lame.mu * (dF - dR) + lame.lambda * (R.transpose() * dF).trace() * R +
                     lame.lambda * (tr - 3.0) * dR;
     T.col(e) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(dP.data());

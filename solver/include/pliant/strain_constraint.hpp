@@ -41,9 +41,9 @@ inline constexpr int kMaxPolarIterations = 20;
 inline constexpr double kPolarScalingBand = 1e-2;
 inline constexpr double kPolarConverged = 1e-16;
 
-// Corotated strain vector of F with its rotation R: S = R^T F (symmetrised), c = (S00 - 1,
-// S11 - 1, S22 - 1, 2 S12, 2 S02, 2 S01).
-Vec6 corotated_strain_vector(const Mat3& F, const Mat3& R);
+// Corotated strain vector of the stretch S (corotated_stretch below): c = (S00 - 1, S11 - 1,
+// S22 - 1, 2 S12, 2 S02, 2 S01).
+Vec6 corotated_strain_vector(const Mat3& S);
 
 // The symmetric stretch S = sym(R^T F), and the inverse of tr(S) I - S, which maps a change of
 // F to the rotation's change (R^T dR = [w]x with (tr(S) I - S) w = axial(R^T dF - dF^T R)).
