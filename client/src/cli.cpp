@@ -4,6 +4,7 @@
 // 4 NOT_FOUND; 5 UNAUTHENTICATED / PERMISSION_DENIED.
 #include "pliant/client/client.hpp"
 #include "pliant/mesh_io.hpp"
+#include "pliant/proto/enums.hpp"
 #include "pliant/settings.hpp"
 
 #include <google/protobuf/util/json_util.h>
@@ -277,18 +278,14 @@ bool read_settings(Args& a, v1::SolverSettings* so, v1::TickSettings* tick, v1::
   };
   if (auto v = a.get("method")) {
     auto m = parse_method(*v);
-    if (!m) throw Usage("--method '" + *v + "' is not one of xpbd, sor, lambda-sor, chebyshev, anderson, anderson-sor, extrapolation");
-    static const std::map<Method, v1::Method> map = {
-        {Method::Xpbd, v1::METHOD_XPBD}, {Method::Sor, v1::METHOD_SOR}, {Method::LambdaSor, v1::METHOD_LAMBDA_SOR},
-        {Method::Chebyshev, v1::METHOD_CHEBYSHEV}, {Method::Anderson, v1::METHOD_ANDERSON},
-        {Method::AndersonSor, v1::METHOD_ANDERSON_SOR}, {Method::Extrapolation, v1::METHOD_EXTRAPOLATION}};
-    so->set_method(map.at(*m));
+    if (!m) throw Usage("--method '" + *v + "' is not one of " + std::string(method_names()));
+    so->set_method(proto::method_to(*m));
     any = true;
   }
   if (auto v = a.get("sweep")) {
     auto s = parse_sweep(*v);
-    if (!s) throw Usage("--sweep '" + *v + "' is not one of gauss-seidel, jacobi");
-    so->set_sweep(*s == Sweep::Jacobi ? v1::SWEEP_JACOBI : v1::SWEEP_GAUSS_SEIDEL);
+    if (!s) throw Usage("--sweep '" + *v + "' is not one of " + std::string(sweep_names()));
+    so->set_sweep(proto::sweep_to(*s));
     any = true;
   }
   integer("substeps", [&](long long x) { so->set_substeps(static_cast<int32_t>(x)); });

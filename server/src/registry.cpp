@@ -2,6 +2,8 @@
 // limits, proto conversions, snapshots on disk.
 #include "pliant/server/registry.hpp"
 
+#include "pliant/proto/enums.hpp"
+
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/mesh_io.hpp"
 #include "pliant/stepper.hpp"
@@ -50,30 +52,6 @@ void to_proto(const Vec3& v, v1::Vec3* out) {
   out->set_z(v.z());
 }
 
-std::optional<Method> method_from(v1::Method m) {
-  switch (m) {
-    case v1::METHOD_XPBD: return Method::Xpbd;
-    case v1::METHOD_SOR: return Method::Sor;
-    case v1::METHOD_LAMBDA_SOR: return Method::LambdaSor;
-    case v1::METHOD_CHEBYSHEV: return Method::Chebyshev;
-    case v1::METHOD_ANDERSON: return Method::Anderson;
-    case v1::METHOD_ANDERSON_SOR: return Method::AndersonSor;
-    case v1::METHOD_EXTRAPOLATION: return Method::Extrapolation;
-    default: return std::nullopt;
-  }
-}
-v1::Method method_to(Method m) {
-  switch (m) {
-    case Method::Xpbd: return v1::METHOD_XPBD;
-    case Method::Sor: return v1::METHOD_SOR;
-    case Method::LambdaSor: return v1::METHOD_LAMBDA_SOR;
-    case Method::Chebyshev: return v1::METHOD_CHEBYSHEV;
-    case Method::Anderson: return v1::METHOD_ANDERSON;
-    case Method::AndersonSor: return v1::METHOD_ANDERSON_SOR;
-    case Method::Extrapolation: return v1::METHOD_EXTRAPOLATION;
-  }
-  return v1::METHOD_UNSPECIFIED;
-}
 std::optional<Damping> damping_from(v1::Damping d) {
   switch (d) {
     case v1::DAMPING_NONE: return Damping::None;
@@ -110,12 +88,13 @@ v1::TickMode mode_to(TickMode m) {
 // Merges the set fields of `p` into `s`; `prefix` names the message in errors ("spec.solver").
 Error merge_solver(const v1::SolverSettings& p, const std::string& prefix, int max_threads,
                    SolverSettings& s) {
-  if (p.sweep() == v1::SWEEP_GAUSS_SEIDEL) s.sweep = Sweep::GaussSeidel;
-  else if (p.sweep() == v1::SWEEP_JACOBI) s.sweep = Sweep::Jacobi;
-  else if (p.sweep() != v1::SWEEP_UNSPECIFIED)
-    return invalid(fmt::format("{}.sweep has unknown value {}", prefix, static_cast<int>(p.sweep())));
+  if (p.sweep() != v1::SWEEP_UNSPECIFIED) {
+    auto sw = proto::sweep_from(p.sweep());
+    if (!sw) return invalid(fmt::format("{}.sweep has unknown value {}", prefix, static_cast<int>(p.sweep())));
+    s.sweep = *sw;
+  }
   if (p.method() != v1::METHOD_UNSPECIFIED) {
-    auto m = method_from(p.method());
+    auto m = proto::method_from(p.method());
     if (!m) return invalid(fmt::format("{}.method has unknown value {}", prefix, static_cast<int>(p.method())));
     s.method = *m;
   }
@@ -354,8 +333,8 @@ void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* sp
   const SolverSettings& s = cfg.settings;
   to_proto(s.gravity, spec->mutable_gravity());
   auto* ps = spec->mutable_solver();
-  ps->set_sweep(s.sweep == Sweep::Jacobi ? v1::SWEEP_JACOBI : v1::SWEEP_GAUSS_SEIDEL);
-  ps->set_method(method_to(s.method));
+  ps->set_sweep(proto::sweep_to(s.sweep));
+  ps->set_method(proto::method_to(s.method));
   ps->set_substeps(effective_substeps(model, s));
   ps->set_target_wave_courant_number(s.target_wave_courant_number);
   ps->set_iterations(s.iterations);

@@ -3,7 +3,7 @@
 //   static    step a clamped body under gravity to rest and report the tip displacement
 //   run       simulate N steps and write VTK frames for ParaView
 #include "pliant/builtin_meshes.hpp"
-#include "pliant/cli.hpp"
+#include "cli.hpp"
 #include "pliant/experiments.hpp"
 #include "pliant/mesh_io.hpp"
 #include "pliant/reference_solver.hpp"

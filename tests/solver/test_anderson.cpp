@@ -1,7 +1,7 @@
 // The Anderson mixer on problems with known answers: type II on a linear contraction reaches
 // the fixed point far faster than the plain iteration; the condition-number safeguard drops
 // columns of a degenerate history.
-#include "../../solver/src/accelerators.hpp"
+#include "accelerators/accelerators.hpp"
 
 #include <Eigen/Dense>
 #include <gtest/gtest.h>

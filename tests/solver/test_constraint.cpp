@@ -4,8 +4,8 @@
 #include "pliant/material.hpp"
 #include "pliant/model.hpp"
 #include "pliant/strain_constraint.hpp"
-#include "../../solver/src/packed_projection.hpp"
-#include "../../solver/src/projection.hpp"
+#include "kernels/packed_projection.hpp"
+#include "kernels/projection.hpp"
 
 #include <Eigen/Dense>
 #include <Eigen/Geometry>

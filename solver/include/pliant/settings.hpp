@@ -11,7 +11,11 @@
 
 namespace pliant {
 
-enum class Sweep { GaussSeidel, Jacobi };
+enum class Sweep {
+  GaussSeidel,  // coloured Gauss-Seidel: colours in parallel, tets of a colour 4 at a time
+  Jacobi,       // constraint-parallel, averaged corrections
+  Sequential,   // Gauss-Seidel one tet at a time in mesh order, one thread (the thesis's sweep)
+};
 
 enum class Method {
   Xpbd,                // plain projection, no acceleration
@@ -21,7 +25,17 @@ enum class Method {
   Anderson,            // Anderson on the multiplier increments, omega = 1
   AndersonSor,         // Anderson on the multiplier increments, scaled by omega (the thesis)
   Extrapolation,       // omega * last increment under the residual check (Anderson with theta = 0)
+  // Solver families beyond constraint projection (same model, state, contacts and tools):
+  Vbd,                 // vertex block descent: per-vertex 3x3 Newton on the incremental potential
+  Newton,              // global Newton step on the incremental potential (sparse Cholesky)
+  // Not a solver: the server picks one of the above per scene by measured accuracy per
+  // millisecond within the scene's time budget. The stepper never sees it.
+  Auto,
 };
+
+// Which family a method belongs to: the constraint-projection methods share one loop.
+enum class SolverFamilyKind { ConstraintProjection, VertexBlockDescent, Newton };
+SolverFamilyKind family_of(Method m);
 
 enum class Damping { None, Simple, RigidPreserving };
 
@@ -79,6 +93,8 @@ std::string_view to_string(Method m);
 std::string_view to_string(Damping d);
 std::optional<Sweep> parse_sweep(std::string_view s);     // "gauss-seidel" | "jacobi"
 std::optional<Method> parse_method(std::string_view s);   // "xpbd" | "sor" | "lambda-sor" | ...
+std::string_view method_names();  // "xpbd, sor, ..., auto": the accepted names, for messages
+std::string_view sweep_names();   // "gauss-seidel, jacobi, sequential"
 std::optional<Damping> parse_damping(std::string_view s); // "none" | "simple" | "rigid"
 std::string_view to_string(AndersonForm f);
 std::optional<AndersonForm> parse_anderson_form(std::string_view s);  // "thesis" | "type2"

@@ -10,6 +10,7 @@
 #include "pliant/settings.hpp"
 #include "pliant/state.hpp"
 
+#include <atomic>
 #include <functional>
 #include <memory>
 #include <vector>
@@ -37,6 +38,7 @@ struct StepReport {
   bool diverged = false;               // residual exploded or state went non-finite
   bool stopped_by_tolerance = false;
   bool stopped_by_budget = false;
+  bool cancelled = false;              // StepInputs::cancel was set: the step stopped between sweeps
   int contacts = 0;                    // active contacts at the end of the step
   int volume_corrections = 0;          // inversion-floor projections in the last iteration
   // One per StepInputs::tools, same order: force/torque on the tool averaged over the substeps
@@ -58,6 +60,11 @@ struct StepInputs {
   std::vector<Collider> colliders;
   std::vector<Attachment> attachments;
   std::vector<RigidTool> tools;
+  // When set, checked between sweeps (iterations) and substeps: once it reads true the step
+  // stops where it is (positions stay valid, velocities are those of the work done) and the
+  // report says cancelled. Lets a scene's delete, update, reset or shutdown take effect within
+  // one sweep whatever the budget.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 class Stepper {

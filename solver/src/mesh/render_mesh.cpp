@@ -8,7 +8,7 @@
 // Surface vertex i is at sum_k w_k * X[tets[tet][k]], with X the tet-mesh positions.
 #include "pliant/render_mesh.hpp"
 
-#include "mesh_parse.hpp"
+#include "mesh/mesh_parse.hpp"
 #include "pliant/mesh_io.hpp"
 
 #include <Eigen/Dense>

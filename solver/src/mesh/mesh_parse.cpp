@@ -1,4 +1,4 @@
-#include "mesh_parse.hpp"
+#include "mesh/mesh_parse.hpp"
 
 #include <algorithm>
 #include <cctype>

@@ -1,6 +1,6 @@
 // Surface meshes through assimp (OBJ, STL, PLY, glTF/GLB, FBX, OFF, ...), and a tiny OFF/OBJ
 // writer for handing a surface to TetGen.
-#include "mesh_parse.hpp"
+#include "mesh/mesh_parse.hpp"
 #include "pliant/render_mesh.hpp"
 
 #include <assimp/Importer.hpp>

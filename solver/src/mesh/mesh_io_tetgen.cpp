@@ -1,6 +1,6 @@
 // TetGen .node/.ele reader. The index base (0 or 1) is the first node's index, as TetGen itself
 // decides; attributes and boundary markers are read and ignored; a .face file is not needed.
-#include "mesh_parse.hpp"
+#include "mesh/mesh_parse.hpp"
 
 #include <spdlog/spdlog.h>
 

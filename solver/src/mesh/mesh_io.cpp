@@ -1,6 +1,6 @@
 #include "pliant/mesh_io.hpp"
 
-#include "mesh_parse.hpp"
+#include "mesh/mesh_parse.hpp"
 #include "pliant/builtin_meshes.hpp"
 
 #include <spdlog/spdlog.h>

@@ -10,6 +10,7 @@ std::string_view to_string(Sweep s) {
   switch (s) {
     case Sweep::GaussSeidel: return "gauss-seidel";
     case Sweep::Jacobi: return "jacobi";
+    case Sweep::Sequential: return "sequential";
   }
   return "?";
 }
@@ -23,6 +24,9 @@ std::string_view to_string(Method m) {
     case Method::Anderson: return "anderson";
     case Method::AndersonSor: return "anderson-sor";
     case Method::Extrapolation: return "extrapolation";
+    case Method::Vbd: return "vbd";
+    case Method::Newton: return "newton";
+    case Method::Auto: return "auto";
   }
   return "?";
 }
@@ -45,16 +49,30 @@ std::optional<AndersonForm> parse_anderson_form(std::string_view s) {
 }
 
 std::optional<Sweep> parse_sweep(std::string_view s) {
-  for (Sweep v : {Sweep::GaussSeidel, Sweep::Jacobi})
+  for (Sweep v : {Sweep::GaussSeidel, Sweep::Jacobi, Sweep::Sequential})
     if (to_string(v) == s) return v;
   return std::nullopt;
 }
 
 std::optional<Method> parse_method(std::string_view s) {
   for (Method v : {Method::Xpbd, Method::Sor, Method::LambdaSor, Method::Chebyshev, Method::Anderson,
-                   Method::AndersonSor, Method::Extrapolation})
+                   Method::AndersonSor, Method::Extrapolation, Method::Vbd, Method::Newton, Method::Auto})
     if (to_string(v) == s) return v;
   return std::nullopt;
+}
+
+std::string_view method_names() {
+  return "xpbd, sor, lambda-sor, chebyshev, anderson, anderson-sor, extrapolation, vbd, newton, auto";
+}
+
+std::string_view sweep_names() { return "gauss-seidel, jacobi, sequential"; }
+
+SolverFamilyKind family_of(Method m) {
+  switch (m) {
+    case Method::Vbd: return SolverFamilyKind::VertexBlockDescent;
+    case Method::Newton: return SolverFamilyKind::Newton;
+    default: return SolverFamilyKind::ConstraintProjection;
+  }
 }
 
 std::optional<Damping> parse_damping(std::string_view s) {
@@ -91,6 +109,8 @@ std::string validate(const SolverSettings& s) {
   else if (!s.gravity.allFinite()) bad("gravity", s.gravity.norm(), "must be finite");
   else if (!(s.inversion_floor >= 0 && s.inversion_floor < 1)) bad("inversion_floor", s.inversion_floor, "must be in [0, 1)");
   else if (s.threads < 1 || s.threads > 256) bad("threads", s.threads, "must be in [1, 256]");
+  else if (s.method == Method::Vbd || s.method == Method::Newton)
+    os << "solver.method " << to_string(s.method) << " is not available in this build";
   else if (!s.record_residuals && (s.method == Method::Anderson || s.method == Method::AndersonSor ||
                                    s.method == Method::Extrapolation || s.tolerance > 0))
     os << "solver.record_residuals must be true for method " << to_string(s.method)

@@ -1,4 +1,4 @@
-#include "pliant/cli.hpp"
+#include "cli.hpp"
 
 #include <cmath>
 #include <cstdlib>

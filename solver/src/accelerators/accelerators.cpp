@@ -1,4 +1,4 @@
-#include "accelerators.hpp"
+#include "accelerators/accelerators.hpp"
 
 #include <Eigen/Dense>
 

@@ -1,6 +1,6 @@
-#include "packed_projection.hpp"
+#include "kernels/packed_projection.hpp"
 
-#include "projection.hpp"
+#include "kernels/projection.hpp"
 
 #include "pliant/strain_constraint.hpp"
 

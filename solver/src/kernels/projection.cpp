@@ -1,4 +1,4 @@
-#include "projection.hpp"
+#include "kernels/projection.hpp"
 
 #include "pliant/strain_constraint.hpp"
 

@@ -2,7 +2,7 @@
 // CELLS layout and the 5.1 OFFSETS/CONNECTIVITY layout) and XML UnstructuredGrid (.vtu; ascii,
 // inline base64 binary and raw appended data, uncompressed). Cells of type 10 (VTK_TETRA) and the
 // corners of type 24 (VTK_QUADRATIC_TETRA) become tets; other cells are skipped with a log line.
-#include "mesh_parse.hpp"
+#include "mesh/mesh_parse.hpp"
 
 #include <spdlog/spdlog.h>
 

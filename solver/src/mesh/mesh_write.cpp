@@ -1,6 +1,6 @@
 // Writers for TetGen, VTK legacy, VTU and Gmsh. Coordinates are written in the shortest form that
 // reads back to the same double, so write-then-read gives the same mesh bit for bit.
-#include "mesh_parse.hpp"
+#include "mesh/mesh_parse.hpp"
 #include "pliant/mesh_io.hpp"
 
 #include <cstring>

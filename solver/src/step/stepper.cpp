@@ -1,29 +1,29 @@
 #include "pliant/stepper.hpp"
 
-#include "accelerators.hpp"
-#include "packed_projection.hpp"
-#include "projection.hpp"
-#include "thread_pool.hpp"
+#include "accelerators/accelerators.hpp"
+#include "kernels/packed_projection.hpp"
+#include "kernels/projection.hpp"
+#include "step/family.hpp"
+#include "step/stages.hpp"
+#include "step/thread_pool.hpp"
 
 #include <Eigen/Dense>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <stdexcept>
 
 namespace pliant {
 
-namespace {
+using detail::Clock;
+using detail::ms_since;
 
-using Clock = std::chrono::steady_clock;
+namespace {
 
 // End-of-substep passes of the inversion floor: the first visits every tet, the later ones only
 // the tets around what the previous pass corrected (nothing else moved).
 constexpr int kVolumePasses = 20;
-
-double ms_since(Clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-}
 
 // Adds the elapsed time of a scope to a counter.
 struct PhaseTimer {
@@ -32,28 +32,13 @@ struct PhaseTimer {
   ~PhaseTimer() { sink += ms_since(t0); }
 };
 
-// Friction and non-penetration against static colliders for one vertex, at position level
-// (Macklin et al. 2019): the normal push-out is exact; the tangential motion since the start
-// of the substep is cancelled while it is within the static cone (mu_s * depth), else reduced
-// by mu_k * depth.
-bool resolve_contact(const Collider& c, Vec3& x, const Vec3& x_start) {
-  ContactPoint cp;
-  if (!find_contact(c, x, cp)) return false;
-  x += cp.depth * cp.normal;
-  Vec3 dx = x - x_start;
-  Vec3 tangential = dx - dx.dot(cp.normal) * cp.normal;
-  const double t = tangential.norm();
-  if (t < c.static_friction * cp.depth) x -= tangential;
-  else if (t > 0) x -= tangential * std::min(c.dynamic_friction * cp.depth / t, 1.0);
-  return true;
-}
-
 }  // namespace
 
 struct Stepper::Impl {
   std::unique_ptr<ThreadPool> pool;
   int pool_threads = 0;
   IterationHook hook;
+  std::unique_ptr<detail::SolverFamily> vbd, newton;  // made on first use
 
   uint64_t adjacency_model = 0;  // the model adj_* and jacobi_entry were built for
   // Colours cut into SIMD packs for the Gauss-Seidel sweep and the residual.
@@ -347,16 +332,6 @@ struct Stepper::Impl {
     for (size_t j = 0; j < inputs.attachments.size(); ++j) rep.attachment_forces[j] = attachment_lambda[j] * inv_h2;
   }
 
-  int contacts(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec3>& x_start,
-               const std::vector<Collider>& colliders) {
-    if (colliders.empty()) return 0;
-    int n = 0;
-    for (size_t i = 0; i < x.size(); ++i) {
-      if (m.inv_mass[i] == 0) continue;
-      for (const Collider& c : colliders) n += resolve_contact(c, x[i], x_start[i]);
-    }
-    return n;
-  }
 };
 
 Stepper::Stepper() : impl_(std::make_unique<Impl>()) {}
@@ -430,7 +405,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     }
     if (!inputs.colliders.empty()) {
       PhaseTimer t{rep.times.other_ms};
-      rep.contacts = I.contacts(m, x, x_prev, inputs.colliders);
+      rep.contacts = detail::resolve_colliders(m, x, x_prev, inputs.colliders);
     }
     if (interacting) {
       PhaseTimer t{rep.times.other_ms};
@@ -506,6 +481,10 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
         break;
       }
     }
+    if (inputs.cancel && inputs.cancel->load(std::memory_order_relaxed)) {
+      rep.cancelled = true;
+      break;
+    }
     if (budget_ms > 0 && ms_since(t_start) - hook_ms >= budget_ms) {
       rep.stopped_by_budget = it + 1 < s.iterations;
       break;
@@ -530,12 +509,21 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
 StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSettings& s,
                          const StepInputs& inputs) {
   Impl& I = *impl_;
+  switch (family_of(s.method)) {
+    case SolverFamilyKind::VertexBlockDescent:
+      if (!I.vbd) I.vbd = detail::make_vbd_family();
+      return I.vbd->step(m, state, s, inputs, I.hook);
+    case SolverFamilyKind::Newton:
+      if (!I.newton) I.newton = detail::make_newton_family();
+      return I.newton->step(m, state, s, inputs, I.hook);
+    case SolverFamilyKind::ConstraintProjection: break;
+  }
+  if (s.method == Method::Auto)
+    throw std::invalid_argument("solver.method auto names no solver: the server resolves it per scene");
   const auto t_start = Clock::now();
-  const int n = effective_substeps(m, s);
+  int n = effective_substeps(m, s);
   const double h = s.dt / n;
   const size_t nv = m.vertex_count();
-  if (state.v.size() != nv) state.v.assign(nv, Vec3::Zero());
-  const bool forces = inputs.external_forces.size() == nv;
   StepReport total;
   SolverSettings quiet = s;
   quiet.record_residuals = s.record_residuals && (s.tolerance > 0 || s.method == Method::Anderson ||
@@ -549,18 +537,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   }
   for (int sub = 0; sub < n; ++sub) {
     const auto t_other = Clock::now();
-    I.v_prev = state.x;  // positions at the start of the substep
-    for (size_t i = 0; i < nv; ++i) {
-      if (m.inv_mass[i] == 0) {
-        state.v[i].setZero();
-        continue;
-      }
-      // Weight is the lumped mass; a floored vertex's inertia is larger (Material::inertia_floor).
-      Vec3 a = m.inertia[i] > m.mass[i] ? Vec3(s.gravity * (m.mass[i] / m.inertia[i])) : s.gravity;
-      if (forces) a += inputs.external_forces[i] * m.inv_mass[i];
-      state.v[i] += h * a;
-      state.x[i] += h * state.v[i];
-    }
+    detail::predict(m, state, s, inputs, h, I.v_prev);
     detail::ensure_packed(I.packed, m);
     I.lam.assign(I.packed.slot_count(), Vec6::Zero());
     state.lambda_h = h;
@@ -575,8 +552,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
                                   s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
 
     const auto t_vel = Clock::now();
-    for (size_t i = 0; i < nv; ++i) state.v[i] = (state.x[i] - I.v_prev[i]) / h;
-    apply_damping(m, state, s, h);
+    detail::finish_substep(m, state, I.v_prev, s, h);
     total.times.other_ms += ms_since(t_vel);
 
     total.iterations += r.iterations;
@@ -609,6 +585,11 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
       }
       for (size_t j = 0; j < r.attachment_forces.size(); ++j) total.attachment_forces[j] += r.attachment_forces[j];
     }
+    if (r.cancelled) {
+      total.cancelled = true;
+      n = sub + 1;  // the averages below are over the substeps run
+      break;
+    }
   }
   I.tool_time_offset = 0;  // solve_substep on its own: tools at their pose
   // The last substep's multipliers, per tet (the constraint forces of the step).
@@ -626,7 +607,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     for (Vec3& f : total.attachment_forces) f /= n;
   }
   total.substeps = n;
-  state.time += s.dt;
+  state.time += total.cancelled ? n * h : s.dt;
   state.steps++;
   if (!is_finite(state)) total.diverged = true;
   total.wall_ms = ms_since(t_start);

@@ -1,0 +1,37 @@
+// Stages of a substep that every solver family shares: the prediction (inertia and loads), the
+// static colliders' contacts, and the velocity update with damping at the end.
+#pragma once
+
+#include "pliant/colliders.hpp"
+#include "pliant/model.hpp"
+#include "pliant/settings.hpp"
+#include "pliant/state.hpp"
+#include "pliant/stepper.hpp"
+
+#include <chrono>
+#include <vector>
+
+namespace pliant::detail {
+
+using Clock = std::chrono::steady_clock;
+inline double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// Saves the positions in x_start, then v += h (g weight/inertia + f/inertia), x += h v for the
+// free vertices (fixed vertices get v = 0). The result is the inertial target the solvers
+// start from.
+void predict(const BodyModel& model, BodyState& state, const SolverSettings& settings,
+             const StepInputs& inputs, double h, std::vector<Vec3>& x_start);
+
+// Non-penetration and friction of every free vertex against the static colliders, at position
+// level (motion since x_start). Returns the number of vertices in contact.
+int resolve_colliders(const BodyModel& model, std::vector<Vec3>& x, const std::vector<Vec3>& x_start,
+                      const std::vector<Collider>& colliders);
+bool resolve_contact(const Collider& collider, Vec3& x, const Vec3& x_start);
+
+// v = (x - x_start) / h, then the settings' damping.
+void finish_substep(const BodyModel& model, BodyState& state, const std::vector<Vec3>& x_start,
+                    const SolverSettings& settings, double h);
+
+}  // namespace pliant::detail
