@@ -12,6 +12,7 @@
 // so a step that pushes a vertex into an obstacle is shortened. Near the solution (after a full
 // step) the exact Hessian is tried first: Newton then converges quadratically; where it is not
 // positive definite the per-tet PSD-projected one is used.
+#include "kernels/projection.hpp"
 #include "step/family.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
@@ -85,7 +86,11 @@ class NewtonFamily final : public SolverFamily {
   std::vector<int32_t> diag_entry_; // 9 per vertex: its diagonal block's entries
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt_;
   Eigen::VectorXd g_, d_;
-  std::vector<Vec3> y_, x_start_, trial_;
+  std::vector<Vec3> y_, x_start_, trial_, v_before_;
+  std::vector<double> volume_ratio_;  // per tet, at the start of the substep (the warm start's floor)
+  double inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const;
+  // Whether no tet of `trial` falls below the inversion floor, or below where it already was.
+  bool keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const;
   std::vector<Contact> contacts_;
   std::vector<Contact> lagged_;  // the contacts at the end of the last iteration, normal force k depth
   void remember_normal_forces();
@@ -358,6 +363,20 @@ void NewtonFamily::add_interaction(const BodyModel& m, const std::vector<Vec3>& 
   }
 }
 
+double NewtonFamily::inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const {
+  double e = 0;
+  for (const TetRest& t : m.tets) e += strain_energy(t, m.stiffness, gather(x, t.v), m.material.model);
+  for (size_t i = 0; i < x.size(); ++i)
+    if (dof_[i] >= 0) e += 0.5 / (h * h) * m.inertia[i] * (x[i] - y_[i]).squaredNorm();
+  return e;
+}
+
+bool NewtonFamily::keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const {
+  for (size_t t = 0; t < m.tets.size(); ++t)
+    if (volume_ratio(m.tets[t], gather(trial, m.tets[t].v)) < std::min(floor, volume_ratio_[t])) return false;
+  return true;
+}
+
 double NewtonFamily::potential(const BodyModel& m, const std::vector<Vec3>& x, double h,
                                const StepInputs& in) const {
   double e = 0;
@@ -391,10 +410,40 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
   for (int sub = 0; sub < n && !total.cancelled; ++sub) {
     const auto t_sub = Clock::now();
     tool_time_offset_ = (sub + 1 - n) * h;
+    v_before_ = state.v;
     predict(m, state, s, in, h, x_start_);
     inputs_have_obstacles_ = !in.colliders.empty() || !in.tools.empty();
     y_ = state.x;
     std::vector<Vec3>& x = state.x;
+    // Warm start: of the prediction y, the motion continued without this step's loads (x + h v:
+    // the previous solution itself for a body at rest; from y a stiff body at rest must climb back
+    // the whole h^2 g every step) and the start x, the one of lowest potential that keeps every
+    // tet above the inversion floor (x always does, or is where the body already was).
+    {
+      const bool floor = s.inversion_floor > 0;
+      if (floor) {
+        volume_ratio_.resize(m.tets.size());
+        for (size_t t = 0; t < m.tets.size(); ++t)
+          volume_ratio_[t] = volume_ratio(m.tets[t], gather(x_start_, m.tets[t].v));
+      }
+      std::vector<Vec3> best = x_start_;
+      double best_e = inertial_elastic_energy(m, best, h);
+      auto consider = [&](const std::vector<Vec3>& c) {
+        if (floor && !keeps_volume(m, c, s.inversion_floor)) return;
+        const double e = inertial_elastic_energy(m, c, h);
+        if (e < best_e) {
+          best_e = e;
+          best = c;
+        }
+      };
+      consider(y_);
+      trial_ = x_start_;
+      if (v_before_.size() == x.size())
+        for (size_t i = 0; i < x.size(); ++i)
+          if (dof_[i] >= 0) trial_[i] += h * v_before_[i];
+      consider(trial_);
+      x.swap(best);
+    }
     contacts_.clear();
     const double budget = s.time_budget_ms > 0
                               ? std::max(1e-6, (s.time_budget_ms - (ms_since(t_start) - hook_ms)) / (n - sub))
@@ -458,11 +507,23 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       }
       if (moved) x.swap(trial_);
       full_step = moved && alpha == 1.0;
+      // Inversion safety as in the projection family: tets pushed under the floor are pushed back
+      // by the unilateral volume constraint (repeated while a pass still acts, at most 20).
+      if (moved && s.inversion_floor > 0)
+        for (int pass = 0; pass < 20; ++pass) {
+          int hits = 0;
+          for (const TetRest& t : m.tets) hits += enforce_volume_floor(t, x, m.inv_mass, s.inversion_floor);
+          rep.volume_corrections += hits;
+          if (hits == 0) break;
+          full_step = false;
+        }
       rep.times.other_ms += ms_since(t_ls);
       rep.iterations++;
       // The residual after the iteration: |grad G| at the new positions, over the free dofs.
       double r = gnorm;
-      if (moved) {
+      // Measured when something reads it: a stop rule, the hook, the report of the last substep.
+      const bool measure = s.tolerance > 0 || hook || (s.record_residuals && sub + 1 == n);
+      if (moved && measure) {
         const auto t_res = Clock::now();
         assemble(m, x, h, tp, false);
         find_contacts(m, x, h, in);
