@@ -84,8 +84,10 @@ Scene flags (create and update):
   --gravity GX,GY,GZ    m/s^2 (default 0,-9.81,0)
   --dt S | --rate HZ    tick length (default 1/60 s)
   --mode realtime|lockstep|as-fast-as-possible
-  --method xpbd|sor|lambda-sor|chebyshev|anderson|anderson-sor|extrapolation
-  --sweep gauss-seidel|jacobi   --substeps N   --iterations N   --window M   --omega W
+  --method xpbd|sor|lambda-sor|chebyshev|anderson|anderson-sor|extrapolation|vbd|newton|auto
+                        (auto: the server measures the methods on the body and keeps the most
+                        accurate within --time-budget-ms, default half the tick)
+  --sweep gauss-seidel|jacobi|sequential   --substeps N   --iterations N   --window M   --omega W
   --tolerance T         --time-budget-ms MS    --threads N     --paused (create paused)
   --wave-courant C      let the server pick the substeps: the fewest with a pressure wave
                         crossing at most C elements per substep (0.3 resolves the material)
@@ -237,6 +239,7 @@ void print_scene(const v1::Scene& s, bool json) {
   std::printf("solver     %s, %s, %d substeps x %d iterations, window %d, omega %g, tolerance %g, budget %g ms\n",
               v1::Method_Name(so.method()).c_str(), v1::Sweep_Name(so.sweep()).c_str(), so.substeps(),
               so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
+  if (!s.method_choice().empty()) std::printf("auto       chose %s\n", s.method_choice().c_str());
   std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
   std::printf("inertia    floor %g of the mean vertex mass, support %g of the mass carried to the fixed vertices: "
               "%u vertices raised, +%.4g%% inertia\n",
@@ -246,7 +249,9 @@ void print_scene(const v1::Scene& s, bool json) {
   // docs/solver.md): under_resolution = wave_courant_number / sqrt(iterations).
   const double co = s.wave_courant_number();
   const double u = under_resolution(co, so.iterations());
-  const char* meaning = sp.material().poisson_ratio() > kUnderResolutionMaxPoisson
+  const bool projection = so.method() != v1::METHOD_NEWTON && so.method() != v1::METHOD_VBD;
+  const char* meaning = !projection ? "(a guide for constraint projection only)"
+                        : sp.material().poisson_ratio() > kUnderResolutionMaxPoisson
                             ? "not interpreted for nu above 0.45 (calibrated at 0.4)"
                         : u > 1   ? "clearly softer than the material"
                         : u > 0.3 ? "softer than the material by a few % to ~30%"

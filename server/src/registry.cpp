@@ -6,6 +6,7 @@
 
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/mesh_io.hpp"
+#include "pliant/method_choice.hpp"
 #include "pliant/stepper.hpp"
 
 #include <spdlog/fmt/fmt.h>
@@ -149,6 +150,17 @@ Error check_solver(const SolverSettings& s, const std::string& prefix) {
   // The solver names its fields "solver.<name>"; say where they are in this request.
   if (err.rfind("solver.", 0) == 0) err = prefix + err.substr(6);
   return invalid(err);
+}
+
+// Method auto: measures the candidates on the model (choose_method) and pins the winner in
+// cfg.settings, keeping what was measured for GetScene and the log. The budget is the request's
+// time_budget_ms, or kAutoBudgetFraction of the tick.
+void resolve_auto_method(const std::string& id, const BodyModel& model, SceneConfig& cfg) {
+  if (!cfg.method_auto) return;
+  const MethodChoice choice = choose_method(model, cfg.settings, cfg.settings.time_budget_ms);
+  cfg.settings = choice.settings;
+  cfg.method_choice = choice.summary;
+  spdlog::info("scene '{}': method auto chose {}", id, choice.summary);
 }
 
 Error merge_material(const v1::Material& p, const std::string& prefix, Material& m) {
@@ -542,6 +554,8 @@ namespace {
 // its material (beam3: 17-30% near 1, 1.8-4.3x at 2-4). Says so, with the substeps that would
 // bring the wave Courant number to 0.3 (within 2% on beam3 at 1 iteration).
 void warn_if_under_resolved(const std::string& id, const BodyModel& model, const SolverSettings& s) {
+  // Only constraint projection loses stiffness to an unconverged budget this way.
+  if (family_of(s.method) != SolverFamilyKind::ConstraintProjection) return;
   const int substeps = effective_substeps(model, s);
   const double co = wave_courant_number(model, s.dt / substeps);
   if (under_resolution(co, s.iterations) <= 1.0) return;
@@ -601,6 +615,7 @@ Error SceneRegistry::describe(const Scene& scene, v1::Scene* out) const {
   out->set_wave_courant_number(wave_courant_number(*model, cfg.settings.dt / effective_substeps(*model, cfg.settings)));
   out->set_floored_vertices(static_cast<uint32_t>(model->floored_vertices()));
   out->set_added_inertia(model->added_inertia());
+  out->set_method_choice(cfg.method_choice);
   return {};
 }
 
@@ -656,6 +671,10 @@ Error SceneRegistry::create(const v1::CreateSceneRequest& req, v1::Scene* out) {
   if (Error e = resolve_source(spec.mesh(), options_, cfg, &mesh); !e.ok()) return e;
   std::shared_ptr<const BodyModel> model;
   if (Error e = build(mesh, material, cfg.fixed, &model); !e.ok()) return e;
+  // A realtime scene whose request names no method gets the most accurate one within half its tick.
+  if (spec.solver().method() == v1::METHOD_UNSPECIFIED && cfg.mode == TickMode::Realtime) cfg.settings.method = Method::Auto;
+  cfg.method_auto = cfg.settings.method == Method::Auto;
+  resolve_auto_method(id, *model, cfg);
   BodyState state = rest_state(*model);
   auto scene = std::make_shared<Scene>(id, cfg, model, std::move(state), 0, spec.start_paused());
   if (Error e = add_scene(scene, false); !e.ok()) return e;
@@ -697,7 +716,10 @@ Error SceneRegistry::update(const v1::UpdateSceneRequest& req, v1::Scene* out) {
   if (req.has_gravity())
     if (Error e = merge_gravity(req.gravity(), "gravity", settings); !e.ok()) return e;
   if (Error e = check_solver(settings, "solver"); !e.ok()) return e;
-  up.settings = settings;
+  // A request that names a method pins it, or asks for auto; one that does not keeps what was.
+  bool method_auto = cfg.method_auto;
+  if (req.has_solver() && req.solver().method() != v1::METHOD_UNSPECIFIED) method_auto = settings.method == Method::Auto;
+  else if (method_auto) settings.method = Method::Auto;  // choose again for the new settings
   if (mode != cfg.mode) up.mode = mode;
   if (req.has_material()) {
     auto model = s->model();
@@ -708,6 +730,16 @@ Error SceneRegistry::update(const v1::UpdateSceneRequest& req, v1::Scene* out) {
     } catch (const std::exception& e) {
       return invalid(e.what());
     }
+  }
+  {
+    SceneConfig resolved = cfg;
+    resolved.settings = settings;
+    resolved.method_auto = method_auto;
+    resolved.method_choice.clear();
+    resolve_auto_method(s->id(), up.model ? *up.model : *s->model(), resolved);
+    up.settings = resolved.settings;
+    up.method_auto = resolved.method_auto;
+    up.method_choice = resolved.method_choice;
   }
   if (Error e = s->update(up); !e.ok()) return e;
   spdlog::info("scene '{}' updated", s->id());
@@ -976,6 +1008,7 @@ void SceneRegistry::fill_frame(const Frame& f, const FrameSelection& sel,
   auto* st = out->mutable_solver();
   st->set_iterations(f.iterations);
   st->set_residual_final(f.residual_final);
+  st->set_relative_residual(f.residual_initial > 0 ? f.residual_final / f.residual_initial : 0.0);
   if (sel.solver_stats) {
     st->set_substeps(f.substeps);
     st->set_residual_initial(f.residual_initial);

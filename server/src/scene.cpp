@@ -347,6 +347,9 @@ Error Scene::update(const SceneUpdate& update, std::chrono::milliseconds timeout
         if (update.settings) {
           if (update.settings->dt != ts_->settings.dt) ts_->schedule_valid = false;
           ts_->settings = *update.settings;
+          std::lock_guard lk(info_mu_);
+          config_.method_auto = update.method_auto;
+          config_.method_choice = update.method_choice;
         }
         if (update.model) ts_->model = update.model;
         if (update.mode && *update.mode != ts_->mode) {

@@ -53,6 +53,8 @@ common options:
   --model M           strain of the tet constraint: stvk (Green strain, the thesis's; default)
                       | corotated (S - I of F = R S: resists compression down to zero volume)
   --method X          xpbd | sor | lambda-sor | chebyshev | anderson | anderson-sor | extrapolation
+                      (constraint projection) | vbd (vertex block descent) | newton (global
+                      Newton step on the implicit-Euler potential; iterations = Newton iterations)
   --sweep S           gauss-seidel | jacobi
   --anderson-form F   thesis | type2 (default thesis)
   --iterations N      iterations (per substep)
@@ -148,12 +150,14 @@ Material material_from(const cli::Args& a) {
 SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   if (auto v = a.str("method")) {
     auto m = parse_method(*v);
-    if (!m) throw cli::UsageError("--method: unknown method '" + *v + "' (xpbd, sor, lambda-sor, chebyshev, anderson, anderson-sor, extrapolation)");
+    if (!m || *m == Method::Auto)
+      throw cli::UsageError("--method: unknown method '" + *v + "' (" + std::string(method_names()) +
+                            " but auto, which the server resolves per scene)");
     s.method = *m;
   }
   if (auto v = a.str("sweep")) {
     auto w = parse_sweep(*v);
-    if (!w) throw cli::UsageError("--sweep: unknown sweep '" + *v + "' (gauss-seidel, jacobi)");
+    if (!w) throw cli::UsageError("--sweep: unknown sweep '" + *v + "' (" + std::string(sweep_names()) + ")");
     s.sweep = *w;
   }
   if (auto v = a.str("anderson-form")) {

@@ -39,6 +39,24 @@ constexpr double kContactScale = 1e4;
 // sticking (the smoothed Coulomb model's epsilon_v).
 constexpr double kStickSpeed = 1e-3;
 
+// The sparse Cholesky factorisation of the Hessian, its symbolic analysis (ordering, elimination
+// tree) done once per model. Eigen's simplicial LDL^T: CHOLMOD's supernodal LL^T (Debian
+// SuiteSparse) measured 1.4-4x slower on beam3 and the hippo and 1.6x faster only on the
+// armadillo (docs/solver.md), so it is not used.
+class SparseCholesky {
+ public:
+  void analyze(const Eigen::SparseMatrix<double>& A) { solver_.analyzePattern(A); }
+  // False unless A was positive definite.
+  bool factorize(const Eigen::SparseMatrix<double>& A) {
+    solver_.factorize(A);
+    return solver_.info() == Eigen::Success && solver_.vectorD().minCoeff() > 0;
+  }
+  Eigen::VectorXd solve(const Eigen::VectorXd& b) const { return solver_.solve(b); }
+
+ private:
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver_;
+};
+
 // One vertex touching a collider or a tool in this iteration's active set.
 struct Contact {
   int32_t vertex;
@@ -84,7 +102,7 @@ class NewtonFamily final : public SolverFamily {
   Eigen::SparseMatrix<double> H_;
   std::vector<int32_t> tet_entry_;  // 144 per tet: index into H_.valuePtr(), -1 for fixed
   std::vector<int32_t> diag_entry_; // 9 per vertex: its diagonal block's entries
-  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt_;
+  SparseCholesky cholesky_;
   Eigen::VectorXd g_, d_;
   std::vector<Vec3> y_, x_start_, trial_, v_before_;
   std::vector<double> volume_ratio_;  // per tet, at the start of the substep (the warm start's floor)
@@ -150,7 +168,7 @@ void NewtonFamily::compile(const BodyModel& m) {
     if (dof_[v] >= 0)
       for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) diag_entry_[9 * v + 3 * i + j] = entry(dof_[v] + i, dof_[v] + j);
-  ldlt_.analyzePattern(H_);
+  cholesky_.analyze(H_);
   g_.setZero(ndof_);
 }
 
@@ -471,19 +489,19 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         break;
       }
       const auto t_solve = Clock::now();
-      ldlt_.factorize(H_);
-      if (exact && (ldlt_.info() != Eigen::Success || !(ldlt_.vectorD().minCoeff() > 0))) {
+      bool factored = cholesky_.factorize(H_);
+      if (exact && !factored) {
         // Not positive definite here: the projected Hessian instead.
         exact = false;
         assemble(m, x, h, tp, true, false);
         add_interaction(m, x, h, in, true);
-        ldlt_.factorize(H_);
+        factored = cholesky_.factorize(H_);
       }
-      if (ldlt_.info() != Eigen::Success) {
+      if (!factored) {
         rep.diverged = true;
         break;
       }
-      d_ = ldlt_.solve(-g_);
+      d_ = cholesky_.solve(-g_);
       rep.times.update_ms += ms_since(t_solve);
       // A step below round-off of the coordinates: converged as far as double precision can tell.
       if (d_.lpNorm<Eigen::Infinity>() <= 1e-13 * m.mean_edge) {

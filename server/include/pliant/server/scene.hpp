@@ -58,6 +58,9 @@ struct SceneConfig {
   FixedSelection fixed;               // as requested
   SolverSettings settings;            // dt is the tick length; gravity lives here too
   TickMode mode = TickMode::Realtime;
+  // Method auto: settings.method is the chosen one; method_choice says what was measured.
+  bool method_auto = false;
+  std::string method_choice;
 };
 
 // A tool's reaction in a tick, with the pose that produced it.
@@ -136,6 +139,8 @@ struct SceneUpdate {
   std::optional<SolverSettings> settings;             // already merged and validated
   std::shared_ptr<const BodyModel> model;             // new material (same geometry)
   std::optional<TickMode> mode;
+  bool method_auto = false;                           // with settings: what the config says
+  std::string method_choice;
 };
 
 class Scene {
