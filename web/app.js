@@ -15,6 +15,8 @@ const state = {
   scenes: [],
   scene: params.get('scene') || '',
   subscription: 0,
+  subscribing: false,
+  ended: false,
   topology: null,
   framesReceived: 0,
   framesDrawn: 0,
@@ -33,8 +35,10 @@ window.pliant = state;
 
 // ---- three.js scene ---------------------------------------------------------------------------
 const canvas = $('gl');
-const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(window.devicePixelRatio || 1);
+// No antialiasing and device pixels capped at 2: software WebGL (headless, remote desktops)
+// keeps up with 60 frames/s.
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: false });
+renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
 const scene3 = new THREE.Scene();
 scene3.background = new THREE.Color(0x1a2027);
 const camera = new THREE.PerspectiveCamera(40, 1, 1e-4, 100);
@@ -61,6 +65,11 @@ scene3.add(grabLine);
 const forceArrow = new THREE.ArrowHelper(new THREE.Vector3(0, 1, 0), new THREE.Vector3(), 0.01, 0xff5252);
 forceArrow.visible = false;
 scene3.add(forceArrow);
+// The grab's line and force are drawn over the body, never hidden inside it.
+for (const o of [grabLine, forceArrow.line, forceArrow.cone]) {
+  o.material.depthTest = false;
+  o.renderOrder = 10;
+}
 
 function resize() {
   const w = canvas.clientWidth, h = canvas.clientHeight;
@@ -88,7 +97,7 @@ function buildMesh(topo) {
   g.setAttribute('color', new THREE.BufferAttribute(colors, 3));
   g.computeVertexNormals();
   g.computeBoundingSphere();
-  mesh = new THREE.Mesh(g, new THREE.MeshPhongMaterial({ vertexColors: THREE.VertexColors, side: THREE.DoubleSide, shininess: 20 }));
+  mesh = new THREE.Mesh(g, new THREE.MeshLambertMaterial({ vertexColors: THREE.VertexColors, side: THREE.DoubleSide }));
   mesh.frustumCulled = false;
   scene3.add(mesh);
   dequantized = new Float32Array(3 * topo.surfaceVertices);
@@ -98,7 +107,7 @@ function buildMesh(topo) {
   sceneSize = 2 * r;
   const box = new THREE.Box3().setFromBufferAttribute(positionAttr);
   grid.scale.setScalar(4 * r);
-  grid.position.set(c.x, box.min.y - 1e-4, c.z);
+  grid.position.set(c.x, Math.min(box.min.y, c.y - 1.2 * r), c.z);  // below where the body sags
   const dist = (1.25 * r) / Math.tan((camera.fov * Math.PI) / 360);
   camera.position.copy(c).add(new THREE.Vector3(0.25, 0.45, 1).normalize().multiplyScalar(dist));
   camera.near = dist / 100;
@@ -218,6 +227,7 @@ function subscribe(id) {
   state.grab = null;
   for (const c of Object.values(charts)) c.clear();
   if (!id) return send({ type: 'unsubscribe' });
+  state.subscribing = true;
   send({ type: 'subscribe', scene: id, max_rate_hz: Number(params.get('rate') || 60),
     encoding: params.get('encoding') || 'float32' });
 }
@@ -235,7 +245,7 @@ function onControl(m) {
       if (!state.scene && ids.length) state.scene = ids[0];
       if (ids.includes(state.scene)) {
         sel.value = state.scene;
-        if (!state.subscription || state.ended) { state.ended = false; subscribe(state.scene); }
+        if ((!state.subscription || state.ended) && !state.subscribing) { state.ended = false; subscribe(state.scene); }
         if (state.banner.startsWith('Scene')) setBanner('');
       } else if (state.scene) {
         setBanner(`Scene '${state.scene}' does not exist on the server (any more); pick another one.`);
@@ -246,6 +256,7 @@ function onControl(m) {
     }
     case 'subscribed':
       state.subscription = m.subscription;
+      state.subscribing = false;
       setBanner('');
       break;
     case 'ended':
@@ -281,7 +292,7 @@ function onControl(m) {
       state.errors.push(m);
       if (m.request === 'list' || m.request === 'subscribe') {
         setBanner(m.code === 'UNAVAILABLE' ? `pliant-server is unreachable: ${m.message}` : `${m.request}: ${m.code} ${m.message}`);
-        if (m.request === 'subscribe') state.ended = true;
+        if (m.request === 'subscribe') { state.ended = true; state.subscribing = false; }
       } else if (m.request === 'grab' || m.request === 'move') {
         state.grab = null;
       }
@@ -370,8 +381,8 @@ function drawGrab() {
     const f = new THREE.Vector3(...g.force);
     const n = f.length();
     if (n > 1e-9) {
-      // Length saturates: 1 N draws a fifth of the body's size.
-      const len = sceneSize * 0.4 * (n / (n + 1));
+      // Length saturates: 0.1 N draws a fifth of the body's size, large forces two fifths.
+      const len = sceneSize * 0.4 * (n / (n + 0.1));
       forceArrow.position.copy(p);
       forceArrow.setDirection(f.normalize());
       forceArrow.setLength(len, 0.25 * len, 0.12 * len);
@@ -387,6 +398,10 @@ state.project = (xyz) => {
   const r = canvas.getBoundingClientRect();
   return { x: r.left + ((v.x + 1) / 2) * r.width, y: r.top + ((1 - v.y) / 2) * r.height };
 };
+
+// What the grab draws: its line and force arrow, when visible (read by the browser test).
+state.grabDrawing = () => ({ line: grabLine.visible, arrow: forceArrow.visible,
+  from: grabLine.visible ? Array.from(grabLine.geometry.getAttribute('position').array) : null });
 
 // ---- loop ---------------------------------------------------------------------------------------
 function animate() {

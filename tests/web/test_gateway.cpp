@@ -262,6 +262,7 @@ TEST_F(WebGateway, TopologyFirstThenEveryTickOrACountedSkip) {
   pliant::v1::MoveGrabRequest mv;
   mv.set_scene_id("web");
   mv.set_grab_id(grab_id);
+  mv.mutable_target()->set_x(0.1);
   int code = 0;
   for (int i = 0; i < 100 && code != 5; ++i) {
     code = client_->move_grab(mv).status.code;

@@ -420,10 +420,13 @@ Gateway::~Gateway() { stop(); }
 
 void Gateway::start() {
   auto& o = impl_->options;
-  static const unsigned features = mg_init_library(MG_FEATURES_WEBSOCKET | MG_FEATURES_SSL);
-  if (!(features & MG_FEATURES_WEBSOCKET)) throw std::runtime_error("this civetweb was built without WebSockets");
-  if (!o.tls_cert.empty() && !(features & MG_FEATURES_SSL))
-    throw std::runtime_error("--tls-cert given but this civetweb has no TLS");
+  static const unsigned init = mg_init_library(MG_FEATURES_WEBSOCKET | MG_FEATURES_SSL);
+  (void)init;  // what it returns is not the feature set; mg_check_feature is
+  if (!mg_check_feature(MG_FEATURES_WEBSOCKET)) throw std::runtime_error("this civetweb was built without WebSockets");
+  if (!o.tls_cert.empty() && !mg_check_feature(MG_FEATURES_SSL))
+    throw std::runtime_error("--tls-cert given but this civetweb was built without TLS");
+  if (!o.tls_cert.empty() && !std::filesystem::is_regular_file(o.tls_cert))
+    throw std::runtime_error("--tls-cert '" + o.tls_cert + "' is not a readable file");
   namespace fs = std::filesystem;
   if (o.web_root.empty() || !fs::is_regular_file(fs::path(o.web_root) / "index.html"))
     throw std::runtime_error("--web-root '" + o.web_root + "' has no index.html");
@@ -435,7 +438,7 @@ void Gateway::start() {
 
   impl_->client = std::make_unique<client::Client>(o.server);
   const std::string ports = o.listen + (o.tls_cert.empty() ? "" : "s");
-  const std::string rewrite = "/three/=" + fs::absolute(o.three_dir).string();
+  const std::string rewrite = "/three=" + fs::absolute(o.three_dir).string();
   const std::string root = fs::absolute(o.web_root).string();
   const std::string threads = std::to_string(o.threads);
   std::vector<const char*> opts = {"listening_ports", ports.c_str(),
