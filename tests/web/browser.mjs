@@ -6,8 +6,10 @@
 //
 //   node tests/web/browser.mjs --server BIN --web BIN --cli BIN --web-root DIR [--screenshot PNG]
 //   node tests/web/browser.mjs ... --bench [--seconds S] [--encoding float32|uint16]
+//        [--mesh NAME] [--create-flags="--rate 60 ..."]
 //
-// --bench streams the thesis armadillo (realtime, 60 Hz) instead and prints one JSON line:
+// --bench streams a scene (default: the thesis armadillo, realtime 60 Hz) instead and prints one
+// JSON line:
 // frames drawn per second, latency from the end of a tick to the frame handled in the page
 // (p50/p99), bytes per frame. The browser is Chromium at $PLIANT_CHROMIUM or /usr/bin/chromium;
 // a missing browser or playwright-core is an error (scripts/web-test-deps.sh installs both).
@@ -31,6 +33,8 @@ const { values: args } = parseArgs({
     server: { type: 'string' }, web: { type: 'string' }, cli: { type: 'string' }, 'web-root': { type: 'string' },
     screenshot: { type: 'string' }, bench: { type: 'boolean', default: false },
     seconds: { type: 'string', default: '20' }, encoding: { type: 'string', default: 'float32' },
+    mesh: { type: 'string', default: 'armadillo' },
+    'create-flags': { type: 'string', default: '--rate 60 --fix-box -1,-1,-1,1,-0.040,1' },
   },
 });
 for (const k of ['server', 'web', 'cli', 'web-root']) if (!args[k]) fail(`--${k} is required`);
@@ -101,10 +105,10 @@ function pliant(...argv) {
   });
 }
 
-const sceneId = args.bench ? 'armadillo' : 'beam';
+const sceneId = args.bench ? 'bench' : 'beam';
 if (args.bench) {
-  // The thesis armadillo standing on its feet (every vertex below y = -4 cm fixed).
-  await pliant('scenes', 'create', sceneId, '--mesh', 'armadillo', '--rate', '60', '--fix-box', '-1,-1,-1,1,-0.040,1');
+  // By default the thesis armadillo standing on its feet (every vertex below y = -4 cm fixed).
+  await pliant('scenes', 'create', sceneId, '--mesh', args.mesh, ...args['create-flags'].split(' ').filter(Boolean));
 } else {
   // Support inertia holds the 1 MPa beam near its converged shape at a small budget.
   await pliant('scenes', 'create', sceneId, '--mesh', 'beam1', '--fix-x-below', '0.001', '--rate', '60',
@@ -225,7 +229,7 @@ async function bench() {
   const lat = after.lat.sort((a, b) => a - b);
   const q = (p) => (lat.length ? lat[Math.min(lat.length - 1, Math.floor(p * lat.length))] : NaN);
   console.log(JSON.stringify({
-    scene: 'armadillo', surface_vertices: after.n, encoding: args.encoding, seconds: Number(wall.toFixed(1)),
+    mesh: args.mesh, create_flags: args['create-flags'], surface_vertices: after.n, encoding: args.encoding, seconds: Number(wall.toFixed(1)),
     ticks_per_s: Number(((after.t - before.t) / wall).toFixed(1)),
     frames_received_per_s: Number(((after.r - before.r) / wall).toFixed(1)),
     frames_drawn_per_s: Number(((after.d - before.d) / wall).toFixed(1)),

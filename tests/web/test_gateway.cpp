@@ -290,6 +290,20 @@ TEST_F(WebGateway, ControlErrorsNameTheField) {
   EXPECT_EQ((*scenes)["scenes"][0]["id"], "web");
 }
 
+TEST_F(WebGateway, ADeletedSceneEndsTheSubscriptionWithNotFound) {
+  Socket ws(web_->port(), "/ws?token=sesame");
+  ASSERT_TRUE(ws.ok()) << ws.error();
+  ws.send({{"type", "subscribe"}, {"scene", "web"}});
+  auto sub = ws.next_json("subscribed");
+  ASSERT_TRUE(sub);
+  ASSERT_TRUE(client_->delete_scene("web").ok());
+  auto ended = ws.next_json("ended");
+  ASSERT_TRUE(ended) << "the page is told when its scene goes away";
+  EXPECT_EQ((*ended)["code"], "NOT_FOUND") << ended->dump();
+  EXPECT_EQ((*ended)["scene"], "web");
+  EXPECT_EQ((*ended)["subscription"], (*sub)["subscription"]);
+}
+
 TEST_F(WebGateway, AWrongWebTokenIsRefused) {
   Socket none(web_->port(), "/ws");
   Socket wrong(web_->port(), "/ws?token=open");

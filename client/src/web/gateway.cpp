@@ -420,11 +420,13 @@ Gateway::~Gateway() { stop(); }
 
 void Gateway::start() {
   auto& o = impl_->options;
+  // The features that initialised: Debian 12's civetweb 1.15 loads OpenSSL at run time through
+  // the 1.1 API, which OpenSSL 3 lacks (SSL_get_peer_certificate), so TLS is usually missing.
   static const unsigned init = mg_init_library(MG_FEATURES_WEBSOCKET | MG_FEATURES_SSL);
-  (void)init;  // what it returns is not the feature set; mg_check_feature is
-  if (!mg_check_feature(MG_FEATURES_WEBSOCKET)) throw std::runtime_error("this civetweb was built without WebSockets");
-  if (!o.tls_cert.empty() && !mg_check_feature(MG_FEATURES_SSL))
-    throw std::runtime_error("--tls-cert given but this civetweb was built without TLS");
+  if (!(init & MG_FEATURES_WEBSOCKET)) throw std::runtime_error("this civetweb was built without WebSockets");
+  if (!o.tls_cert.empty() && !(init & MG_FEATURES_SSL))
+    throw std::runtime_error("--tls-cert: this civetweb could not load OpenSSL (Debian 12's civetweb 1.15 needs "
+                             "OpenSSL 1.1); terminate TLS in a reverse proxy in front of pliant-web (docs/deploy.md)");
   if (!o.tls_cert.empty() && !std::filesystem::is_regular_file(o.tls_cert))
     throw std::runtime_error("--tls-cert '" + o.tls_cert + "' is not a readable file");
   namespace fs = std::filesystem;

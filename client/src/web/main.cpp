@@ -30,7 +30,8 @@ its WebSocket, as a client of pliant-server. Open http://HOST:PORT/ in a browser
   --web-token TOKEN    browsers must open the page as /?token=TOKEN (default $PLIANT_WEB_TOKEN;
                        empty: no check, for loopback use)
   --tls-cert FILE      PEM holding the certificate chain and private key: serve HTTPS and WSS
-                       (default $PLIANT_WEB_TLS_CERT)
+                       (default $PLIANT_WEB_TLS_CERT). Needs a civetweb that loads OpenSSL;
+                       Debian 12's cannot (OpenSSL 3): use a TLS reverse proxy there
   --web-root DIR       the page's files (default $PLIANT_WEB_ROOT, else the installed or
                        source web/ directory)
   --three-dir DIR      three.js (default /usr/share/javascript/three, Debian libjs-three)
