@@ -304,6 +304,21 @@ TEST_F(WebGateway, ADeletedSceneEndsTheSubscriptionWithNotFound) {
   EXPECT_EQ((*ended)["subscription"], (*sub)["subscription"]);
 }
 
+TEST_F(WebGateway, AServerThatStopsEndsTheSubscriptionWithUnavailable) {
+  Socket ws(web_->port(), "/ws?token=sesame");
+  ASSERT_TRUE(ws.ok()) << ws.error();
+  ws.send({{"type", "subscribe"}, {"scene", "web"}});
+  ASSERT_TRUE(ws.next_json("subscribed"));
+  server_.reset();  // SIGTERM: the server ends its streams with UNAVAILABLE
+  auto ended = ws.next_json("ended", 10000ms);
+  ASSERT_TRUE(ended) << "the page is told when the server goes away";
+  EXPECT_EQ((*ended)["code"], "UNAVAILABLE") << ended->dump();
+  ws.send({{"type", "list"}});
+  auto e = ws.next_json("error");
+  ASSERT_TRUE(e);
+  EXPECT_EQ((*e)["code"], "UNAVAILABLE") << e->dump();
+}
+
 TEST_F(WebGateway, AWrongWebTokenIsRefused) {
   Socket none(web_->port(), "/ws");
   Socket wrong(web_->port(), "/ws?token=open");
