@@ -217,6 +217,7 @@ function connect() {
       buildMesh(topo);
     } else if (kind === KIND_FRAME) {
       applyFrame(ev.data);
+      send({ type: 'ack' });
     }
   };
 }
@@ -228,8 +229,10 @@ function subscribe(id) {
   for (const c of Object.values(charts)) c.clear();
   if (!id) return send({ type: 'unsubscribe' });
   state.subscribing = true;
+  // ack: the gateway sends a frame only when the page has handled the one before last, so a
+  // page that falls behind gets the latest frame, not a queue.
   send({ type: 'subscribe', scene: id, max_rate_hz: Number(params.get('rate') || 60),
-    encoding: params.get('encoding') || 'float32' });
+    encoding: params.get('encoding') || 'float32', ack: true });
 }
 
 function onControl(m) {

@@ -38,8 +38,8 @@ export class StripChart {
     let lo = Math.min(...ys), hi = Math.max(...ys);
     if (!this.log) lo = Math.min(lo, 0);
     if (hi - lo < 1e-12) { hi += 0.5; lo -= 0.5; }
-    ctx.fillText(this.log ? `1e${hi.toFixed(1)}` : fmt(hi), w - 52, 12);
-    ctx.fillText(this.log ? `1e${lo.toFixed(1)}` : fmt(lo), w - 52, h - 3);
+    ctx.fillText(this.log ? (10 ** hi).toExponential(2) : fmt(hi), w - 56, 12);
+    ctx.fillText(this.log ? (10 ** lo).toExponential(2) : fmt(lo), w - 56, h - 3);
     ctx.strokeStyle = this.color;
     ctx.lineWidth = 1.5;
     ctx.beginPath();
@@ -73,13 +73,13 @@ export class ResidualPlot {
     ctx.fillStyle = '#9aa5b1';
     ctx.font = '11px sans-serif';
     const n = this.values.length;
-    ctx.fillText(`residual per iteration (last tick, ${n} iterations)`, 4, 12);
+    ctx.fillText(`residual per iteration, last tick (${n})`, 4, 12);
     if (n === 0) return;
     const ys = Array.from(this.values, (v) => Math.log10(Math.max(v, 1e-30)));
     let lo = Math.min(...ys), hi = Math.max(...ys);
     if (hi - lo < 1e-9) { hi += 0.5; lo -= 0.5; }
-    ctx.fillText(`1e${hi.toFixed(1)}`, w - 52, 12);
-    ctx.fillText(`1e${lo.toFixed(1)}`, w - 52, h - 3);
+    ctx.fillText((10 ** hi).toExponential(2), w - 56, 12);
+    ctx.fillText((10 ** lo).toExponential(2), w - 56, h - 3);
     const top = 16, bottom = h - 4;
     ctx.strokeStyle = '#ffb74d';
     ctx.fillStyle = '#ffb74d';

@@ -271,6 +271,31 @@ TEST_F(WebGateway, TopologyFirstThenEveryTickOrACountedSkip) {
   EXPECT_EQ(code, 5) << "grab " << grab_id << " should be released (NOT_FOUND) once its socket closed";
 }
 
+TEST_F(WebGateway, AnAcknowledgingPageGetsTheLatestFrameNotAQueue) {
+  Socket ws(web_->port(), "/ws?token=sesame");
+  ASSERT_TRUE(ws.ok()) << ws.error();
+  ws.send({{"type", "subscribe"}, {"scene", "web"}, {"max_rate_hz", 0}, {"ack", true}});
+  ASSERT_TRUE(ws.next_json("subscribed"));
+  auto topo = ws.next();
+  ASSERT_TRUE(topo && topo->binary);
+  // Step one tick at a time until the two frames the window allows have arrived.
+  std::vector<pliant::web::FrameHeader> got;
+  for (int i = 0; i < 50 && got.size() < 2; ++i) {
+    ASSERT_TRUE(client_->step("web", 1).ok());
+    if (auto m = ws.next(200ms); m && m->binary) got.push_back(pliant::web::decode_frame_header(m->data));
+  }
+  ASSERT_EQ(got.size(), 2u);
+  for (int i = 0; i < 10; ++i) ASSERT_TRUE(client_->step("web", 1).ok());
+  const uint64_t last_tick = client_->get_scene("web")->tick();
+  EXPECT_FALSE(ws.next(500ms)) << "no frame goes out while two are unacknowledged";
+  ws.send({{"type", "ack"}});
+  auto m = ws.next();
+  ASSERT_TRUE(m && m->binary) << "an ack lets the latest frame go";
+  const auto h = pliant::web::decode_frame_header(m->data);
+  EXPECT_EQ(h.tick, last_tick);
+  EXPECT_EQ(h.tick - got.back().tick, 1 + h.skipped_frames) << "the frames it replaced are counted";
+}
+
 TEST_F(WebGateway, ControlErrorsNameTheField) {
   Socket ws(web_->port(), "/ws?token=sesame");
   ASSERT_TRUE(ws.ok()) << ws.error();

@@ -83,6 +83,32 @@ TEST(WebOutbox, AStalledReaderHoldsOneFrameWhateverTheProducerSends) {
   EXPECT_FALSE(box.take(0ms));
 }
 
+TEST(WebOutbox, WithFlowControlAFrameWaitsForTheBrowsersGrant) {
+  Outbox box;
+  box.clear_frame(2);  // at most 2 frames in the browser
+  box.put_frame(frame(1));
+  EXPECT_EQ(decode_frame_header(box.take(0ms)->bytes).tick, 1u);
+  box.put_frame(frame(2));
+  EXPECT_EQ(decode_frame_header(box.take(0ms)->bytes).tick, 2u);
+  box.put_frame(frame(3));
+  box.push_control({false, "reply"});
+  EXPECT_EQ(box.take(0ms)->bytes, "reply") << "control messages need no credit";
+  EXPECT_FALSE(box.take(0ms)) << "two frames unacknowledged: the third waits";
+  box.put_frame(frame(4));
+  box.put_frame(frame(5));
+  box.grant(1);
+  const FrameHeader h = decode_frame_header(box.take(0ms)->bytes);
+  EXPECT_EQ(h.tick, 5u);
+  EXPECT_EQ(h.skipped_frames, 2u) << "3 and 4 were replaced while the browser was behind";
+  box.grant(10);  // grants never exceed the window
+  box.put_frame(frame(6));
+  ASSERT_TRUE(box.take(0ms));
+  box.put_frame(frame(7));
+  ASSERT_TRUE(box.take(0ms));
+  box.put_frame(frame(8));
+  EXPECT_FALSE(box.take(0ms)) << "the window is 2 however much was granted";
+}
+
 TEST(WebOutbox, CloseWakesAWaitingWriter) {
   Outbox box;
   std::thread closer([&] {

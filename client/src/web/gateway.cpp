@@ -24,6 +24,8 @@ using nlohmann::json;
 namespace {
 
 constexpr int kProtocolVersion = 1;
+// Frames a page that acknowledges frames may have unacknowledged (one drawn, one arriving).
+constexpr uint32_t kAckWindow = 2;
 
 const char* state_name(int s) {
   switch (s) {
@@ -279,12 +281,16 @@ void Session::handle(const std::string& type, const json& m) {
                                 : client_.reset_scene(scene);
     if (!r.ok()) return fail(r.status);
     reply(json{{"type", "scene"}, {"scene", scene_json(*r)}});
+  } else if (type == "ack") {
+    uint64_t n = 1;
+    if (m.contains("frames")) n = uint_field(m, "frames");
+    outbox_.grant(static_cast<uint32_t>(std::min<uint64_t>(n, kAckWindow)));
   } else if (type == "ping") {
     reply(json{{"type", "pong"}});
   } else {
     reply(error_json(type, "INVALID_ARGUMENT",
                      "unknown message type '" + type +
-                         "' (list, subscribe, unsubscribe, grab, move, release, pause, resume, reset, ping)"));
+                         "' (list, subscribe, unsubscribe, ack, grab, move, release, pause, resume, reset, ping)"));
   }
 }
 
@@ -307,7 +313,14 @@ void Session::subscribe(const json& m) {
     else throw BadRequest("field 'encoding' must be \"float32\" or \"uint16\", got " + e.dump());
   }
 
+  bool ack = false;
+  if (m.contains("ack")) {
+    if (!m["ack"].is_boolean()) throw BadRequest("field 'ack' must be true or false, got " + m["ack"].dump());
+    ack = m["ack"];
+  }
+
   unsubscribe();
+  outbox_.clear_frame(ack ? kAckWindow : 0);
   auto topo = client_.topology(scene);
   if (!topo.ok()) {
     reply(error_json("subscribe", topo.status.code_name(), topo.status.message));
@@ -331,7 +344,8 @@ void Session::subscribe(const json& m) {
              {"surface_triangles", surface.triangles.size() / 3},
              {"body_vertices", surface.body_vertex_count},
              {"encoding", encoding == Encoding::Float32 ? "float32" : "uint16"},
-             {"max_rate_hz", rate}});
+             {"max_rate_hz", rate},
+             {"ack", ack}});
   outbox_.push_control({true, encode_topology(surface, sub)});
 
   v1::StreamFramesRequest req;

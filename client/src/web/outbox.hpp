@@ -3,6 +3,10 @@
 // way (and those the server had already skipped for them) are added to the skipped_frames of
 // the frame that is sent, so the page can show them. Memory per socket is bounded by one frame
 // plus the (small) control messages.
+//
+// With flow control on (the page asks for it), a frame is sent only while the browser has
+// credit: it grants one per frame it handled, so at most `window` frames wait in the browser
+// and a page that falls behind sees the latest frame and the skip count, not a growing queue.
 #pragma once
 
 #include "wire.hpp"
@@ -53,26 +57,44 @@ class Outbox {
     return replaced;
   }
 
-  // Forgets a pending frame and the drop count (a new subscription starts afresh).
-  void clear_frame() {
-    std::lock_guard lock(mu_);
-    frame_.reset();
-    dropped_ = 0;
+  // Forgets a pending frame and the drop count (a new subscription starts afresh); sets the
+  // flow control for the frames to come: window 0 sends whenever a frame is there, else at most
+  // `window` frames without a grant.
+  void clear_frame(uint32_t window = 0) {
+    {
+      std::lock_guard lock(mu_);
+      frame_.reset();
+      dropped_ = 0;
+      window_ = window;
+      credits_ = window;
+    }
+    cv_.notify_one();
+  }
+
+  // The browser handled n frames: as many more may be sent (never more than the window).
+  void grant(uint32_t n) {
+    {
+      std::lock_guard lock(mu_);
+      if (window_ == 0) return;
+      credits_ = std::min<uint64_t>(window_, uint64_t(credits_) + n);
+    }
+    cv_.notify_one();
   }
 
   // The next message to send, waiting at most `timeout`; nullopt on timeout or once closed.
   std::optional<OutMessage> take(std::chrono::milliseconds timeout) {
     std::unique_lock lock(mu_);
-    cv_.wait_for(lock, timeout, [&] { return closed_ || !control_.empty() || frame_; });
+    cv_.wait_for(lock, timeout, [&] { return closed_ || !control_.empty() || frame_ready(); });
     if (closed_) return std::nullopt;
     if (!control_.empty()) {
       OutMessage m = std::move(control_.front());
       control_.pop_front();
       return m;
     }
-    if (!frame_) return std::nullopt;
+    if (!frame_ready()) return std::nullopt;
     OutMessage m{true, std::move(*frame_)};
     frame_.reset();
+    if (window_ > 0) --credits_;
     add_skipped(m.bytes, dropped_);
     dropped_ = 0;
     return m;
@@ -95,6 +117,8 @@ class Outbox {
   }
 
  private:
+  bool frame_ready() const { return frame_ && (window_ == 0 || credits_ > 0); }
+
   static uint32_t skipped_of(const std::string& frame) {
     uint32_t s = 0;
     if (frame.size() >= kFrameSkippedOffset + 4) std::memcpy(&s, frame.data() + kFrameSkippedOffset, 4);
@@ -113,6 +137,8 @@ class Outbox {
   std::optional<std::string> frame_;
   uint64_t dropped_ = 0;
   uint64_t replaced_total_ = 0;
+  uint32_t window_ = 0;   // 0: no flow control
+  uint32_t credits_ = 0;  // frames that may be sent before the next grant
   bool closed_ = false;
 };
 
