@@ -138,7 +138,6 @@ class Session {
   GrabSet grabs_;
   std::thread writer_;
   std::atomic<bool> closed_{false};
-  std::atomic<bool> broken_{false};  // a write to the browser failed
 
   mutable std::mutex mu_;  // the subscription below
   std::string scene_;
@@ -401,13 +400,14 @@ void Session::stream_loop(std::shared_ptr<client::FrameStream> stream, uint32_t 
 void Session::writer_loop() {
   while (!closed_) {
     auto m = outbox_.take(std::chrono::milliseconds(200));
-    if (!m || broken_) continue;
+    if (!m) continue;
     const int opcode = m->binary ? MG_WEBSOCKET_OPCODE_BINARY : MG_WEBSOCKET_OPCODE_TEXT;
     if (mg_websocket_write(conn_, opcode, m->bytes.data(), m->bytes.size()) <= 0) {
-      broken_ = true;  // the browser went away or stopped reading past the timeout
+      // The browser went away or stopped reading past the timeout: nothing more is sent; the
+      // socket's close releases the rest.
       spdlog::warn("web: a socket write failed; dropping what is left for it");
       outbox_.close();
-      continue;
+      break;
     }
     if (m->binary && !m->bytes.empty() && m->bytes[0] == static_cast<char>(kKindFrame)) ++gw_.frames_sent;
   }
