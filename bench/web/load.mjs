@@ -1,8 +1,9 @@
 // Load on pliant-web without browsers: raw WebSocket clients (node's net, no packages) on one
 // realtime scene. Prints one JSON line:
 //   lateness_p99_ms with 1 reading client, then with 10 (the server's tick lateness, from the
-//   frames' headers: does fan-out cost the tick anything?), and pliant-web's RSS every 5 s while
-//   one client subscribes and never reads (does a stalled browser grow memory?).
+//   frames' headers: does fan-out cost the tick anything?), the latency from the end of a tick
+//   to the frame's arrival at the clients (p50/p99), and pliant-web's RSS every 5 s while one
+//   client subscribes and never reads (does a stalled browser grow memory?).
 //
 //   node bench/web/load.mjs --server BIN --web BIN --cli BIN --web-root DIR
 //        [--mesh armadillo] [--create-flags="..."] [--seconds 20] [--stall-seconds 60]
@@ -54,6 +55,7 @@ function start(argv) {
 class RawSocket {
   constructor(port, path) {
     this.frames = [];          // lateness_ms of each frame received
+    this.latencies = [];       // ms from the end of its tick to its arrival here
     this.bytes = 0;
     this.buf = Buffer.alloc(0);
     this.open = new Promise((resolve, reject) => {
@@ -97,17 +99,22 @@ class RawSocket {
       this.buf = this.buf.subarray(off + len);
       this.bytes += len;
       if (op === 9) this.send(p.toString('latin1'), 10);           // ping -> pong
-      else if (op === 2 && p[0] === 2) this.frames.push(p.readDoubleLE(80));
+      else if (op === 2 && p[0] === 2) {
+        this.frames.push(p.readDoubleLE(80));
+        const nowNs = (performance.timeOrigin + performance.now()) * 1e6;
+        this.latencies.push((nowNs - Number(p.readBigInt64LE(88))) / 1e6);
+      }
     }
   }
   stall() { this.sock.pause(); }
   close() { this.sock.destroy(); }
 }
 
-function p99(xs) {
+function quantile(xs, q) {
   const s = [...xs].sort((a, b) => a - b);
-  return s.length ? s[Math.min(s.length - 1, Math.floor(0.99 * s.length))] : NaN;
+  return s.length ? s[Math.min(s.length - 1, Math.floor(q * s.length))] : NaN;
 }
+const p99 = (xs) => quantile(xs, 0.99);
 const rssKb = (pid) => Number(readFileSync(`/proc/${pid}/status`, 'utf8').match(/VmRSS:\s+(\d+)/)[1]);
 
 const server = await start([args.server, '--listen', '127.0.0.1:0', '--data-dir', join(dir, 'data'), '--log-level', 'info']);
@@ -130,10 +137,12 @@ async function phase(n) {
     socks.push(s);
   }
   await sleep(2000);  // warm up
-  for (const s of socks) s.frames.length = 0;
+  for (const s of socks) { s.frames.length = 0; s.latencies.length = 0; }
   await sleep(seconds * 1000);
+  const lat = socks.flatMap((s) => s.latencies);
   const r = { clients: n, frames_per_client_per_s: Number((socks[0].frames.length / seconds).toFixed(1)),
-    lateness_p99_ms: Number(p99(socks[0].frames).toFixed(2)) };
+    lateness_p99_ms: Number(p99(socks[0].frames).toFixed(2)),
+    latency_p50_ms: Number(quantile(lat, 0.5).toFixed(2)), latency_p99_ms: Number(p99(lat).toFixed(2)) };
   for (const s of socks) s.close();
   await sleep(500);
   return r;
