@@ -292,9 +292,10 @@ if command -v podman-compose >/dev/null; then
   printf '[storage]\ndriver = "overlay"\ngraphroot = "%s"\nrunroot = "%s"\n' "$CACHE/storage" "$CACHE/run" \
     > "$TMPD/storage.conf"
   PROJ=pliant-smoke-$$
+  WEB_PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
   compose() {
     $SUDO env CONTAINERS_CONF="$CACHE/containers.conf" CONTAINERS_STORAGE_CONF="$TMPD/storage.conf" \
-      PLIANT_PORT="$PORT" PLIANT_DEMO_SECONDS=3 PLIANT_TOKEN="$TOKEN" \
+      PLIANT_PORT="$PORT" PLIANT_WEB_PORT="$WEB_PORT" PLIANT_DEMO_SECONDS=3 PLIANT_TOKEN="$TOKEN" \
       podman-compose -p "$PROJ" -f compose.yaml "$@"
   }
   compose_cleanup() {  # like `compose down`, plus the anonymous volume the demo's VOLUME got
@@ -318,7 +319,15 @@ if command -v podman-compose >/dev/null; then
     || { cat "$TMPD/demo.log" >&2; die "compose demo client: $st"; }
   PLIANT_ADDRESS=127.0.0.1:$PORT PLIANT_TOKEN=$TOKEN "$TMPD/pliant" scenes get demo >/dev/null \
     || die "the compose server's published port 127.0.0.1:$PORT does not answer"
-  say "compose.yaml: server healthy, demo created and watched a scene, published port answers"
+  # The viewer (service web): its page on the published port.
+  page=""
+  for i in $(seq 1 30); do
+    page=$(python3 -c 'import sys,urllib.request; print(urllib.request.urlopen(sys.argv[1], timeout=2).read().decode())' \
+      "http://127.0.0.1:$WEB_PORT/" 2>/dev/null) && break
+    sleep 1
+  done
+  case $page in *"Pliant viewer"*) ;; *) "${P[@]}" logs "${PROJ}_web_1" >&2 || true; die "compose web: no page on 127.0.0.1:$WEB_PORT" ;; esac
+  say "compose.yaml: server healthy, demo created and watched a scene, published port answers, viewer page served"
   compose_cleanup; trap cleanup EXIT
 else
   say "NOTE: podman-compose not installed: compose.yaml not exercised (apt-get install podman-compose)"

@@ -8,9 +8,10 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libeigen3-dev libspdlog-dev libfmt-dev
       libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
       libassimp-dev libgtest-dev libgmock-dev libbenchmark-dev
-      tetgen gnuplot-nox python3-yaml)
+      tetgen gnuplot-nox python3-yaml
+      libcivetweb-dev nlohmann-json3-dev libjs-three chromium)
 # Needed only by tests, benchmarks and tools, not to build the programs; left out by --no-dev.
-DEV_ONLY=(libgtest-dev libgmock-dev libbenchmark-dev tetgen gnuplot-nox python3-yaml)
+DEV_ONLY=(libgtest-dev libgmock-dev libbenchmark-dev tetgen gnuplot-nox python3-yaml chromium)
 if [ "${1:-}" = --no-dev ]; then
   keep=()
   for p in "${PKGS[@]}"; do [[ " ${DEV_ONLY[*]} " == *" $p "* ]] || keep+=("$p"); done
@@ -22,11 +23,13 @@ for p in "${PKGS[@]}"; do
 done
 if [ ${#missing[@]} -eq 0 ]; then
   echo "deps: all ${#PKGS[@]} packages present"
-  exit 0
+else
+  echo "deps: installing ${missing[*]}"
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  echo "deps: done"
 fi
-echo "deps: installing ${missing[*]}"
-SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
-export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-echo "deps: done"
+# The viewer's browser test: node and the npm package playwright-core (pinned).
+[ "${1:-}" = --no-dev ] || bash "$(dirname "$0")/web-test-deps.sh"

@@ -298,7 +298,10 @@ def check_compose(doc, image, rep):
             if exposed and int(inner) not in exposed:
                 rep.err(sw, f"publishes container port {inner}, the image exposes {sorted(exposed)}")
         mounts = [str(v).split(":")[1] for v in get(svc, "volumes", []) or [] if ":" in str(v)]
-        if get(svc, "ports") and image_volumes and not set(image_volumes) & set(mounts):
+        # The server (the image's own entrypoint) keeps its state on a volume; a service that
+        # runs another program of the image (pliant-web) has none to keep.
+        runs_server = not get(svc, "entrypoint")
+        if get(svc, "ports") and runs_server and image_volumes and not set(image_volumes) & set(mounts):
             rep.err(sw, f"server has no named volume on {sorted(image_volumes)}")
     if services and not healthchecked:
         rep.err(where, "no service has a healthcheck")
@@ -364,7 +367,7 @@ def self_test(k8s_docs, compose_doc, image):
         "readiness probe missing": ("readinessProbe should ask the gRPC health service",
             lambda d, c: server(d).pop("readinessProbe")),
         "container port not the image's": ("exposes none of the image's ports",
-            lambda d, c: [p.update(containerPort=8080) for p in server(d)["ports"]]),
+            lambda d, c: [p.update(containerPort=9999) for p in server(d)["ports"]]),
         "mount of undeclared volume": ("volumeMount nope refers to no declared volume",
             lambda d, c: server(d)["volumeMounts"][0].update(name="nope")),
         "claim of undeclared PVC": ("claims PersistentVolumeClaim 'nope', not declared",
@@ -398,9 +401,9 @@ def self_test(k8s_docs, compose_doc, image):
             .update(depends_on={"nope": {"condition": "service_started"}})),
         "compose server without healthcheck": ("has no healthcheck",
             lambda d, c: [s.pop("healthcheck", None) for s in c["services"].values()]),
-        "compose publishes another port": ("publishes container port 8080",
+        "compose publishes another port": ("publishes container port 9999",
             lambda d, c: next(s for s in c["services"].values() if s.get("ports"))
-            .update(ports=["8080:8080"])),
+            .update(ports=["9999:9999"])),
     }
     failures = []
     baseline = validate(k8s_docs, compose_doc, image)

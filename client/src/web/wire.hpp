@@ -1,0 +1,83 @@
+// The binary messages pliant-web sends to the browser (docs/web.md, "Binary messages"): the
+// topology once per subscription and one frame per tick shown. Little-endian, every array
+// 4-byte aligned so the page views positions in place (Float32Array over the message).
+#pragma once
+
+#include "pliant/v1/pliant.pb.h"
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace pliant::web {
+
+inline constexpr uint8_t kWireVersion = 1;
+inline constexpr uint8_t kKindTopology = 1;
+inline constexpr uint8_t kKindFrame = 2;
+inline constexpr size_t kTopologyHeaderBytes = 24;
+inline constexpr size_t kFrameHeaderBytes = 128;
+// Byte offset of the frame header's skipped_frames (u32): the socket's send slot adds the
+// frames it dropped there when it sends (see Outbox).
+inline constexpr size_t kFrameSkippedOffset = 48;
+
+enum class Encoding : uint8_t { Float32 = 0, Quantized16 = 1 };
+
+// The surface of a body as the page draws it: triangles index the surface vertices, which map
+// to body vertices (for grabs); fixed vertices are surface-local indices.
+struct SurfaceTopology {
+  uint32_t body_vertex_count = 0;
+  std::vector<uint32_t> triangles;         // 3 per triangle, surface-local
+  std::vector<uint32_t> surface_to_body;   // surface vertex -> body vertex
+  std::vector<uint32_t> fixed;             // surface-local indices of fixed vertices
+  std::vector<float> rest_positions;       // 3 per surface vertex
+
+  uint32_t surface_vertex_count() const { return static_cast<uint32_t>(surface_to_body.size()); }
+};
+
+// Builds the surface view of a server topology. Throws std::invalid_argument when a triangle
+// uses a vertex that is not in surface_vertices or an index is out of range.
+SurfaceTopology surface_topology(const v1::Topology& topology);
+
+std::string encode_topology(const SurfaceTopology& topology, uint32_t subscription);
+SurfaceTopology decode_topology(const std::string& bytes, uint32_t* subscription = nullptr);
+
+// The fixed frame header, as decoded (and as the page reads it).
+struct FrameHeader {
+  Encoding encoding = Encoding::Float32;
+  uint8_t state = 0;  // v1::SceneState
+  uint32_t subscription = 0;
+  uint32_t vertex_count = 0;
+  uint32_t residual_count = 0;
+  uint64_t tick = 0;
+  double sim_time = 0;
+  uint64_t late_ticks = 0;
+  uint64_t skipped_ticks = 0;
+  uint32_t skipped_frames = 0;
+  uint32_t iterations = 0;
+  double ticks_per_second = 0;
+  double residual = 0;
+  double step_ms = 0;
+  double lateness_ms = 0;
+  int64_t published_unix_ns = 0;
+  uint32_t rollbacks = 0;
+  uint32_t flags = 0;  // bit 0: this tick was rolled back
+  std::array<float, 3> bbox_min{};
+  std::array<float, 3> bbox_max{};
+};
+
+// Encodes a surface-only frame (positions in surface_vertices order). Throws
+// std::invalid_argument when positions is not 3 x expected_vertices floats (0 allowed: a
+// frame without positions).
+std::string encode_frame(const v1::Frame& frame, uint32_t subscription, Encoding encoding,
+                         uint32_t expected_vertices);
+
+FrameHeader decode_frame_header(const std::string& bytes);
+// Residuals and positions of an encoded frame (16-bit positions dequantised).
+std::vector<float> decode_frame_residuals(const std::string& bytes);
+std::vector<float> decode_frame_positions(const std::string& bytes);
+
+// Bytes of one frame with n surface vertices and r residuals.
+size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding);
+
+}  // namespace pliant::web

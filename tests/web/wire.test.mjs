@@ -1,0 +1,81 @@
+// The page's decoder (web/wire.js) against the golden bytes the C++ encoder is tested against
+// (golden/*.hex): the same frame and topology, field by field.
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { readFileSync } from 'node:fs';
+import { fileURLToPath } from 'node:url';
+import { decodeFrame, decodeFrameHeader, decodeTopology, frameBytes, messageKind, KIND_FRAME, KIND_TOPOLOGY }
+  from '../../web/wire.js';
+
+function golden(name) {
+  const hex = readFileSync(fileURLToPath(new URL(`golden/${name}`, import.meta.url)), 'utf8').split(/\s+/).filter(Boolean);
+  const bytes = new Uint8Array(hex.map((h) => parseInt(h, 16)));
+  return bytes.buffer;
+}
+
+const positions = [0.0, -0.01, 0.005, 0.1, 0.0, 0.01, 0.05, 0.02, 0.0];
+
+function checkHeader(h, encoding) {
+  assert.equal(h.encoding, encoding);
+  assert.equal(h.state, 'running');
+  assert.equal(h.subscription, 9);
+  assert.equal(h.vertexCount, 3);
+  assert.equal(h.residualCount, 2);
+  assert.equal(h.tick, 42);
+  assert.equal(h.simTime, 0.7);
+  assert.equal(h.lateTicks, 7);
+  assert.equal(h.skippedTicks, 5);
+  assert.equal(h.skippedFrames, 3);
+  assert.equal(h.iterations, 8);
+  assert.equal(h.ticksPerSecond, 60);
+  assert.equal(h.residual, 0.125);
+  assert.equal(h.stepMs, 1.5);
+  assert.equal(h.latenessMs, 0.25);
+  assert.equal(h.publishedUnixNs, 1700000000123456789n);
+  assert.equal(h.rollbacks, 2);
+  assert.equal(h.rolledBack, true);
+  assert.deepEqual(h.bboxMin, [0, Math.fround(-0.01), 0]);
+  assert.deepEqual(h.bboxMax, [Math.fround(0.1), Math.fround(0.02), Math.fround(0.01)]);
+}
+
+test('float32 frame: header, residuals and positions viewed in place', () => {
+  const buf = golden('frame_float32.hex');
+  assert.equal(messageKind(buf), KIND_FRAME);
+  assert.equal(buf.byteLength, frameBytes(3, 2, 0));
+  const { header, residuals, positions: p } = decodeFrame(buf);
+  checkHeader(header, 0);
+  assert.deepEqual(Array.from(residuals), [0.5, 0.125]);
+  assert.equal(p.buffer, buf, 'positions are a view over the message, not a copy');
+  assert.deepEqual(Array.from(p), positions.map(Math.fround));
+});
+
+test('16-bit frame: dequantised within half a step of the bounding box', () => {
+  const buf = golden('frame_uint16.hex');
+  assert.equal(buf.byteLength, frameBytes(3, 2, 1));
+  const { header, positions: p } = decodeFrame(buf);
+  checkHeader(header, 1);
+  for (let i = 0; i < 9; ++i) {
+    const k = i % 3;
+    const step = (header.bboxMax[k] - header.bboxMin[k]) / 65535;
+    assert.ok(Math.abs(p[i] - positions[i]) <= 0.5 * step + 1e-7, `value ${i}: ${p[i]} vs ${positions[i]}`);
+  }
+});
+
+test('topology: surface-local triangles, the body map, fixed vertices, rest positions', () => {
+  const buf = golden('topology.hex');
+  assert.equal(messageKind(buf), KIND_TOPOLOGY);
+  const t = decodeTopology(buf);
+  assert.equal(t.subscription, 9);
+  assert.equal(t.surfaceVertices, 4);
+  assert.equal(t.bodyVertices, 5);
+  assert.deepEqual(Array.from(t.triangles), [0, 1, 2, 0, 2, 3, 0, 3, 1, 1, 3, 2]);
+  assert.deepEqual(Array.from(t.surfaceToBody), [0, 1, 3, 4]);
+  assert.deepEqual(Array.from(t.fixed), [1]);
+  assert.deepEqual(Array.from(t.rest.slice(6, 9)), [3, 3.25, 3.5]);
+});
+
+test('truncated or foreign messages are refused with the reason', () => {
+  const buf = golden('frame_float32.hex');
+  assert.throws(() => decodeFrameHeader(buf.slice(0, buf.byteLength - 4)), /bytes, its header says/);
+  assert.throws(() => decodeTopology(buf), /message kind 2, expected 1/);
+});
