@@ -10,9 +10,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD_DIR=${BUILD_DIR:-build}
 JOBS=${JOBS:-$(nproc)}
-DURATION=""; MESH=beam1; RATE=60; PORT=${PLIANT_DEMO_PORT:-50051}; METHOD=anderson-sor; JSON=""
+DURATION=""; MESH=beam1; RATE=60; PORT=${PLIANT_DEMO_PORT:-50051}; METHOD=auto; JSON=""
 WEB_PORT=${PLIANT_DEMO_WEB_PORT:-8080}
-SUBSTEPS=4; ITERATIONS=4
+# Method auto: the server measures its solvers on the beam and keeps the most accurate within
+# half the tick (the choice shows in `pliant scenes get demo`). --substeps/--iterations pin a budget.
+SUBSTEPS=""; ITERATIONS=
 while [ $# -gt 0 ]; do
   case "$1" in
     --duration) DURATION=$2; shift 2 ;;
@@ -64,8 +66,10 @@ for _ in $(seq 100); do
   sleep 0.1
 done
 
-"${CLI[@]}" scenes create demo --mesh "$MESH" --fix-x-below 0.001 --rate "$RATE" --method "$METHOD" \
-  --substeps "$SUBSTEPS" --iterations "$ITERATIONS"
+BUDGET=()
+[ -n "$SUBSTEPS" ] && BUDGET+=(--substeps "$SUBSTEPS")
+[ -n "$ITERATIONS" ] && BUDGET+=(--iterations "$ITERATIONS")
+"${CLI[@]}" scenes create demo --mesh "$MESH" --fix-x-below 0.001 --rate "$RATE" --method "$METHOD" "${BUDGET[@]}"
 WEB_LOG="$BUILD_DIR/demo-web.log"
 "$BUILD_DIR/client/pliant-web" --listen "127.0.0.1:$WEB_PORT" --address "127.0.0.1:$PORT" >"$WEB_LOG" 2>&1 &
 WEB_PID=$!
