@@ -90,7 +90,8 @@ common options:
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
 accuracy:  --methods LIST  --budget-ms T (default 100)  --start bend|sag (default bend)
-           --csv-dir DIR  --png FILE  --dynamic  --max-steps K (default 600)  --bend-mm D
+           --csv-dir DIR  --png FILE  --dynamic  --substep-floor  --max-steps K (default 600)
+           --bend-mm D
            bend: the bent cantilever at rest as converge, gravity off; sag: the clamped body
            at rest in its rest shape, gravity on (the first step of a sag).
            LIST: comma-separated specs METHOD:SUBSTEPSxITERATIONS[:KEY=VALUE...], N in one of
@@ -99,17 +100,17 @@ accuracy:  --methods LIST  --budget-ms T (default 100)  --start bend|sag (defaul
            keys: omega window sweep form rho gamma delay relaxation cond floor line-search.
            1xN records every iteration of one step (hook time excluded); other N specs run
            the whole step for N = 1, 2, 3, 4, 6, 8, 11, 16, ... until a run takes T ms; a fixed
-           spec is one point. Every time is the fastest of up to 3 runs (a loaded machine's
-           noise only adds). A method the build refuses (validate)
+           spec is one point. Every time is the fastest of up to 3 runs (per iteration for
+           1xN: a loaded machine's noise only adds). A method the build refuses (validate)
            is reported with "refused" and the others still run. --csv-dir writes one CSV per
            spec (ms, iterations, substeps, error, residual) and DIR/true_error_vs_ms.png
            (log-log, gnuplot) unless --png names it. --dynamic adds, per fixed spec, the rest
            shape under gravity (damping 5/s, as static --damping 5) as rest_tip_ratio = |tip| /
            |Newton static tip|, and first_turn_s and first_turn_ratio: the tip's first swing
            turn (damping --damping) over that of a converged run (wave Courant 0.3 x 1).
-           Specs with a fixed substep count S in 2..256 also get substep_floor: the error of S
-           converged substeps (Newton each) against the one-step x*, which no iteration count
-           of that spec can go below.
+           --substep-floor adds, for specs with a fixed substep count S in 2..256,
+           substep_floor: the error of S converged substeps (S Newton solves) against the
+           one-step x*, which no iteration count of that spec can go below.
 static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)
 converge, static, reference, run: the JSON has "model" (the strain model); converge also
            "tet_order".
@@ -130,7 +131,7 @@ const std::set<std::string> kValued = {
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
     "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model",
     "methods", "budget-ms", "start", "csv-dir", "png", "tet-order", "seed"};
-const std::set<std::string> kFlags = {"help", "progress", "no-line-search", "dynamic"};
+const std::set<std::string> kFlags = {"help", "progress", "no-line-search", "dynamic", "substep-floor"};
 
 // A JSON object written field by field, numbers in full precision, nan/inf as null.
 class JsonLine {
@@ -556,21 +557,34 @@ void write_accuracy_csv(const std::filesystem::path& path, const AccuracyCurve& 
   }
 }
 
-// One log-log plot of the true error against ms, a curve per measured spec (colour, dash and
-// point type all vary, so curves stay apart in print too). Returns false when gnuplot failed.
-bool plot_accuracy(const std::string& png, const std::string& title,
-                   const std::vector<std::pair<std::string, std::string>>& curves) {
+// One log-log plot of the true error against ms, a curve per measured spec: colour, dash and
+// point type all vary (so curves stay apart in print too), markers thinned to about 20 per
+// curve. Returns false when gnuplot failed.
+struct PlottedCurve {
+  std::string title, csv;
+  size_t points = 0;
+  double max_error = 0;
+};
+bool plot_accuracy(const std::string& png, const std::string& title, const std::vector<PlottedCurve>& curves) {
+  static const char* kColours[] = {"#1b9e77", "#d95f02", "#7570b3", "#e7298a", "#66a61e", "#e6ab02",
+                                   "#a6761d", "#1f78b4", "#e31a1c", "#000000", "#6a3d9a", "#b15928"};
   const std::filesystem::path script = std::filesystem::path(png).replace_extension(".gp");
+  double top = 1.0;
+  for (const PlottedCurve& c : curves)
+    if (std::isfinite(c.max_error)) top = std::max(top, c.max_error);
   {
     std::ofstream g(script);
     if (!g) return false;
-    g << "set datafile separator ','\nset terminal pngcairo size 960,600 font ',10'\n"
+    g << "set datafile separator ','\nset terminal pngcairo size 1000,620 font ',10'\n"
       << "set output '" << png << "'\nset logscale xy\nset grid\nset key outside right\n"
+      << "set yrange [*:" << 1.3 * top << "]\n"
       << "set title \"" << title << "\"\nset xlabel 'wall time of the step (ms)'\n"
       << "set ylabel '||x - x*|| / ||x0 - x*||  (x*: Newton step)'\nplot ";
     for (size_t i = 0; i < curves.size(); ++i) {
-      g << (i ? ", \\\n     " : "") << "'" << curves[i].second << "' using 1:($4 > 0 ? $4 : 1/0) with linespoints lw 2 lc "
-        << i + 1 << " dt " << i % 5 + 1 << " pt " << i % 13 + 1 << " ps 1.2 title '" << curves[i].first << "'";
+      const size_t every = std::max<size_t>(1, curves[i].points / 20);
+      g << (i ? ", \\\n     " : "") << "'" << curves[i].csv << "' using 1:($4 > 0 ? $4 : 1/0) with linespoints lw 2 lc rgb '"
+        << kColours[i % 12] << "' dt " << i % 5 + 1 << " pt " << i % 13 + 1 << " ps 1.3 pi " << every << " title '"
+        << curves[i].title << "'";
     }
     g << "\n";
   }
@@ -638,7 +652,7 @@ int cmd_accuracy(const cli::Args& a) {
     plot_dir = std::filesystem::temp_directory_path() / ("pliant-accuracy-" + std::to_string(::getpid()));
   if (!plot_dir.empty()) std::filesystem::create_directories(plot_dir);
 
-  std::vector<std::pair<std::string, std::string>> plotted;
+  std::vector<PlottedCurve> plotted;
   std::map<int, std::vector<Vec3>> floors;  // converged substeps by count
   constexpr int kMaxFloorSubsteps = 256;    // Newton solves per floor: bounded
   std::string methods_json = "[";
@@ -669,11 +683,14 @@ int cmd_accuracy(const cli::Args& a) {
     if (!plot_dir.empty() && !c.points.empty()) {
       const auto path = plot_dir / spec_file_name(spec.text);
       write_accuracy_csv(path, c);
-      plotted.emplace_back(spec.text, path.string());
+      double worst = 0;
+      for (const AccuracyPoint& p : c.points) worst = std::max(worst, p.error);
+      plotted.push_back({spec.text, path.string(), c.points.size(), worst});
       if (!csv_dir.empty()) m.add("csv", path.string());
     }
     // The floor of a fixed substep count: its converged substeps against the one-step x*.
-    if (c.refused.empty() && !spec.substeps_grow && s.substeps > 1 && s.substeps <= kMaxFloorSubsteps) {
+    if (a.has("substep-floor") && c.refused.empty() && !spec.substeps_grow && s.substeps > 1 &&
+        s.substeps <= kMaxFloorSubsteps) {
       auto& floor = floors[s.substeps];
       if (floor.empty()) floor = converged_substeps(*model, start, s, s.substeps);
       m.add("substep_floor", relative_error(floor, start.state.x, ref.x));

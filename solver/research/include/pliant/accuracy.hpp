@@ -74,7 +74,8 @@ struct AccuracyCurve {
 // iterations grow runs with the iteration hook (a point per iteration, hook time excluded);
 // other growing specs run the whole step for N = 1, 2, 3, 4, 6, 8, 11, 16, ... (about x sqrt 2)
 // until a run takes budget_ms or more; a fixed spec is one point. Times are the fastest of up
-// to 3 runs (repeats of the whole-step runs only while they fit in the budget).
+// to 3 runs (repeats of the whole-step runs only while they fit in the budget; for the hook
+// runs, the fastest of each iteration's durations, summed).
 AccuracyCurve measure_accuracy(const BodyModel& model, const AccuracyStart& start,
                                const std::vector<Vec3>& x_star, const MethodSpec& spec, double budget_ms);
 
