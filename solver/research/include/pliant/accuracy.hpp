@@ -75,7 +75,8 @@ struct AccuracyCurve {
 // other growing specs run the whole step for N = 1, 2, 3, 4, 6, 8, 11, 16, ... (about x sqrt 2)
 // until a run takes budget_ms or more; a fixed spec is one point. Times are the fastest of up
 // to 3 runs (repeats of the whole-step runs only while they fit in the budget; for the hook
-// runs, the fastest of each iteration's durations, summed).
+// runs, the fastest of each iteration's durations, summed, and as many iterations as fill the
+// budget that way).
 AccuracyCurve measure_accuracy(const BodyModel& model, const AccuracyStart& start,
                                const std::vector<Vec3>& x_star, const MethodSpec& spec, double budget_ms);
 
