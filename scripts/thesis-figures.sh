@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Regenerates the solver figures in docs/solver.md and the README from the built tools:
 #   bash scripts/thesis-figures.sh [BUILD_DIR]
-# Writes docs/data/*.csv|*.jsonl and docs/img/*.png (gnuplot). Takes a few minutes on 2 cores;
-# progress goes to stderr.
+# Writes docs/data/*.csv|*.jsonl and docs/img/*.png (gnuplot). Takes a few minutes on 2 cores,
+# plus about 10 for the sequential-sweep runs (armadillo included; SKIP_SEQUENTIAL=1 skips them)
+# and 5 for the accuracy table (SKIP_ACCURACY=1); progress goes to stderr.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 B=${1:-build}

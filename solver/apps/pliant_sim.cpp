@@ -224,10 +224,6 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   return s;
 }
 
-// Omega when the user gives none: 1 for the plain methods, the ones we measured as robust
-// for the relaxed ones (docs/solver.md has the sweep that chose them).
-double default_omega(Method m) { return recommended_omega(m); }
-
 std::shared_ptr<const BodyModel> load_model(const cli::Args& a, const Material& mat, std::optional<double> fix_x) {
   const std::string spec = a.str("mesh", "");
   if (spec.empty()) throw cli::UsageError("--mesh is required (beam1, beam2, beam3, a model name or a mesh file)");
@@ -255,7 +251,7 @@ int cmd_converge(const cli::Args& a) {
   s.iterations = 600;
   s.gravity.setZero();
   s = settings_from(a, s);
-  if (!a.has("omega")) s.omega = default_omega(s.method);
+  if (!a.has("omega")) s.omega = recommended_omega(s.method);
   s.substeps = 1;
   const double h = s.dt;
   const double bend = a.number("bend-mm", 10.0) * 1e-3;
@@ -322,7 +318,7 @@ int cmd_converge(const cli::Args& a) {
     if (!mm) throw cli::UsageError("--match: unknown method '" + *match + "'");
     SolverSettings base = s;
     base.method = *mm;
-    base.omega = default_omega(*mm);
+    base.omega = recommended_omega(*mm);
     const ConvergenceRun b = run_convergence(*model, x0, ref.x, h, base);
     const double target = b.report.residual_final;
     long it_match = -1;
@@ -358,7 +354,7 @@ int cmd_static(const cli::Args& a) {
   s.damping = Damping::Simple;
   s.damping_coefficient = 50.0;
   s = settings_from(a, s);
-  if (!a.has("omega")) s.omega = default_omega(s.method);
+  if (!a.has("omega")) s.omega = recommended_omega(s.method);
   const int substeps = effective_substeps(*model, s);
   spdlog::info("static: {} substeps of {:.3g} s (c_p {:.3g} m/s), {} iterations", substeps, s.dt / substeps,
                pressure_wave_speed(*model), s.iterations);
@@ -407,7 +403,7 @@ int cmd_run(const cli::Args& a) {
   const Material mat = material_from(a);
   auto model = load_model(a, mat, a.number("fix-x-max"));
   SolverSettings s = settings_from(a, SolverSettings{});
-  if (!a.has("omega")) s.omega = default_omega(s.method);
+  if (!a.has("omega")) s.omega = recommended_omega(s.method);
   const int substeps = effective_substeps(*model, s);
   const int steps = int(a.integer("steps", 60, 1, 10000000));
   const int every = int(a.integer("every", 1, 1, 10000000));
