@@ -183,8 +183,21 @@ Mat9 corotated_stress_derivative(const Mat3& F, const Mat3& R, const Lame& lame)
 
 }  // namespace
 
-void strain_energy_derivatives(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x,
-                               Vec12* gradient, Mat12* hessian, bool project_psd, ElasticModel model) {
+namespace {
+
+// Clamps the negative eigenvalues of a symmetric matrix to zero.
+template <int N>
+Eigen::Matrix<double, N, N> clamp_to_psd(const Eigen::Matrix<double, N, N>& A) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> eig(A);
+  const Eigen::Matrix<double, N, 1> ev = eig.eigenvalues().cwiseMax(0.0);
+  return eig.eigenvectors() * ev.asDiagonal() * eig.eigenvectors().transpose();
+}
+
+// How the Hessian is made positive semi-definite.
+enum class Psd { None, Whole, Parts };
+
+void derivatives(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x, Vec12* gradient,
+                 Mat12* hessian, Psd psd, ElasticModel model) {
   const Vec6 C = strain_constraint(tet, x, model);
   const Mat6x12 J = strain_jacobian(tet, x, model);
   const Vec6 KC = K * C;
@@ -197,7 +210,8 @@ void strain_energy_derivatives(const TetRest& tet, const Mat6& K, const std::arr
     // K holds the Lame parameters: K(0,1) = lambda, K(3,3) = mu.
     const Lame lame{K(0, 1), K(3, 3)};
     const Mat3 F = deformation_gradient(tet, x);
-    const Mat9 T = corotated_stress_derivative(F, polar_rotation(F), lame);
+    Mat9 T = corotated_stress_derivative(F, polar_rotation(F), lame);
+    if (psd == Psd::Parts) T = clamp_to_psd<9>(T);
     Eigen::Matrix<double, 9, 12> D = Eigen::Matrix<double, 9, 12>::Zero();
     for (int k = 0; k < 4; ++k)
       for (int i = 0; i < 3; ++i)
@@ -205,7 +219,9 @@ void strain_energy_derivatives(const TetRest& tet, const Mat6& K, const std::arr
     H = tet.volume * D.transpose() * T * D;
   } else {
     H = J.transpose() * K * J;
-    // Second derivatives of C: each row is sqrt(V0) times a bilinear form in the b_k, times I3.
+    // Second derivatives of C: each row is sqrt(V0) times a bilinear form in the b_k, times I3,
+    // so the whole term is sqrt(V0) G (x) I3 with G a 4x4 matrix.
+    Eigen::Matrix4d G;
     for (int k = 0; k < 4; ++k)
       for (int l = 0; l < 4; ++l) {
         double w = 0;
@@ -214,15 +230,26 @@ void strain_energy_derivatives(const TetRest& tet, const Mat6& K, const std::arr
           const int a = kShearA[s], c = kShearB[s];
           w += KC[3 + s] * (b[k][a] * b[l][c] + b[k][c] * b[l][a]);
         }
-        H.block<3, 3>(3 * k, 3 * l).diagonal().array() += tet.sqrt_volume * w;
+        G(k, l) = w;
       }
+    if (psd == Psd::Parts) G = clamp_to_psd<4>(G);
+    for (int k = 0; k < 4; ++k)
+      for (int l = 0; l < 4; ++l) H.block<3, 3>(3 * k, 3 * l).diagonal().array() += tet.sqrt_volume * G(k, l);
   }
-  if (project_psd) {
-    Eigen::SelfAdjointEigenSolver<Mat12> eig(H);
-    Vec12 ev = eig.eigenvalues().cwiseMax(0.0);
-    H = eig.eigenvectors() * ev.asDiagonal() * eig.eigenvectors().transpose();
-  }
+  if (psd == Psd::Whole) H = clamp_to_psd<12>(H);
   *hessian = H;
+}
+
+}  // namespace
+
+void strain_energy_derivatives(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x,
+                               Vec12* gradient, Mat12* hessian, bool project_psd, ElasticModel model) {
+  derivatives(tet, K, x, gradient, hessian, project_psd ? Psd::Whole : Psd::None, model);
+}
+
+void strain_energy_derivatives_psd_parts(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x,
+                                         Vec12* gradient, Mat12* hessian, ElasticModel model) {
+  derivatives(tet, K, x, gradient, hessian, Psd::Parts, model);
 }
 
 double volume_ratio(const TetRest& tet, const std::array<Vec3, 4>& x) {

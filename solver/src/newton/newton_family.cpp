@@ -1,12 +1,627 @@
+// The global implicit step: Newton's method on the incremental potential of implicit Euler,
+//   G(x) = sum_i I_i / (2 h^2) |x_i - y_i|^2 + sum_tets E_tet(x) + contact and grab energies,
+// y the prediction (stages.hpp: inertia, gravity on the weight, external forces), I_i the
+// vertex inertia. Each iteration assembles the gradient and the per-tet PSD-projected Hessian
+// into a sparse matrix whose pattern (and the Cholesky's symbolic analysis) is built once per
+// model, solves H d = -g with a sparse LDL^T, and backtracks along d until G decreases (Armijo).
+// Grabs are the energies of their XPBD compliant constraints (compliance 0: a stiff penalty);
+// colliders and tools push vertices out through a penalty energy k/2 depth^2 (k fixed per vertex
+// and substep) with lagged Coulomb friction (Li et al. 2020's smoothed static/dynamic friction),
+// and the force on a tool is that energy's gradient: at convergence it is exactly the force the
+// body's inertia and elasticity put on it. The line search sees the true penalty of every vertex,
+// so a step that pushes a vertex into an obstacle is shortened. Near the solution (after a full
+// step) the exact Hessian is tried first: Newton then converges quadratically; where it is not
+// positive definite the per-tet PSD-projected one is used.
+#include "kernels/projection.hpp"
 #include "step/family.hpp"
+#include "step/stages.hpp"
+#include "step/thread_pool.hpp"
 
-#include <stdexcept>
+#include "pliant/strain_constraint.hpp"
+
+#include <Eigen/Sparse>
+#include <Eigen/SparseCholesky>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
 
 namespace pliant::detail {
 
-// Placeholder until the family lands: validate() refuses the method first.
-std::unique_ptr<SolverFamily> make_newton_family() {
-  throw std::logic_error("solver.method newton is not available in this build");
+namespace {
+
+// Penalty stiffness of a hard grab or a contact, relative to the stiffest of the vertex's inertia
+// term I/h^2 and its elastic diagonal: the penetration left is about this fraction of the
+// displacement the penalty resists, while the force it reports is exact at equilibrium.
+constexpr double kHardScale = 1e6;
+constexpr double kContactScale = 1e4;
+// Friction's static region: tangential slip below this speed (m/s) times h is treated as
+// sticking (the smoothed Coulomb model's epsilon_v).
+constexpr double kStickSpeed = 1e-3;
+
+// One vertex touching a collider or a tool in this iteration's active set.
+struct Contact {
+  int32_t vertex;
+  int tool;              // index in inputs.tools, or -1 for a static collider
+  Vec3 normal;           // outward normal of the obstacle
+  double depth;          // penetration at the positions the contact was found at
+  double friction;       // mu
+  double normal_force;   // friction's bound: the contact's k depth at the end of the last iteration
+  Vec3 obstacle_motion;  // the obstacle's displacement over the substep (tools with velocity)
+};
+
+class NewtonFamily final : public SolverFamily {
+ public:
+  StepReport step(const BodyModel& m, BodyState& state, const SolverSettings& s,
+                  const StepInputs& inputs, const Stepper::IterationHook& hook) override;
+
+ private:
+  // The sparse pattern of the Hessian over the free dofs and, per tet, where its 12x12 block's
+  // entries land in the matrix's value array (-1 where a corner is fixed). Built once per model.
+  void compile(const BodyModel& m);
+  // The gradient g_ at x, and with `hessian` the Hessian's values (elastic and inertia terms).
+  // `exact`: the Hessian as it is; else made PSD tet by tet.
+  void assemble(const BodyModel& m, const std::vector<Vec3>& x, double h, ThreadPool& tp, bool hessian,
+                bool exact = false);
+  // The penalty stiffness of each free vertex for this substep (from the assembled diagonal).
+  void set_contact_stiffness(const BodyModel& m, double h);
+  // g_ with the grabs' and contacts' terms (and their Hessian blocks with `hessian`).
+  void add_interaction(const BodyModel& m, const std::vector<Vec3>& x, double h, const StepInputs& in,
+                       bool hessian);
+  double potential(const BodyModel& m, const std::vector<Vec3>& x, double h, const StepInputs& in) const;
+  // The contacts at x: every free vertex inside a collider or a tool, each with the normal force
+  // it had at the end of the last iteration (lagged_) as its friction bound.
+  void find_contacts(const BodyModel& m, const std::vector<Vec3>& x, double h, const StepInputs& in);
+  // The penetration energy of every vertex at x (true geometry, not the contacts' planes).
+  double penetration_energy(const BodyModel& m, const std::vector<Vec3>& x, const StepInputs& in) const;
+  RigidTool tool_now(const StepInputs& in, size_t t) const;
+  double attachment_stiffness(const BodyModel& m, const Attachment& a, double h) const;
+  double elastic_diagonal(int32_t v) const;
+
+  uint64_t compiled_model_ = 0;
+  std::vector<int> dof_;  // vertex -> first dof, -1 when fixed
+  int ndof_ = 0;
+  Eigen::SparseMatrix<double> H_;
+  std::vector<int32_t> tet_entry_;  // 144 per tet: index into H_.valuePtr(), -1 for fixed
+  std::vector<int32_t> diag_entry_; // 9 per vertex: its diagonal block's entries
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt_;
+  Eigen::VectorXd g_, d_;
+  std::vector<Vec3> y_, x_start_, trial_, v_before_;
+  std::vector<double> volume_ratio_;  // per tet, at the start of the substep (the warm start's floor)
+  double inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const;
+  // Whether no tet of `trial` falls below the inversion floor, or below where it already was.
+  bool keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const;
+  std::vector<Contact> contacts_;
+  std::vector<Contact> lagged_;  // the contacts at the end of the last iteration, normal force k depth
+  void remember_normal_forces();
+  std::vector<double> attachment_k_;
+  std::vector<double> contact_k_;  // per vertex: its penalty stiffness in this substep
+  bool inputs_have_obstacles_ = false;
+  double tool_time_offset_ = 0;  // the substep's end relative to the step's end (<= 0)
+  std::unique_ptr<ThreadPool> pool_;
+};
+
+void NewtonFamily::compile(const BodyModel& m) {
+  if (compiled_model_ == m.id && m.id != 0) return;
+  compiled_model_ = m.id;
+  lagged_.clear();
+  const size_t nv = m.vertex_count();
+  dof_.assign(nv, -1);
+  ndof_ = 0;
+  for (size_t i = 0; i < nv; ++i)
+    if (m.inv_mass[i] > 0) {
+      dof_[i] = ndof_;
+      ndof_ += 3;
+    }
+  std::vector<Eigen::Triplet<double>> trip;
+  trip.reserve(m.tets.size() * 144 + 9 * nv);
+  for (size_t i = 0; i < nv; ++i)
+    if (dof_[i] >= 0)
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) trip.emplace_back(dof_[i] + a, dof_[i] + b, 0.0);
+  for (const TetRest& t : m.tets)
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b) {
+        const int da = dof_[t.v[a]], db = dof_[t.v[b]];
+        if (da < 0 || db < 0) continue;
+        for (int i = 0; i < 3; ++i)
+          for (int j = 0; j < 3; ++j) trip.emplace_back(da + i, db + j, 0.0);
+      }
+  H_.resize(ndof_, ndof_);
+  H_.setFromTriplets(trip.begin(), trip.end());
+  H_.makeCompressed();
+  // Where entry (r, c) sits in the compressed column-major value array.
+  auto entry = [&](int r, int c) -> int32_t {
+    const int* begin = H_.innerIndexPtr() + H_.outerIndexPtr()[c];
+    const int* end = H_.innerIndexPtr() + H_.outerIndexPtr()[c + 1];
+    return int32_t(std::lower_bound(begin, end, r) - H_.innerIndexPtr());
+  };
+  tet_entry_.assign(m.tets.size() * 144, -1);
+  for (size_t t = 0; t < m.tets.size(); ++t)
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b) {
+        const int da = dof_[m.tets[t].v[a]], db = dof_[m.tets[t].v[b]];
+        if (da < 0 || db < 0) continue;
+        for (int i = 0; i < 3; ++i)
+          for (int j = 0; j < 3; ++j) tet_entry_[t * 144 + (3 * a + i) * 12 + 3 * b + j] = entry(da + i, db + j);
+      }
+  diag_entry_.assign(9 * nv, -1);
+  for (size_t v = 0; v < nv; ++v)
+    if (dof_[v] >= 0)
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) diag_entry_[9 * v + 3 * i + j] = entry(dof_[v] + i, dof_[v] + j);
+  ldlt_.analyzePattern(H_);
+  g_.setZero(ndof_);
 }
+
+// Elastic part of the gradient and Hessian (tets of a colour share no vertex, so a colour's tets
+// scatter into disjoint entries and run in parallel), then the inertia term.
+void NewtonFamily::assemble(const BodyModel& m, const std::vector<Vec3>& x, double h, ThreadPool& tp,
+                            bool hessian, bool exact) {
+  double* values = H_.valuePtr();
+  if (hessian) std::fill(values, values + H_.nonZeros(), 0.0);
+  g_.setZero(ndof_);
+  for (const auto& colour : m.colours) {
+    tp.parallel_for(colour.size(), [&](int, size_t b, size_t e) {
+      Vec12 gt;
+      Mat12 ht;
+      for (size_t k = b; k < e; ++k) {
+        const int32_t t = colour[k];
+        const TetRest& tet = m.tets[t];
+        if (exact || !hessian)
+          strain_energy_derivatives(tet, m.stiffness, gather(x, tet.v), &gt, hessian ? &ht : nullptr, false,
+                                    m.material.model);
+        else
+          strain_energy_derivatives_psd_parts(tet, m.stiffness, gather(x, tet.v), &gt, &ht, m.material.model);
+        const int32_t* ent = &tet_entry_[size_t(t) * 144];
+        for (int a = 0; a < 4; ++a) {
+          const int da = dof_[tet.v[a]];
+          if (da < 0) continue;
+          g_.segment<3>(da) += gt.segment<3>(3 * a);
+          if (!hessian) continue;
+          for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 12; ++c) {
+              const int32_t i = ent[(3 * a + r) * 12 + c];
+              if (i >= 0) values[i] += ht(3 * a + r, c);
+            }
+        }
+      }
+    }, 16);
+  }
+  const double inv_h2 = 1.0 / (h * h);
+  for (size_t v = 0; v < m.vertex_count(); ++v) {
+    const int d = dof_[v];
+    if (d < 0) continue;
+    g_.segment<3>(d) += inv_h2 * m.inertia[v] * (x[v] - y_[v]);
+    if (hessian)
+      for (int i = 0; i < 3; ++i) values[diag_entry_[9 * v + 4 * i]] += inv_h2 * m.inertia[v];
+  }
+}
+
+void NewtonFamily::set_contact_stiffness(const BodyModel& m, double h) {
+  contact_k_.assign(m.vertex_count(), 0.0);
+  if (inputs_have_obstacles_)
+    for (size_t i = 0; i < m.vertex_count(); ++i)
+      if (dof_[i] >= 0) contact_k_[i] = kContactScale * std::max(m.inertia[i] / (h * h), elastic_diagonal(int32_t(i)));
+}
+
+double NewtonFamily::elastic_diagonal(int32_t v) const {
+  if (dof_[v] < 0) return 0;
+  const double* values = H_.valuePtr();
+  return std::max({values[diag_entry_[9 * v]], values[diag_entry_[9 * v + 4]], values[diag_entry_[9 * v + 8]]});
+}
+
+// A grab's spring: 1 / compliance, or for a hard grab a penalty far stiffer than what it holds
+// (the effective inertia of the grabbed point over h^2 and the elastic stiffness at its corners).
+double NewtonFamily::attachment_stiffness(const BodyModel& m, const Attachment& a, double h) const {
+  if (a.compliance > 0) return 1.0 / a.compliance;
+  double wsum = 0, diag = 0;
+  for (int k = 0; k < 4; ++k)
+    if (a.vertices[k] >= 0) {
+      wsum += a.weights[k] * a.weights[k] * m.inv_mass[a.vertices[k]];
+      diag = std::max(diag, elastic_diagonal(a.vertices[k]));
+    }
+  if (wsum <= 0) return 0;
+  return kHardScale * std::max(1.0 / (wsum * h * h), diag);
+}
+
+RigidTool NewtonFamily::tool_now(const StepInputs& in, size_t t) const {
+  RigidTool tool = in.tools[t];
+  tool.position += tool.velocity * tool_time_offset_;
+  return tool;
+}
+
+void NewtonFamily::remember_normal_forces() {
+  lagged_ = contacts_;
+  for (Contact& c : lagged_) c.normal_force = contact_k_[c.vertex] * c.depth;
+}
+
+void NewtonFamily::find_contacts(const BodyModel& m, const std::vector<Vec3>& x, double h,
+                                 const StepInputs& in) {
+  contacts_.clear();
+  auto lagged = [&](int32_t v, int tool) {
+    for (const Contact& c : lagged_)
+      if (c.vertex == v && c.tool == tool) return c.normal_force;
+    return 0.0;
+  };
+  if (in.colliders.empty() && in.tools.empty()) return;
+  for (size_t i = 0; i < x.size(); ++i) {
+    if (m.inv_mass[i] == 0) continue;
+    for (const Collider& col : in.colliders) {
+      ContactPoint cp;
+      if (!find_contact(col, x[i], cp) || !(cp.depth > 0)) continue;
+      contacts_.push_back(Contact{int32_t(i), -1, cp.normal, cp.depth, col.dynamic_friction,
+                                  lagged(int32_t(i), -1), Vec3::Zero()});
+    }
+    for (size_t t = 0; t < in.tools.size(); ++t) {
+      const RigidTool tool = tool_now(in, t);
+      Vec3 q, n;
+      double depth;
+      if (!tool_contact(tool, x[i], q, n, depth) || !(depth > 0)) continue;
+      contacts_.push_back(Contact{int32_t(i), int(t), n, depth, tool.dynamic_friction, lagged(int32_t(i), int(t)),
+                                  tool.velocity * h});
+    }
+  }
+}
+
+double NewtonFamily::penetration_energy(const BodyModel& m, const std::vector<Vec3>& x,
+                                        const StepInputs& in) const {
+  if (in.colliders.empty() && in.tools.empty()) return 0;
+  double e = 0;
+  std::vector<RigidTool> tools;
+  for (size_t t = 0; t < in.tools.size(); ++t) tools.push_back(tool_now(in, t));
+  for (size_t i = 0; i < x.size(); ++i) {
+    if (m.inv_mass[i] == 0) continue;
+    for (const Collider& col : in.colliders) {
+      ContactPoint cp;
+      if (find_contact(col, x[i], cp) && cp.depth > 0) e += 0.5 * contact_k_[i] * cp.depth * cp.depth;
+    }
+    for (const RigidTool& tool : tools) {
+      Vec3 q, n;
+      double depth;
+      if (tool_contact(tool, x[i], q, n, depth) && depth > 0) e += 0.5 * contact_k_[i] * depth * depth;
+    }
+  }
+  return e;
+}
+
+// Tangential slip of a contact's vertex since the start of the substep, relative to the obstacle.
+Vec3 slip(const Contact& c, const std::vector<Vec3>& x, const std::vector<Vec3>& x_start) {
+  const Vec3 u = x[c.vertex] - x_start[c.vertex] - c.obstacle_motion;
+  return u - u.dot(c.normal) * c.normal;
+}
+
+// Friction energy of a contact: mu f_n (|u_t|^2 / (2 eps) below eps, |u_t| - eps/2 above), u_t the
+// slip relative to the obstacle along the plane of the contact.
+double friction_energy(const Contact& c, const std::vector<Vec3>& x, const std::vector<Vec3>& x_start,
+                       double eps) {
+  const double bound = c.friction * c.normal_force;
+  if (!(bound > 0)) return 0;
+  const double u = slip(c, x, x_start).norm();
+  return bound * (u < eps ? u * u / (2 * eps) : u - eps / 2);
+}
+
+// Friction force on the body from a contact (minus the friction energy's gradient).
+Vec3 friction_force(const Contact& c, const std::vector<Vec3>& x, const std::vector<Vec3>& x_start, double eps) {
+  const double bound = c.friction * c.normal_force;
+  if (!(bound > 0)) return Vec3::Zero();
+  const Vec3 ut = slip(c, x, x_start);
+  const double u = ut.norm();
+  return u < eps ? Vec3(-bound / eps * ut) : Vec3(-bound * ut / u);
+}
+
+void NewtonFamily::add_interaction(const BodyModel& m, const std::vector<Vec3>& x, double h,
+                                   const StepInputs& in, bool hessian) {
+  double* values = H_.valuePtr();
+  if (hessian) {
+    attachment_k_.assign(in.attachments.size(), 0.0);
+    for (size_t j = 0; j < in.attachments.size(); ++j) attachment_k_[j] = attachment_stiffness(m, in.attachments[j], h);
+  }
+  for (size_t j = 0; j < in.attachments.size(); ++j) {
+    const Attachment& a = in.attachments[j];
+    const double k = attachment_k_[j];
+    if (k <= 0) continue;
+    const Vec3 c = a.point(x) - a.target;
+    for (int p = 0; p < 4; ++p) {
+      const int32_t vp = a.vertices[p];
+      if (vp < 0 || dof_[vp] < 0) continue;
+      g_.segment<3>(dof_[vp]) += k * a.weights[p] * c;
+      for (int q = 0; q < 4 && hessian; ++q) {
+        const int32_t vq = a.vertices[q];
+        if (vq < 0 || dof_[vq] < 0) continue;
+        // An in-tet grab's corners share its tet, so their coupling block is in the pattern.
+        const double kk = k * a.weights[p] * a.weights[q];
+        for (int i = 0; i < 3; ++i) {
+          const int* begin = H_.innerIndexPtr() + H_.outerIndexPtr()[dof_[vq] + i];
+          const int* end = H_.innerIndexPtr() + H_.outerIndexPtr()[dof_[vq] + i + 1];
+          const int* at = std::lower_bound(begin, end, dof_[vp] + i);
+          if (at != end && *at == dof_[vp] + i) values[at - H_.innerIndexPtr()] += kk;
+        }
+      }
+    }
+  }
+  const double eps = kStickSpeed * h;
+  for (const Contact& c : contacts_) {
+    const int d = dof_[c.vertex];
+    const double k = contact_k_[c.vertex];
+    g_.segment<3>(d) -= k * c.depth * c.normal;
+    Eigen::Matrix3d block = k * c.normal * c.normal.transpose();
+    const double bound = c.friction * c.normal_force;
+    if (bound > 0) {
+      const Vec3 ut = slip(c, x, x_start_);
+      const double u = ut.norm();
+      const Eigen::Matrix3d T = Eigen::Matrix3d::Identity() - c.normal * c.normal.transpose();
+      // Static region: the quadratic's own curvature. Sliding: the cone |u| has none along the
+      // slip, which would let the Newton step slide a vertex as far as its inertia alone allows;
+      // its majorizer (|u'|^2 + |u|^2) / (2 |u|) has curvature 1/|u| in every tangential direction.
+      g_.segment<3>(d) += bound / std::max(u, eps) * ut;
+      block += bound / std::max(u, eps) * T;
+    }
+    if (hessian)
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) values[diag_entry_[9 * size_t(c.vertex) + 3 * i + j]] += block(i, j);
+  }
+}
+
+double NewtonFamily::inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const {
+  double e = 0;
+  for (const TetRest& t : m.tets) e += strain_energy(t, m.stiffness, gather(x, t.v), m.material.model);
+  for (size_t i = 0; i < x.size(); ++i)
+    if (dof_[i] >= 0) e += 0.5 / (h * h) * m.inertia[i] * (x[i] - y_[i]).squaredNorm();
+  return e;
+}
+
+bool NewtonFamily::keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const {
+  for (size_t t = 0; t < m.tets.size(); ++t)
+    if (volume_ratio(m.tets[t], gather(trial, m.tets[t].v)) < std::min(floor, volume_ratio_[t])) return false;
+  return true;
+}
+
+double NewtonFamily::potential(const BodyModel& m, const std::vector<Vec3>& x, double h,
+                               const StepInputs& in) const {
+  double e = 0;
+  for (const TetRest& t : m.tets) e += strain_energy(t, m.stiffness, gather(x, t.v), m.material.model);
+  const double inv_h2 = 1.0 / (h * h);
+  for (size_t i = 0; i < x.size(); ++i)
+    if (dof_[i] >= 0) e += 0.5 * inv_h2 * m.inertia[i] * (x[i] - y_[i]).squaredNorm();
+  for (size_t j = 0; j < in.attachments.size(); ++j)
+    if (attachment_k_[j] > 0) e += 0.5 * attachment_k_[j] * (in.attachments[j].point(x) - in.attachments[j].target).squaredNorm();
+  const double eps = kStickSpeed * h;
+  for (const Contact& c : contacts_) e += friction_energy(c, x, x_start_, eps);
+  return e + penetration_energy(m, x, in);
+}
+
+StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const SolverSettings& s,
+                              const StepInputs& in, const Stepper::IterationHook& hook) {
+  const auto t_start = Clock::now();
+  StepReport total;
+  int n = effective_substeps(m, s);
+  const double h = s.dt / n;
+  if (!pool_ || int(pool_->size()) != s.threads) pool_ = std::make_unique<ThreadPool>(s.threads);
+  ThreadPool& tp = *pool_;
+  {
+    const auto t0 = Clock::now();
+    compile(m);
+    total.times.other_ms += ms_since(t0);
+  }
+  total.tools.assign(in.tools.size(), ToolReaction{});
+  total.attachment_forces.assign(in.attachments.size(), Vec3::Zero());
+  double hook_ms = 0;
+  for (int sub = 0; sub < n && !total.cancelled; ++sub) {
+    const auto t_sub = Clock::now();
+    tool_time_offset_ = (sub + 1 - n) * h;
+    v_before_ = state.v;
+    predict(m, state, s, in, h, x_start_);
+    inputs_have_obstacles_ = !in.colliders.empty() || !in.tools.empty();
+    y_ = state.x;
+    std::vector<Vec3>& x = state.x;
+    // Warm start: of the prediction y, the motion continued without this step's loads (x + h v:
+    // the previous solution itself for a body at rest; from y a stiff body at rest must climb back
+    // the whole h^2 g every step) and the start x, the one of lowest potential that keeps every
+    // tet above the inversion floor (x always does, or is where the body already was).
+    {
+      const bool floor = s.inversion_floor > 0;
+      if (floor) {
+        volume_ratio_.resize(m.tets.size());
+        for (size_t t = 0; t < m.tets.size(); ++t)
+          volume_ratio_[t] = volume_ratio(m.tets[t], gather(x_start_, m.tets[t].v));
+      }
+      std::vector<Vec3> best = x_start_;
+      double best_e = inertial_elastic_energy(m, best, h);
+      auto consider = [&](const std::vector<Vec3>& c) {
+        if (floor && !keeps_volume(m, c, s.inversion_floor)) return;
+        const double e = inertial_elastic_energy(m, c, h);
+        if (e < best_e) {
+          best_e = e;
+          best = c;
+        }
+      };
+      consider(y_);
+      trial_ = x_start_;
+      if (v_before_.size() == x.size())
+        for (size_t i = 0; i < x.size(); ++i)
+          if (dof_[i] >= 0) trial_[i] += h * v_before_[i];
+      consider(trial_);
+      x.swap(best);
+    }
+    contacts_.clear();
+    const double budget = s.time_budget_ms > 0
+                              ? std::max(1e-6, (s.time_budget_ms - (ms_since(t_start) - hook_ms)) / (n - sub))
+                              : 0.0;
+    StepReport rep;
+    attachment_k_.assign(in.attachments.size(), 0.0);
+    double g0 = -1;
+    bool full_step = false;  // the last iteration took the whole Newton step
+    for (int it = 0; it < s.iterations; ++it) {
+      const auto t_asm = Clock::now();
+      bool exact = full_step;
+      assemble(m, x, h, tp, true, exact);
+      if (it == 0) set_contact_stiffness(m, h);
+      find_contacts(m, x, h, in);
+      add_interaction(m, x, h, in, true);
+      const double gnorm = g_.norm();
+      rep.times.projection_ms += ms_since(t_asm);
+      if (g0 < 0) rep.residual_initial = rep.residual_final = g0 = gnorm;
+      if (!std::isfinite(gnorm)) {
+        rep.diverged = true;
+        break;
+      }
+      if (gnorm == 0) {  // at the solution already (a body at rest without loads)
+        rep.stopped_by_tolerance = true;
+        break;
+      }
+      const auto t_solve = Clock::now();
+      ldlt_.factorize(H_);
+      if (exact && (ldlt_.info() != Eigen::Success || !(ldlt_.vectorD().minCoeff() > 0))) {
+        // Not positive definite here: the projected Hessian instead.
+        exact = false;
+        assemble(m, x, h, tp, true, false);
+        add_interaction(m, x, h, in, true);
+        ldlt_.factorize(H_);
+      }
+      if (ldlt_.info() != Eigen::Success) {
+        rep.diverged = true;
+        break;
+      }
+      d_ = ldlt_.solve(-g_);
+      rep.times.update_ms += ms_since(t_solve);
+      // A step below round-off of the coordinates: converged as far as double precision can tell.
+      if (d_.lpNorm<Eigen::Infinity>() <= 1e-13 * m.mean_edge) {
+        rep.stopped_by_tolerance = true;
+        break;
+      }
+      const auto t_ls = Clock::now();
+      const double slope = g_.dot(d_);
+      const double e0 = potential(m, x, h, in);
+      double alpha = 1.0;
+      bool moved = false;
+      trial_ = x;
+      for (int ls = 0; ls < 30 && slope < 0; ++ls, alpha *= 0.5) {
+        for (size_t i = 0; i < x.size(); ++i)
+          if (dof_[i] >= 0) trial_[i] = x[i] + alpha * d_.segment<3>(dof_[i]);
+        const double e = potential(m, trial_, h, in);
+        if (std::isfinite(e) && e <= e0 + 1e-4 * alpha * slope) {
+          moved = true;
+          break;
+        }
+      }
+      if (moved) x.swap(trial_);
+      full_step = moved && alpha == 1.0;
+      // Inversion safety as in the projection family: tets pushed under the floor are pushed back
+      // by the unilateral volume constraint (repeated while a pass still acts, at most 20).
+      if (moved && s.inversion_floor > 0)
+        for (int pass = 0; pass < 20; ++pass) {
+          int hits = 0;
+          for (const TetRest& t : m.tets) hits += enforce_volume_floor(t, x, m.inv_mass, s.inversion_floor);
+          rep.volume_corrections += hits;
+          if (hits == 0) break;
+          full_step = false;
+        }
+      rep.times.other_ms += ms_since(t_ls);
+      rep.iterations++;
+      // The residual after the iteration: |grad G| at the new positions, over the free dofs.
+      double r = gnorm;
+      // Measured when something reads it: a stop rule, the hook, the report of the last substep.
+      const bool measure = s.tolerance > 0 || hook || (s.record_residuals && sub + 1 == n);
+      if (moved && measure) {
+        const auto t_res = Clock::now();
+        assemble(m, x, h, tp, false);
+        find_contacts(m, x, h, in);
+        add_interaction(m, x, h, in, false);
+        r = g_.norm();
+        remember_normal_forces();
+        rep.times.residual_ms += ms_since(t_res);
+      }
+      rep.residuals.push_back(r);
+      rep.residual_final = r;
+      if (hook) {
+        const auto th = Clock::now();
+        hook(it, x, r, ms_since(t_start) - hook_ms);
+        hook_ms += ms_since(th);
+      }
+      if (!std::isfinite(r)) {
+        rep.diverged = true;
+        break;
+      }
+      // No decrease representable in double: at the solution to machine precision.
+      if (!moved || (s.tolerance > 0 && r <= s.tolerance * g0)) {
+        rep.stopped_by_tolerance = true;
+        break;
+      }
+      if (in.cancel && in.cancel->load(std::memory_order_relaxed)) {
+        rep.cancelled = true;
+        break;
+      }
+      if (budget > 0 && ms_since(t_sub) >= budget) {
+        rep.stopped_by_budget = it + 1 < s.iterations;
+        break;
+      }
+    }
+    // Reactions of this substep from the energies' gradients at the final positions.
+    const auto t_fin = Clock::now();
+    const double eps = kStickSpeed * h;
+    find_contacts(m, x, h, in);
+    for (const Contact& c : contacts_) {
+      if (c.tool < 0) continue;
+      const Vec3 f_body = contact_k_[c.vertex] * c.depth * c.normal + friction_force(c, x, x_start_, eps);
+      ToolReaction& r = total.tools[c.tool];
+      const Vec3 f_tool = -f_body;
+      r.force += f_tool;
+      r.torque += (x[c.vertex] - tool_now(in, c.tool).position).cross(f_tool);
+      bool found = false;
+      for (ToolContact& tc : r.contacts)
+        if (tc.vertex == c.vertex) {
+          tc.force += f_tool;
+          tc.point = x[c.vertex];
+          tc.normal = c.normal;
+          found = true;
+        }
+      if (!found) r.contacts.push_back(ToolContact{c.vertex, x[c.vertex], c.normal, f_tool});
+    }
+    const int contacts = int(contacts_.size());
+    // The force a grab puts on the body: minus its spring's gradient.
+    for (size_t j = 0; j < in.attachments.size(); ++j)
+      total.attachment_forces[j] -= attachment_k_[j] * (in.attachments[j].point(x) - in.attachments[j].target);
+    finish_substep(m, state, x_start_, s, h);
+    rep.times.other_ms += ms_since(t_fin);
+
+    total.iterations += rep.iterations;
+    total.diverged |= rep.diverged;
+    total.stopped_by_tolerance |= rep.stopped_by_tolerance;
+    total.stopped_by_budget |= rep.stopped_by_budget;
+    total.contacts = contacts;
+    total.times.projection_ms += rep.times.projection_ms;
+    total.times.update_ms += rep.times.update_ms;
+    total.times.residual_ms += rep.times.residual_ms;
+    total.times.other_ms += rep.times.other_ms;
+    total.residuals = std::move(rep.residuals);
+    total.residual_initial = rep.residual_initial;
+    total.residual_final = rep.residual_final;
+    if (rep.cancelled) {
+      total.cancelled = true;
+      n = sub + 1;
+    }
+  }
+  // Averages over the substeps run: the impulse delivered during the step divided by its length.
+  for (ToolReaction& r : total.tools) {
+    r.force /= n;
+    r.torque /= n;
+    for (ToolContact& c : r.contacts) c.force /= n;
+  }
+  for (Vec3& f : total.attachment_forces) f /= n;
+  total.substeps = n;
+  // The multipliers belong to the constraint-projection family: none here.
+  state.lambda.assign(m.tet_count(), Vec6::Zero());
+  state.lambda_h = h;
+  state.time += total.cancelled ? n * h : s.dt;
+  state.steps++;
+  if (!is_finite(state)) total.diverged = true;
+  total.wall_ms = ms_since(t_start) - hook_ms;
+  return total;
+}
+
+}  // namespace
+
+std::unique_ptr<SolverFamily> make_newton_family() { return std::make_unique<NewtonFamily>(); }
 
 }  // namespace pliant::detail
