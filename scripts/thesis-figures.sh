@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Regenerates the solver figures in docs/solver.md and the README from the built tools:
 #   bash scripts/thesis-figures.sh [BUILD_DIR]
-# Writes docs/data/*.csv|*.jsonl and docs/img/*.png (gnuplot). Takes a few minutes on 2 cores;
-# progress goes to stderr.
+# Writes docs/data/*.csv|*.jsonl and docs/img/*.png (gnuplot). Takes a few minutes on 2 cores,
+# plus about 10 for the sequential-sweep runs (armadillo included; SKIP_SEQUENTIAL=1 skips them)
+# and 5 for the accuracy table (SKIP_ACCURACY=1); progress goes to stderr.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 B=${1:-build}
@@ -38,6 +39,52 @@ for E in 1e5 1e7; do
     "$SIM" converge --mesh beam3 --method "$m" --iterations 600 --young "$E" --match xpbd | tail -n 1 >> "$D/young_sweep_beam3.jsonl" || true
   done
 done
+
+# 3b. The thesis's own setting: the sequential sweep (one tet at a time in mesh order, one
+#     thread) beside the coloured one, over three numberings of beam3's tets (the builtin's
+#     x-fastest order, cube slabs along the beam, sorted by centroid x), plain XPBD and
+#     Anderson+SOR at omega 2.
+#     SKIP_SEQUENTIAL=1 keeps the previous data.
+if [ "${SKIP_SEQUENTIAL:-0}" != 1 ]; then
+: > "$D/sweep_order_beam3.jsonl"
+for order in mesh x-slabs x-sorted; do
+  for sw in sequential gauss-seidel; do
+    for m in xpbd anderson-sor; do
+      say "sweep order beam3: $sw, tets $order, $m"
+      "$SIM" converge --mesh beam3 --method "$m" --iterations 600 --young 1e6 --match xpbd --sweep "$sw" \
+        --tet-order "$order" --csv "$D/converge_beam3_${sw}_${order}_$m.csv" | tail -n 1 >> "$D/sweep_order_beam3.jsonl" || true
+    done
+  done
+done
+# The omega sweep and the other meshes in both sweeps (thesis figures 3.5-3.9 and its omega
+# figure in its own setting; the thesis models' own numbering).
+: > "$D/omega_sweep_sequential_beam3.jsonl"
+for w in 1 1.5 2 5 10; do
+  for order in mesh x-slabs x-sorted; do
+    say "omega $w sequential ($order)"
+    "$SIM" converge --mesh beam3 --method anderson-sor --omega "$w" --iterations 600 --young 1e6 --match xpbd \
+      --sweep sequential --tet-order "$order" | tail -n 1 >> "$D/omega_sweep_sequential_beam3.jsonl" || true
+  done
+done
+: > "$D/sweep_meshes.jsonl"
+for mesh in beam1 beam2 hippo armadillo; do
+  for sw in sequential gauss-seidel; do
+    say "sweeps on $mesh: $sw"
+    "$SIM" converge --mesh "$mesh" --method anderson-sor --iterations 600 --young 1e6 --match xpbd --sweep "$sw" \
+      | tail -n 1 >> "$D/sweep_meshes.jsonl" || true
+  done
+done
+fi
+
+# 3c. The figure of merit: true error of one step against wall-clock ms for real-time budgets
+#     (XPBD substeps x iterations, Anderson+SOR, the other solver families; a family not in the
+#     build is reported as refused) on beam3 at 1 MPa, with the dynamic measures.
+if [ "${SKIP_ACCURACY:-0}" != 1 ]; then
+say "accuracy beam3 1 MPa"
+"$SIM" accuracy --mesh beam3 --young 1e6 --dt 1/60 --start bend --budget-ms 1000 --dynamic --substep-floor \
+  --methods xpbd:64x1,xpbd:16x4,xpbd:4x16,xpbd:Nx1,xpbd:1xN,anderson-sor:1xN:omega=2,chebyshev:1xN,xpbd:1xN:sweep=sequential,anderson-sor:1xN:omega=2:sweep=sequential,newton:1xN,vbd:1xN \
+  --csv-dir "$D/accuracy_beam3" --png docs/img/accuracy_beam3.png | tail -n 1 > "$D/accuracy_beam3.json" || true
+fi
 
 # 4. Static equilibrium of beam3 against the Newton reference (same mesh, same model).
 #    The slow part (minutes); SKIP_STATIC=1 keeps the previous data.
@@ -93,6 +140,17 @@ plot for [m in "xpbd sor lambda-sor chebyshev anderson anderson-sor extrapolatio
 set xlabel "solver time (ms, one thread)"; set ylabel "||r|| / ||r0||"
 set output "docs/img/converge_beam3_time.png"
 plot for [m in "xpbd sor lambda-sor chebyshev anderson anderson-sor extrapolation"] "$D/converge_beam3_".m.".csv" using 5:3 with lines lw 2 title m
+# The thesis's sequential sweep beside the coloured one (3b): residual and true error.
+set termoption noenhanced
+set key outside right font ",9"
+set title "beam3, 1 MPa, h = 1/60: sweep order x tet numbering"
+set yrange [0.45:1.4]
+set xlabel "iteration"; set ylabel "||r||/||r0|| (solid: xpbd, dashed: anderson-sor 2) / true error (dotted)"
+set output "docs/img/sweep_order_beam3.png"
+cfgs = "sequential_x-slabs sequential_mesh gauss-seidel_x-slabs gauss-seidel_mesh"
+plot for [i=1:4] "$D/converge_beam3_".word(cfgs,i)."_xpbd.csv" using 1:3 with lines lw 2 lc i title word(cfgs,i)." xpbd ||r||", \
+     for [i=1:4] "$D/converge_beam3_".word(cfgs,i)."_anderson-sor.csv" using 1:3 with lines lw 2 dt 2 lc i title word(cfgs,i)." anderson-sor ||r||", \
+     for [i=1:4] "$D/converge_beam3_".word(cfgs,i)."_anderson-sor.csv" using 1:4 with lines lw 3 dt 3 lc i title word(cfgs,i)." anderson-sor error"
 GP
   say "plots in docs/img/"
 else

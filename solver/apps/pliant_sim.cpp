@@ -2,6 +2,8 @@
 //   converge  the thesis's one-step convergence experiment (residual and true error per iteration)
 //   static    step a clamped body under gravity to rest and report the tip displacement
 //   run       simulate N steps and write VTK frames for ParaView
+//   accuracy  true error of one step against wall-clock ms for a list of solver budgets
+#include "pliant/accuracy.hpp"
 #include "pliant/builtin_meshes.hpp"
 #include "cli.hpp"
 #include "pliant/experiments.hpp"
@@ -15,12 +17,18 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <map>
+#include <optional>
 #include <sstream>
+
+#include <unistd.h>
 
 using namespace pliant;
 namespace cli = pliant::cli;
@@ -39,6 +47,10 @@ commands:
             equilibrium; with them, what that real-time budget gives. Last line: JSON.
   reference Static equilibrium of the same set-up by Newton's method (independent check).
   run       Simulate --steps steps under gravity and write VTK frames to --out DIR.
+  accuracy  The true error ||x - x*|| / ||x0 - x*|| of one implicit-Euler step of length --dt
+            against wall-clock ms, x* the Newton solution of the step, for every solver budget in
+            --methods (see below). Last line: JSON with, per method, ms_to_error for 1e-1, 1e-2
+            and 1e-3 (null when not reached) and error_final.
 
 common options:
   --mesh M            beam1 | beam2 | beam3 | a model name (armadillo, hippo, ...) | a mesh file
@@ -55,7 +67,12 @@ common options:
   --method X          xpbd | sor | lambda-sor | chebyshev | anderson | anderson-sor | extrapolation
                       (constraint projection) | vbd (vertex block descent) | newton (global
                       Newton step on the implicit-Euler potential; iterations = Newton iterations)
-  --sweep S           gauss-seidel | jacobi
+  --sweep S           gauss-seidel (coloured, parallel) | jacobi | sequential (one tet at a time
+                      in mesh order, one thread: the thesis's sweep; needs --threads 1)
+  --tet-order O       renumber the tets before building the body: mesh (as given; the beams:
+                      x fastest) | x-slabs (by a tet's smallest corner x, mesh order within:
+                      a beam's cubes slab by slab) | x-sorted (by centroid x) | reversed |
+                      random (--seed S)
   --anderson-form F   thesis | type2 (default thesis)
   --iterations N      iterations (per substep)
   --substeps N        substeps per step
@@ -74,8 +91,31 @@ common options:
   --log-level L       trace | debug | info | warn | error (default warn)
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
+accuracy:  --methods LIST  --budget-ms T (default 100)  --start bend|sag (default bend)
+           --csv-dir DIR  --png FILE  --dynamic  --substep-floor  --max-steps K (default 600)
+           --bend-mm D
+           bend: the bent cantilever at rest as converge, gravity off; sag: the clamped body
+           at rest in its rest shape, gravity on (the first step of a sag).
+           LIST: comma-separated specs METHOD:SUBSTEPSxITERATIONS[:KEY=VALUE...], N in one of
+           the two places meaning "grows with the budget", e.g.
+             xpbd:64x1,xpbd:16x4,xpbd:1xN,xpbd:Nx1,anderson-sor:1xN:omega=2,chebyshev:1xN:rho=0.99
+           keys: omega window sweep form rho gamma delay relaxation cond floor line-search.
+           1xN records every iteration of one step (hook time excluded); other N specs run
+           the whole step for N = 1, 2, 3, 4, 6, 8, 11, 16, ... until a run takes T ms; a fixed
+           spec is one point. Every time is the fastest of up to 3 runs (per iteration for
+           1xN: a loaded machine's noise only adds). A method the build refuses (validate)
+           is reported with "refused" and the others still run. --csv-dir writes one CSV per
+           spec (ms, iterations, substeps, error, residual) and DIR/true_error_vs_ms.png
+           (log-log, gnuplot) unless --png names it. --dynamic adds, per fixed spec, the rest
+           shape under gravity (damping 5/s, as static --damping 5) as rest_tip_ratio = |tip| /
+           |Newton static tip|, and first_turn_s and first_turn_ratio: the tip's first swing
+           turn (damping --damping) over that of a converged run (wave Courant 0.3 x 1).
+           --substep-floor adds, for specs with a fixed substep count S in 2..256,
+           substep_floor: the error of S converged substeps (S Newton solves) against the
+           one-step x*, which no iteration count of that spec can go below.
 static:    --fix-x-max X  --max-steps K  --speed-tol V (m/s)
-converge, static, reference, run: the JSON has "model" (the strain model).
+converge, static, reference, run: the JSON has "model" (the strain model); converge also
+           "tet_order".
 static, run: the JSON also has inertia_floor, support_inertia, added_inertia (what the two
            add, as a fraction of the total mass) and floored_vertices, rms_speed (mass-weighted, m/s), kinetic_energy (J) and
            wave_courant_number (c_p h / mean edge: the elements a pressure wave crosses per
@@ -91,8 +131,9 @@ const std::set<std::string> kValued = {
     "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
     "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
-    "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model"};
-const std::set<std::string> kFlags = {"help", "progress", "no-line-search"};
+    "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model",
+    "methods", "budget-ms", "start", "csv-dir", "png", "tet-order", "seed"};
+const std::set<std::string> kFlags = {"help", "progress", "no-line-search", "dynamic", "substep-floor"};
 
 // A JSON object written field by field, numbers in full precision, nan/inf as null.
 class JsonLine {
@@ -122,6 +163,9 @@ class JsonLine {
     os_ << '"' << k << "\":" << buf;
     return *this;
   }
+  // A value that is already JSON (a nested object or array).
+  JsonLine& raw(const std::string& k, const std::string& json) { sep(); os_ << '"' << k << "\":" << json; return *this; }
+  JsonLine& add(const std::string& k, std::optional<double> v) { return v ? add(k, *v) : null(k); }
   std::string str() const { return os_.str() + "}"; }
 
  private:
@@ -184,18 +228,6 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   return s;
 }
 
-// Omega when the user gives none: 1 for the plain methods, the ones we measured as robust
-// for the relaxed ones (docs/solver.md has the sweep that chose them).
-double default_omega(Method m) {
-  switch (m) {
-    case Method::Sor: return 1.5;
-    case Method::LambdaSor: return 1.5;
-    case Method::AndersonSor: return 2.0;
-    case Method::Extrapolation: return 2.0;
-    default: return 1.0;
-  }
-}
-
 std::shared_ptr<const BodyModel> load_model(const cli::Args& a, const Material& mat, std::optional<double> fix_x) {
   const std::string spec = a.str("mesh", "");
   if (spec.empty()) throw cli::UsageError("--mesh is required (beam1, beam2, beam3, a model name or a mesh file)");
@@ -204,6 +236,13 @@ std::shared_ptr<const BodyModel> load_model(const cli::Args& a, const Material& 
     mesh = resolve_mesh(spec);
   } catch (const std::exception& e) {
     throw cli::UsageError(std::string("--mesh: ") + e.what());
+  }
+  if (auto order = a.str("tet-order")) {
+    try {
+      reorder_tets(mesh, *order, unsigned(a.integer("seed", 1, 0, 1L << 31)));
+    } catch (const std::invalid_argument& e) {
+      throw cli::UsageError(e.what());
+    }
   }
   const double clamp = fix_x ? *fix_x : default_clamp_x(mesh.vertices);
   return build_model(mesh, mat, clamp_below_x(clamp));
@@ -216,7 +255,7 @@ int cmd_converge(const cli::Args& a) {
   s.iterations = 600;
   s.gravity.setZero();
   s = settings_from(a, s);
-  if (!a.has("omega")) s.omega = default_omega(s.method);
+  if (!a.has("omega")) s.omega = recommended_omega(s.method);
   s.substeps = 1;
   const double h = s.dt;
   const double bend = a.number("bend-mm", 10.0) * 1e-3;
@@ -251,6 +290,7 @@ int cmd_converge(const cli::Args& a) {
   j.add("method", std::string(to_string(s.method)))
       .add("sweep", std::string(to_string(s.sweep)))
       .add("mesh", model->name)
+      .add("tet_order", a.str("tet-order", "mesh"))
       .add("tets", long(model->tet_count()))
       .add("young", mat.young)
       .add("model", std::string(to_string(mat.model)))
@@ -282,7 +322,7 @@ int cmd_converge(const cli::Args& a) {
     if (!mm) throw cli::UsageError("--match: unknown method '" + *match + "'");
     SolverSettings base = s;
     base.method = *mm;
-    base.omega = default_omega(*mm);
+    base.omega = recommended_omega(*mm);
     const ConvergenceRun b = run_convergence(*model, x0, ref.x, h, base);
     const double target = b.report.residual_final;
     long it_match = -1;
@@ -318,7 +358,7 @@ int cmd_static(const cli::Args& a) {
   s.damping = Damping::Simple;
   s.damping_coefficient = 50.0;
   s = settings_from(a, s);
-  if (!a.has("omega")) s.omega = default_omega(s.method);
+  if (!a.has("omega")) s.omega = recommended_omega(s.method);
   const int substeps = effective_substeps(*model, s);
   spdlog::info("static: {} substeps of {:.3g} s (c_p {:.3g} m/s), {} iterations", substeps, s.dt / substeps,
                pressure_wave_speed(*model), s.iterations);
@@ -367,7 +407,7 @@ int cmd_run(const cli::Args& a) {
   const Material mat = material_from(a);
   auto model = load_model(a, mat, a.number("fix-x-max"));
   SolverSettings s = settings_from(a, SolverSettings{});
-  if (!a.has("omega")) s.omega = default_omega(s.method);
+  if (!a.has("omega")) s.omega = recommended_omega(s.method);
   const int substeps = effective_substeps(*model, s);
   const int steps = int(a.integer("steps", 60, 1, 10000000));
   const int every = int(a.integer("every", 1, 1, 10000000));
@@ -403,16 +443,11 @@ int cmd_run(const cli::Args& a) {
   }
   write(0);
   // The tip's first turning point in y (a parabola through the three samples around it).
-  double y_before = 0, y_last = 0, first_turn = std::nan("");
+  FirstTurnDetector turn(s.dt);
   for (int k = 1; k <= steps; ++k) {
     const StepReport r = stepper.step(*model, state, s);
     const Vec3 tip = tip_displacement(*model, state.x);
-    if (k >= 2 && std::isnan(first_turn) && (y_last - y_before) * (tip.y() - y_last) < 0) {
-      const double curvature = y_before - 2 * y_last + tip.y();
-      first_turn = (k - 1 + (curvature != 0 ? 0.5 * (y_before - tip.y()) / curvature : 0.0)) * s.dt;
-    }
-    y_before = y_last;
-    y_last = tip.y();
+    turn.add(k, tip.y());
     wall += r.wall_ms;
     diverged += r.diverged;
     const size_t inverted = count_inverted(*model, state.x);
@@ -499,7 +534,205 @@ int cmd_run(const cli::Args& a) {
       .add("inverted_tets", long(count_inverted(*model, state.x)))
       .add("max_inverted_tets", long(worst_inverted)).add("steps_with_inverted", steps_with_inverted)
       .add("max_speed", speed).add("peak_speed", peak_speed).add("rms_speed", rms_speed(*model, state))
-      .add("kinetic_energy", kinetic_energy(*model, state)).add("tip_first_turn_s", first_turn);
+      .add("kinetic_energy", kinetic_energy(*model, state)).add("tip_first_turn_s", turn.time());
+  std::cout << j.str() << std::endl;
+  return 0;
+}
+
+// A file name for a method spec: letters, digits, '.', '-' and 'x' kept, the rest '_'.
+std::string spec_file_name(const std::string& spec) {
+  std::string out;
+  for (char c : spec) out += (std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-') ? c : '_';
+  return out + ".csv";
+}
+
+void write_accuracy_csv(const std::filesystem::path& path, const AccuracyCurve& c) {
+  std::ofstream f(path);
+  if (!f) throw cli::UsageError("--csv-dir: cannot write '" + path.string() + "'");
+  f << "ms,iterations,substeps,error,residual\n";
+  char line[160];
+  for (const AccuracyPoint& p : c.points) {
+    std::snprintf(line, sizeof line, "%.6g,%d,%d,%.10g,%.10g\n", p.ms, p.iterations, p.substeps, p.error, p.residual);
+    f << line;
+  }
+}
+
+// One log-log plot of the true error against ms, a curve per measured spec: colour, dash and
+// point type all vary (so curves stay apart in print too), markers thinned to about 20 per
+// curve. Returns false when gnuplot failed.
+struct PlottedCurve {
+  std::string title, csv;
+  size_t points = 0;
+  double max_error = 0;
+};
+bool plot_accuracy(const std::string& png, const std::string& title, const std::vector<PlottedCurve>& curves) {
+  static const char* kColours[] = {"#1b9e77", "#d95f02", "#7570b3", "#e7298a", "#66a61e", "#e6ab02",
+                                   "#a6761d", "#1f78b4", "#e31a1c", "#000000", "#6a3d9a", "#b15928"};
+  const std::filesystem::path script = std::filesystem::path(png).replace_extension(".gp");
+  double top = 1.0;
+  for (const PlottedCurve& c : curves)
+    if (std::isfinite(c.max_error)) top = std::max(top, c.max_error);
+  {
+    std::ofstream g(script);
+    if (!g) return false;
+    g << "set datafile separator ','\nset terminal pngcairo size 1000,620 font ',10'\n"
+      << "set output '" << png << "'\nset logscale xy\nset grid\nset key outside right\n"
+      << "set yrange [*:" << 1.3 * top << "]\n"
+      << "set title \"" << title << "\"\nset xlabel 'wall time of the step (ms)'\n"
+      << "set ylabel '||x - x*|| / ||x0 - x*||  (x*: Newton step)'\nplot ";
+    for (size_t i = 0; i < curves.size(); ++i) {
+      const size_t every = std::max<size_t>(1, curves[i].points / 20);
+      g << (i ? ", \\\n     " : "") << "'" << curves[i].csv << "' using 1:($4 > 0 ? $4 : 1/0) with linespoints lw 2 lc rgb '"
+        << kColours[i % 12] << "' dt " << i % 5 + 1 << " pt " << i % 13 + 1 << " ps 1.3 pi " << every << " title '"
+        << curves[i].title << "'";
+    }
+    g << "\n";
+  }
+  const std::string cmd = "gnuplot '" + script.string() + "' 1>&2";
+  const int rc = std::system(cmd.c_str());
+  std::filesystem::remove(script);
+  return rc == 0;
+}
+
+int cmd_accuracy(const cli::Args& a) {
+  const Material mat = material_from(a);
+  auto model = load_model(a, mat, a.number("fix-x-max"));
+  SolverSettings base = settings_from(a, SolverSettings{});
+  const std::string start_name = a.str("start", "bend");
+  const double budget = a.number("budget-ms", 100.0);
+  if (!(budget > 0) || !std::isfinite(budget)) throw cli::UsageError("--budget-ms must be > 0, got " + a.str("budget-ms", ""));
+  const std::string list = a.str("methods", "");
+  if (list.empty()) throw cli::UsageError("--methods is required (e.g. xpbd:64x1,xpbd:1xN,anderson-sor:1xN:omega=2)");
+  std::vector<MethodSpec> specs;
+  AccuracyStart start;
+  try {
+    specs = parse_method_specs(list, base);
+    start = accuracy_start(*model, start_name, base.dt, a.number("bend-mm", 10.0) * 1e-3);
+  } catch (const std::invalid_argument& e) {
+    throw cli::UsageError(e.what());
+  }
+
+  spdlog::info("accuracy: reference step (Newton, sparse LDLT)...");
+  NewtonOptions nopt;
+  nopt.tolerance = 1e-10;
+  const NewtonResult ref = solve_implicit_step(*model, start.state.x, start.predicted, base.dt, nopt);
+  if (!ref.converged) spdlog::warn("reference solver did not converge (|g| = {:.3e})", ref.gradient_norm);
+  double e0 = 0;
+  for (size_t i = 0; i < ref.x.size(); ++i) e0 += (start.state.x[i] - ref.x[i]).squaredNorm();
+
+  const bool dynamic = a.has("dynamic");
+  std::optional<Vec3> static_tip;
+  std::optional<double> reference_turn;
+  const int rest_steps = int(a.integer("max-steps", 600, 1, 100000));
+  const int swing_steps = std::max(3, int(std::ceil(2.0 / base.dt)));
+  if (dynamic) {
+    spdlog::info("accuracy: static equilibrium (Newton) and the converged swing (wave Courant 0.3 x 1)...");
+    NewtonOptions sopt;
+    sopt.load_steps = 10;
+    sopt.max_iterations = 200;
+    static_tip = tip_displacement(*model, solve_static(*model, model->rest_positions, Vec3(0, -9.81, 0), {}, sopt).x);
+    SolverSettings conv = base;
+    conv.method = Method::Xpbd;
+    conv.iterations = 1;
+    conv.target_wave_courant_number = 0.3;
+    reference_turn = measure_dynamics(*model, conv, swing_steps, 0).first_turn_s;
+  }
+
+  std::filesystem::path csv_dir;
+  if (auto d = a.str("csv-dir")) {
+    csv_dir = *d;
+    std::error_code ec;
+    std::filesystem::create_directories(csv_dir, ec);
+    if (ec) throw cli::UsageError("--csv-dir: cannot create '" + *d + "': " + ec.message());
+  }
+  std::string png = a.str("png", "");
+  if (png.empty() && !csv_dir.empty()) png = (csv_dir / "true_error_vs_ms.png").string();
+  std::filesystem::path plot_dir = csv_dir;
+  if (!png.empty() && plot_dir.empty())
+    plot_dir = std::filesystem::temp_directory_path() / ("pliant-accuracy-" + std::to_string(::getpid()));
+  if (!plot_dir.empty()) std::filesystem::create_directories(plot_dir);
+
+  std::vector<PlottedCurve> plotted;
+  std::map<int, std::vector<Vec3>> floors;  // converged substeps by count
+  constexpr int kMaxFloorSubsteps = 256;    // Newton solves per floor: bounded
+  std::string methods_json = "[";
+  for (size_t i = 0; i < specs.size(); ++i) {
+    const MethodSpec& spec = specs[i];
+    spdlog::info("accuracy: {} ...", spec.text);
+    AccuracyCurve c;
+    try {
+      c = measure_accuracy(*model, start, ref.x, spec, budget);
+    } catch (const std::exception& e) {
+      c.spec = spec;
+      c.refused = e.what();
+    }
+    if (!c.refused.empty()) spdlog::warn("accuracy: {} refused: {}", spec.text, c.refused);
+    JsonLine m;
+    const SolverSettings& s = c.spec.settings;
+    m.add("spec", spec.text).add("method", std::string(to_string(s.method))).add("sweep", std::string(to_string(s.sweep)));
+    if (spec.substeps_grow) m.add("substeps", "N"); else m.add("substeps", s.substeps);
+    if (spec.iterations_grow) m.add("iterations", "N"); else m.add("iterations", s.iterations);
+    m.add("omega", s.omega);
+    if (c.refused.empty()) m.null("refused"); else m.add("refused", c.refused);
+    m.add("diverged", c.diverged).add("points", long(c.points.size()));
+    const AccuracyPoint last = c.points.empty() ? AccuracyPoint{std::nan(""), 0, 0, std::nan(""), std::nan("")} : c.points.back();
+    m.add("error_final", last.error).add("ms_final", last.ms).add("residual_final", last.residual);
+    JsonLine to;
+    to.add("1e-1", ms_to_error(c, 1e-1)).add("1e-2", ms_to_error(c, 1e-2)).add("1e-3", ms_to_error(c, 1e-3));
+    m.raw("ms_to_error", to.str());
+    if (!plot_dir.empty() && !c.points.empty()) {
+      const auto path = plot_dir / spec_file_name(spec.text);
+      write_accuracy_csv(path, c);
+      double worst = 0;
+      for (const AccuracyPoint& p : c.points) worst = std::max(worst, p.error);
+      plotted.push_back({spec.text, path.string(), c.points.size(), worst});
+      if (!csv_dir.empty()) m.add("csv", path.string());
+    }
+    // The floor of a fixed substep count: its converged substeps against the one-step x*.
+    if (a.has("substep-floor") && c.refused.empty() && !spec.substeps_grow && s.substeps > 1 &&
+        s.substeps <= kMaxFloorSubsteps) {
+      auto& floor = floors[s.substeps];
+      if (floor.empty()) floor = converged_substeps(*model, start, s, s.substeps);
+      m.add("substep_floor", relative_error(floor, start.state.x, ref.x));
+    }
+    if (dynamic && !spec.grows() && c.refused.empty()) {
+      spdlog::info("accuracy: {} dynamic run...", spec.text);
+      SolverSettings ds = s;
+      ds.gravity = Vec3(0, -9.81, 0);
+      const DynamicMeasures d = measure_dynamics(*model, ds, swing_steps, rest_steps);
+      const double tip_ratio = static_tip->norm() > 0 ? d.rest_tip.norm() / static_tip->norm() : std::nan("");
+      m.add("rest_tip", d.rest_tip).add("rest_tip_ratio", tip_ratio).add("at_rest", d.at_rest)
+          .add("rest_steps", d.rest_steps).add("rest_inverted_tets", long(d.inverted_tets))
+          .add("ms_per_step", d.ms_per_step).add("first_turn_s", d.first_turn_s)
+          .add("first_turn_ratio", d.first_turn_s && reference_turn ? std::optional<double>(*d.first_turn_s / *reference_turn)
+                                                                     : std::nullopt)
+          .add("dynamic_diverged", d.diverged);
+    }
+    if (i) methods_json += ',';
+    methods_json += m.str();
+  }
+  methods_json += "]";
+
+  if (!png.empty() && !plotted.empty()) {
+    char title[256];
+    std::snprintf(title, sizeof title, "%s, E = %.3g Pa, h = %.4g s, %s start: true error of one step", model->name.c_str(),
+                  mat.young, base.dt, start.name.c_str());
+    if (!plot_accuracy(png, title, plotted)) spdlog::warn("accuracy: gnuplot failed or is missing: no plot written to {}", png);
+  }
+  if (csv_dir.empty() && !plot_dir.empty()) std::filesystem::remove_all(plot_dir);
+
+  JsonLine j;
+  j.add("command", "accuracy").add("mesh", model->name).add("tets", long(model->tet_count())).add("young", mat.young)
+      .add("poisson", mat.poisson).add("model", std::string(to_string(mat.model))).add("dt", base.dt)
+      .add("start", start.name).add("budget_ms", budget).add("threads", base.threads)
+      .add("reference_newton_iterations", ref.iterations).add("reference_converged", ref.converged)
+      .add("initial_error_m", std::sqrt(e0));
+  if (dynamic) {
+    j.add("static_tip", *static_tip).add("reference_first_turn_s", reference_turn)
+        .add("reference_swing", "xpbd, wave Courant 0.3 x 1 iteration");
+  }
+  if (!png.empty() && !plotted.empty()) j.add("png", png);
+  j.raw("methods", methods_json);
   std::cout << j.str() << std::endl;
   return 0;
 }
@@ -526,7 +759,8 @@ int main(int argc, char** argv) {
     if (cmd == "static") return cmd_static(a);
     if (cmd == "reference") return cmd_reference(a);
     if (cmd == "run") return cmd_run(a);
-    throw cli::UsageError("unknown command '" + cmd + "' (converge, static, reference, run)");
+    if (cmd == "accuracy") return cmd_accuracy(a);
+    throw cli::UsageError("unknown command '" + cmd + "' (converge, static, reference, run, accuracy)");
   } catch (const cli::UsageError& e) {
     std::cerr << "pliant-sim: " << e.what() << "\n";
     return 2;

@@ -4,6 +4,7 @@
 #include "kernels/packed_projection.hpp"
 #include "kernels/projection.hpp"
 #include "step/family.hpp"
+#include "step/sequential_sweep.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
 
@@ -399,9 +400,15 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     if (accel->needs_previous()) I.x_before = x;
     {
       PhaseTimer t{rep.times.projection_ms};
-      rep.volume_corrections = s.sweep == Sweep::GaussSeidel
-                                   ? I.sweep_gauss_seidel(m, x, lambda, params, tp)
-                                   : I.sweep_jacobi(m, x, lambda, params, s.jacobi_relaxation, tp);
+      switch (s.sweep) {
+        case Sweep::GaussSeidel: rep.volume_corrections = I.sweep_gauss_seidel(m, x, lambda, params, tp); break;
+        case Sweep::Jacobi:
+          rep.volume_corrections = I.sweep_jacobi(m, x, lambda, params, s.jacobi_relaxation, tp);
+          break;
+        case Sweep::Sequential:
+          rep.volume_corrections = detail::sweep_sequential(m, I.packed, x, lambda, I.dlambda, params);
+          break;
+      }
     }
     if (!inputs.colliders.empty()) {
       PhaseTimer t{rep.times.other_ms};
