@@ -8,7 +8,7 @@
 // are printed side by side). Also the wall time per 1 ms tick of each budget on this machine
 // (1 thread, the server's default), so the budget that fits the tick can be chosen.
 //
-// Usage: pliant_haptic_fidelity [--young E1,E2,...] [--poisson NU] [--budgets 4x2,8x1,...]
+// Usage: pliant_haptic_fidelity [--young E1,E2,...] [--poisson NU] [--budgets 4x2,8x1,newton:1x2,...]
 //                               [--reference SxI] [--seconds S] [--clamp bottom|end]
 //                               [--support-inertia K]   (Material::support_inertia, default 0)
 #include "pliant/builtin_meshes.hpp"
@@ -33,7 +33,11 @@ namespace {
 
 struct Budget {
   int substeps = 1, iterations = 1;
-  std::string name() const { return std::to_string(substeps) + " x " + std::to_string(iterations); }
+  Method method = Method::Xpbd;
+  std::string name() const {
+    const std::string size = std::to_string(substeps) + " x " + std::to_string(iterations);
+    return method == Method::Xpbd ? size : std::string(to_string(method)) + " " + size;
+  }
 };
 
 struct Outcome {
@@ -49,6 +53,7 @@ Outcome press(const std::shared_ptr<const BodyModel>& model, const Budget& b, do
   s.dt = 1.0 / hz;
   s.substeps = b.substeps;
   s.iterations = b.iterations;
+  s.method = b.method;
   s.damping_coefficient = 20;
   s.gravity = Eigen::Vector3d::Zero();
   BodyState st = rest_state(*model);
@@ -98,8 +103,16 @@ Outcome press(const std::shared_ptr<const BodyModel>& model, const Budget& b, do
   return out;
 }
 
+// "SxI" (the projection family's plain XPBD) or "METHOD:SxI" (any method but auto).
 bool parse_budget(const std::string& s, Budget* b) {
-  return std::sscanf(s.c_str(), "%dx%d", &b->substeps, &b->iterations) == 2 && b->substeps > 0 && b->iterations > 0;
+  std::string size = s;
+  if (const auto colon = s.find(':'); colon != std::string::npos) {
+    const auto m = parse_method(s.substr(0, colon));
+    if (!m || *m == Method::Auto) return false;
+    b->method = *m;
+    size = s.substr(colon + 1);
+  }
+  return std::sscanf(size.c_str(), "%dx%d", &b->substeps, &b->iterations) == 2 && b->substeps > 0 && b->iterations > 0;
 }
 
 std::vector<std::string> split(const std::string& s) {
@@ -111,7 +124,7 @@ std::vector<std::string> split(const std::string& s) {
 
 int usage() {
   std::fprintf(stderr,
-               "usage: pliant_haptic_fidelity [--young E1,E2,...] [--poisson NU] [--budgets 4x2,8x1,...] "
+               "usage: pliant_haptic_fidelity [--young E1,E2,...] [--poisson NU] [--budgets 4x2,8x1,newton:1x2,...] "
                "[--reference SxI] [--seconds S] [--clamp bottom|end] [--support-inertia K]\n");
   return 2;
 }

@@ -255,6 +255,7 @@ v1::CreateSceneRequest scene_request(const BridgeOptions& o) {
   s->mutable_material()->set_young_modulus(o.create_young);
   s->mutable_material()->set_poisson_ratio(o.create_poisson);
   s->mutable_gravity()->set_y(0);
+  s->mutable_solver()->set_method(o.create_method);
   s->mutable_solver()->set_substeps(o.create_substeps);
   s->mutable_solver()->set_iterations(o.create_iterations);
   s->mutable_solver()->set_damping_coefficient(20);

@@ -5,6 +5,7 @@
 // one JSON line (loop_hz, period_p99_us, rtt_p50_ms, rtt_p99_ms, rtt_max_ms, max_force_n, ...).
 // Exit codes: 0 ok; 2 usage error; 3 never connected to the server.
 #include "pliant/client/haptic.hpp"
+#include "pliant/proto/enums.hpp"
 
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -34,6 +35,8 @@ const char* kUsage = R"(usage: pliant-haptic [flags]
                          they are (docs/haptics.md)
   --poisson NU           Poisson's ratio of a scene it creates (default 0.49)
   --substeps N --iterations N   solver of a scene it creates (default 4 x 2)
+  --method M             its method (default xpbd; newton feels the converged force at every
+                         stiffness, docs/haptics.md; any name `pliant --help` lists)
   --rate HZ              device loop rate (default 1000)
   --script press|stroke  simulated device motion (default press)
   --start X,Y,Z          simulated handle start, m (default 0.1,0.025,0.005: over beam1's tip)
@@ -108,7 +111,15 @@ int main(int argc, char** argv) {
         return 2;
       }
     }
-    else if (a == "--substeps") opt.create_substeps = static_cast<int>(number(1, 10000));
+    else if (a == "--method") {
+      const std::string v = value();
+      const auto m = pliant::parse_method(v);
+      if (!m) {
+        std::cerr << "pliant-haptic: --method must be one of " << pliant::method_names() << ", got '" << v << "'\n";
+        std::exit(2);
+      }
+      opt.create_method = pliant::proto::method_to(*m);
+    } else if (a == "--substeps") opt.create_substeps = static_cast<int>(number(1, 10000));
     else if (a == "--iterations") opt.create_iterations = static_cast<int>(number(1, 10000));
     else if (a == "--rate") opt.loop_hz = number(10, 10000);
     else if (a == "--script") {

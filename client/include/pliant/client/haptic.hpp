@@ -129,6 +129,9 @@ struct BridgeOptions {
   // beam1 on the 2-core development machine.
   int create_substeps = 4;
   int create_iterations = 2;
+  // Its method: XPBD by default (the budget above); METHOD_NEWTON gives the converged force at
+  // every stiffness (docs/haptics.md) at a cost per tick that depends on the machine.
+  v1::Method create_method = v1::METHOD_XPBD;
   double loop_hz = 1000;
   double tool_radius = 0.005;
   SafetyLimits limits;
