@@ -1024,3 +1024,53 @@ TEST(Service, AStepPastItsDeadlineDropsTheRemainingTicks) {
   EXPECT_LT(next->tick(), 100000u);
   EXPECT_GT(next->tick(), 0u);
 }
+
+TEST(MethodAuto, RealtimeScenesWithoutAMethodRunTheMeasuredChoice) {
+  TestServer ts;
+  Client c = ts.client();
+  v1::CreateSceneRequest r = beam_request("auto", v1::TICK_MODE_REALTIME);
+  r.mutable_spec()->set_start_paused(true);
+  auto created = c.create_scene(r);
+  ASSERT_TRUE(created.ok()) << created.status.to_string();
+  const std::string& choice = created->method_choice();
+  ASSERT_FALSE(choice.empty());
+  const v1::Method chosen = created->spec().solver().method();
+  EXPECT_NE(chosen, v1::METHOD_AUTO);
+  EXPECT_NE(chosen, v1::METHOD_UNSPECIFIED);
+  EXPECT_NE(choice.find("newton"), std::string::npos) << choice;
+  EXPECT_NE(choice.find("xpbd"), std::string::npos) << choice;
+  EXPECT_GT(created->spec().solver().time_budget_ms(), 0);  // half the tick by default
+
+  // Lockstep scenes and scenes that name a method keep what they asked for.
+  auto lockstep = c.create_scene(beam_request("lockstep"));
+  ASSERT_TRUE(lockstep.ok());
+  EXPECT_TRUE(lockstep->method_choice().empty());
+  EXPECT_EQ(lockstep->spec().solver().method(), v1::METHOD_XPBD);
+  v1::CreateSceneRequest pinned = beam_request("pinned", v1::TICK_MODE_REALTIME);
+  pinned.mutable_spec()->set_start_paused(true);
+  pinned.mutable_spec()->mutable_solver()->set_method(v1::METHOD_ANDERSON_SOR);
+  auto p = c.create_scene(pinned);
+  ASSERT_TRUE(p.ok());
+  EXPECT_TRUE(p->method_choice().empty());
+  EXPECT_EQ(p->spec().solver().method(), v1::METHOD_ANDERSON_SOR);
+
+  // A new material is measured again; pinning a method ends auto, asking for it starts it.
+  v1::UpdateSceneRequest up;
+  up.set_scene_id("auto");
+  up.mutable_material()->set_young_modulus(1e7);
+  auto u = c.update_scene(up);
+  ASSERT_TRUE(u.ok()) << u.status.to_string();
+  EXPECT_FALSE(u->method_choice().empty());
+  up.Clear();
+  up.set_scene_id("auto");
+  up.mutable_solver()->set_method(v1::METHOD_XPBD);
+  u = c.update_scene(up);
+  ASSERT_TRUE(u.ok());
+  EXPECT_TRUE(u->method_choice().empty());
+  EXPECT_EQ(u->spec().solver().method(), v1::METHOD_XPBD);
+  up.mutable_solver()->set_method(v1::METHOD_AUTO);
+  u = c.update_scene(up);
+  ASSERT_TRUE(u.ok());
+  EXPECT_FALSE(u->method_choice().empty());
+  EXPECT_NE(u->spec().solver().method(), v1::METHOD_AUTO);
+}

@@ -4,6 +4,7 @@
 // the force the body puts on it.
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/experiments.hpp"
+#include "pliant/method_choice.hpp"
 #include "pliant/reference_solver.hpp"
 #include "pliant/stepper.hpp"
 #include "pliant/strain_constraint.hpp"
@@ -219,4 +220,32 @@ TEST(NewtonStep, StopsWhenCancelled) {
   EXPECT_EQ(rep.iterations, 1);
   EXPECT_EQ(rep.substeps, 1);
   EXPECT_NEAR(state.time, s.dt / 4, 1e-15);
+}
+
+TEST(MethodAuto, MeasuresEachFamilyAndKeepsTheMostAccurate) {
+  auto m = clamped_beam1(1e6);
+  SolverSettings base;
+  base.method = Method::Auto;
+  const MethodChoice c = choose_method(*m, base, 5.0);
+  ASSERT_EQ(c.trials.size(), 3u);
+  EXPECT_EQ(c.trials[0].settings.method, Method::Newton);
+  EXPECT_EQ(c.trials[1].settings.method, Method::Vbd);
+  EXPECT_EQ(c.trials[2].settings.method, Method::Xpbd);
+  EXPECT_EQ(c.trials[2].settings.substeps, base.substeps);
+  // The winner is the trial of least error, and it runs with the budget it was measured at.
+  double best = INFINITY;
+  for (const MethodTrial& t : c.trials)
+    if (t.failure.empty()) best = std::min(best, t.error);
+  bool found = false;
+  for (const MethodTrial& t : c.trials)
+    if (t.failure.empty() && t.error == best) found |= t.settings.method == c.settings.method;
+  EXPECT_TRUE(found) << c.summary;
+  EXPECT_EQ(c.settings.time_budget_ms, 5.0);
+  EXPECT_NE(c.settings.method, Method::Auto);
+  EXPECT_TRUE(validate(c.settings).empty()) << validate(c.settings);
+  // On a stiff beam one tick of the projection family is far from the converged step.
+  EXPECT_GT(c.trials[2].error, 0.1);
+  EXPECT_NE(c.summary.find(std::string(to_string(c.settings.method))), std::string::npos);
+  // Without a budget, half the tick.
+  EXPECT_NEAR(choose_method(*m, base, 0).settings.time_budget_ms, 0.5 * base.dt * 1e3, 1e-12);
 }
