@@ -230,6 +230,5 @@ TEST(MalformedFuzz, TruncationsAndGarbageFailCleanly) {
     for (char& ch : noise) ch = static_cast<char>(rng() & 0xff);
     attempt(noise);
   }
-  EXPECT_GT(failed, 0);
-  std::printf("fuzz: %d loaded, %d failed cleanly\n", loaded, failed);
+  EXPECT_GT(failed, 0) << "fuzz: " << loaded << " loaded, " << failed << " failed cleanly";
 }
