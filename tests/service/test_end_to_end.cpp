@@ -1,6 +1,8 @@
 // End to end: the real pliant-server binary, driven by the real pliant CLI (through a restart;
 // grab / move-grab / release) and by pliant-haptic. Paths come from CMake (PLIANT_SERVER_BIN,
 // PLIANT_CLI_BIN, PLIANT_HAPTIC_BIN).
+#include "pliant/test/wait_until.hpp"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -12,7 +14,6 @@
 #include <sstream>
 #include <string>
 #include <sys/wait.h>
-#include <thread>
 #include <unistd.h>
 
 namespace fs = std::filesystem;
@@ -58,12 +59,15 @@ class ServerProcess {
       _exit(127);
     }
     const std::regex port_re(R"(listening on .*\(port (\d+)\))");
-    for (int i = 0; i < 1000 && port_ == 0; ++i) {
-      std::smatch m;
-      std::string text = read_file(log_);
-      if (std::regex_search(text, m, port_re)) port_ = std::stoi(m[1]);
-      else std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
+    EXPECT_TRUE(pliant::test::wait_until(
+        [&] {
+          std::smatch m;
+          const std::string text = read_file(log_);
+          if (std::regex_search(text, m, port_re)) port_ = std::stoi(m[1]);
+          return port_ != 0;
+        },
+        pliant::test::kPatience, "the server's 'listening on ... (port N)' log line"))
+        << read_file(log_);
   }
   ~ServerProcess() {
     if (pid_ > 0) stop();

@@ -4,11 +4,11 @@
 // "eventually" bounds, never timing assertions.
 #include "pliant/client/haptic.hpp"
 #include "pliant/server/server.hpp"
+#include "pliant/test/wait_until.hpp"
 
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
 
-#include <thread>
 
 using namespace pliant;
 using namespace pliant::haptic;
@@ -28,16 +28,6 @@ ServerForce at(uint64_t tick, const Vec3& force, const Vec3& pose) {
   s.pose = pose;
   s.received = Clock::now();
   return s;
-}
-
-// Polls `done` every 10 ms for up to `limit`.
-bool eventually(const std::function<bool()>& done, std::chrono::seconds limit) {
-  const auto end = Clock::now() + limit;
-  while (Clock::now() < end) {
-    if (done()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  return done();
 }
 
 }  // namespace
@@ -110,7 +100,8 @@ TEST(HapticBridge, FeelsTheBeamCutsToZeroWhenTheServerGoesAndReconnects) {
   HapticBridge bridge(bo, device);
   bridge.start();
 
-  ASSERT_TRUE(eventually([&] { return device->last_force().y() > 0.005; }, std::chrono::seconds(30)))
+  ASSERT_TRUE(test::wait_until([&] { return device->last_force().y() > 0.005; }, std::chrono::seconds(30),
+                               "the device to feel the beam (force above 5 mN)"))
       << bridge.stats().to_json();
   const BridgeStats pressed = bridge.stats();
   EXPECT_GT(pressed.feedback, 0u);
@@ -119,18 +110,23 @@ TEST(HapticBridge, FeelsTheBeamCutsToZeroWhenTheServerGoesAndReconnects) {
   // The server goes away: the force is zero from the loop period after the loss on.
   srv->shutdown();
   srv.reset();
-  ASSERT_TRUE(eventually([&] { return !bridge.connected(); }, std::chrono::seconds(10)));
-  ASSERT_TRUE(eventually([&] { return bridge.zero_rendered_at_loop() >= bridge.loss_flagged_at_loop(); },
-                         std::chrono::seconds(5)));
+  ASSERT_TRUE(test::wait_until([&] { return !bridge.connected(); }, std::chrono::seconds(10),
+                               "the bridge to notice the server is gone"));
+  ASSERT_TRUE(test::wait_until([&] { return bridge.zero_rendered_at_loop() >= bridge.loss_flagged_at_loop(); },
+                               std::chrono::seconds(5), "a zero force rendered after the loss"));
   EXPECT_LE(bridge.zero_rendered_at_loop() - bridge.loss_flagged_at_loop(), 1u);
-  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  // And it stays zero: 50 device loop periods later the device still feels nothing.
+  const uint64_t loops = bridge.stats().loops;
+  ASSERT_TRUE(test::wait_until([&] { return bridge.stats().loops >= loops + 50; }, test::kPatience,
+                               "50 more device loop periods"));
   EXPECT_EQ(device->last_force(), Vec3::Zero());
 
   // It comes back on the same port (a fresh server: the bridge creates the scene again).
   so.listen = "127.0.0.1:" + std::to_string(port);
   srv = std::make_unique<server::PliantServer>(so);
   ASSERT_TRUE(srv->start().ok());
-  ASSERT_TRUE(eventually([&] { return bridge.connected() && device->last_force().y() > 0.005; }, std::chrono::seconds(30)))
+  ASSERT_TRUE(test::wait_until([&] { return bridge.connected() && device->last_force().y() > 0.005; },
+                               std::chrono::seconds(30), "the bridge to reconnect and feel the beam again"))
       << bridge.stats().to_json();
   EXPECT_GE(bridge.stats().reconnects, 1u);
   bridge.stop();

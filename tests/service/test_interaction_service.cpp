@@ -3,6 +3,7 @@
 // errors that name the field and the value. No timing assertions (bench/ measures latency).
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
+#include "pliant/test/wait_until.hpp"
 
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
@@ -207,7 +208,17 @@ TEST(InteractionService, HapticStreamAnswersEveryTickWithTheToolForce) {
     }
   });
   // A 1 cm sphere lowered from 1 mm above the top face near the tip to 2 mm into it over 60
-  // ticks (one pose per tick), then held. The poses reach the tick asynchronously.
+  // ticks (one pose per tick), then held. The poses reach the tick asynchronously: a tick uses
+  // the latest pose the server has read, so after each step the test waits for that tick's
+  // feedback (the tool is in every tick once its first pose is).
+  auto feedback_count = [&] {
+    std::lock_guard lk(mu);
+    return got.size();
+  };
+  auto has_feedback_of_tick = [&](uint64_t tick) {
+    std::lock_guard lk(mu);
+    return !got.empty() && got.back().tick() >= tick;
+  };
   v1::ToolPose pose;
   pose.set_scene_id("h");
   pose.set_shape(v1::TOOL_SHAPE_SPHERE);
@@ -220,17 +231,27 @@ TEST(InteractionService, HapticStreamAnswersEveryTickWithTheToolForce) {
     *pose.mutable_position() = vec(0.1, 0.01 + 0.01 - depth, 0.005);
     ASSERT_TRUE(stream->send(pose));
     pose.clear_scene_id();
-    std::this_thread::sleep_for(std::chrono::milliseconds(2));
-    ASSERT_TRUE(c.step("h", 1).ok());
+    if (i == 0) {
+      // Tick until the first pose is in a tick (the tool attached) and its feedback is back.
+      ASSERT_TRUE(test::wait_until([&] { return c.step("h", 1).ok() && feedback_count() > 0; }, test::kPatience,
+                                   "the first feedback (the tool's first pose in a tick)"));
+      continue;
+    }
+    auto st = c.step("h", 1);
+    ASSERT_TRUE(st.ok()) << st.status.to_string();
+    const uint64_t tick = st->tick();
+    ASSERT_TRUE(test::wait_until([&] { return has_feedback_of_tick(tick); }, test::kPatience,
+                                 "the feedback of tick " + std::to_string(tick)));
   }
-  // Let the last pose reach a tick, then a few more ticks.
-  size_t n = 0;
-  for (int i = 0; i < 500; ++i) {
-    ASSERT_TRUE(c.step("h", 1).ok());
-    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  // Tick until the last pose is in a tick, then 10 more ticks with it.
+  auto ticks_with_last_pose = [&] {
     std::lock_guard lk(mu);
-    if (!got.empty() && got.back().pose_seq() == seq && ++n > 10) break;
-  }
+    size_t n = 0;
+    for (auto it = got.rbegin(); it != got.rend() && it->pose_seq() == seq; ++it) ++n;
+    return n;
+  };
+  ASSERT_TRUE(test::wait_until([&] { return c.step("h", 1).ok() && ticks_with_last_pose() > 10; }, test::kPatience,
+                               "11 ticks' feedback with the last pose"));
   stream->close();
   reader.join();
   EXPECT_TRUE(stream->finish().ok());

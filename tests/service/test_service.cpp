@@ -6,6 +6,7 @@
 #include "pliant/experiments.hpp"
 #include "pliant/model.hpp"
 #include "pliant/server/server.hpp"
+#include "pliant/test/wait_until.hpp"
 
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
@@ -276,8 +277,12 @@ TEST(Service, PauseResumeAndStepWhilePaused) {
   ASSERT_TRUE(p.ok());
   EXPECT_EQ(p->state(), v1::SCENE_STATE_PAUSED);
   const uint64_t t1 = c.get_scene("rt")->tick();
-  std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  EXPECT_EQ(c.get_scene("rt")->tick(), t1);  // paused means no ticks
+  // Paused means no ticks: while a running scene on the same server ticks 20 times (each
+  // scene has its own thread), the paused one stays where it is.
+  ASSERT_TRUE(c.create_scene(beam_request("witness", v1::TICK_MODE_AS_FAST_AS_POSSIBLE)).ok());
+  ASSERT_TRUE(test::wait_until([&] { return c.get_scene("witness")->tick() >= 20; }, test::kPatience,
+                               "20 ticks of a running scene"));
+  EXPECT_EQ(c.get_scene("rt")->tick(), t1);
 }
 
 // A realtime scene whose period is far shorter than a step: every tick overruns, and the
@@ -604,7 +609,8 @@ TEST(Service, ThirtyTwoConcurrentSubscribers) {
       s->cancel();
     });
   }
-  while (ready < kSubscribers) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  ASSERT_TRUE(test::wait_until([&] { return ready == kSubscribers; }, test::kPatience,
+                               "every subscriber's first frame"));
   for (int k = 0; k < 4; ++k) ASSERT_TRUE(c.step("many", 10).ok());
   for (auto& t : threads) t.join();
   for (int i = 0; i < kSubscribers; ++i) {
@@ -624,7 +630,13 @@ TEST(Service, DeleteEndsStreamsWithNotFoundAndShutdownWithUnavailable) {
   auto s1 = c.stream_frames(q);
   q.set_scene_id("stays");
   auto s2 = c.stream_frames(q);
-  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  // Both streams are open once each has delivered a frame (the first tick's, or the latest
+  // when the server saw the subscription after the step).
+  ASSERT_TRUE(c.step("gone", 1).ok());
+  ASSERT_TRUE(c.step("stays", 1).ok());
+  v1::Frame f;
+  ASSERT_TRUE(s1->next(&f));
+  ASSERT_TRUE(s2->next(&f));
   ASSERT_TRUE(c.delete_scene("gone").ok());
   EXPECT_EQ(s1->finish().code, kNotFound);
   ts.server->shutdown();

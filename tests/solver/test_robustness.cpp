@@ -1,7 +1,8 @@
 // Real-time robustness (issue item 10): at a 60 Hz tick with the default substeps x iterations,
 // the thesis beams, hippo and armadillo hang under gravity from a clamp for E from 10 kPa to
-// 10 MPa (nu = 0.4) without blowing up and without inverted tets left at the end; the hippo
-// brought to rest at the default budget; and a budget that resolves the material.
+// 10 MPa (nu = 0.4) without blowing up, the beams with no inverted tet at the end and the thesis
+// models within a documented bound; the hippo brought to rest at the default budget; and a
+// budget that resolves the material.
 #include "pliant/experiments.hpp"
 #include "pliant/mesh_io.hpp"
 #include "pliant/stepper.hpp"
@@ -9,7 +10,6 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <iostream>
 #include <string>
 #include <tuple>
 
@@ -20,10 +20,13 @@ namespace {
 struct Case {
   const char* mesh;
   int ticks;  // the big models run fewer ticks to keep the suite fast on 2 cores
-  // The thesis hippo (slivers down to 6e-15 m^3) and armadillo still end some ticks with a few
-  // inverted tets at the default 64 x 1 budget (counts in docs/solver.md): not yet met, so
-  // for them the test holds stability only and prints the count.
-  bool require_no_inversion;
+  // Inverted tets allowed at the end of the run. The beams: none. Known limitation: the thesis
+  // hippo (slivers down to 6e-15 m^3) and armadillo can end a tick mid-swing with a few inverted
+  // tets at the default 64 x 1 budget (measured worst: hippo 1 of 10,361 at 100 kPa, armadillo
+  // 0 of 54,855; docs/solver.md "Real-time robustness"). The bound is that worst case plus 2:
+  // room for another CPU's rounding, yet plain lumped masses (hippo 9 at 10 kPa, 4 at 100 kPa)
+  // would fail it. At rest none is left (DefaultBudget, SupportInertiaMatrix below).
+  size_t max_inverted;
   ElasticModel model = ElasticModel::StVK;
 };
 
@@ -51,8 +54,7 @@ TEST_P(Robustness, StaysStableAtSixtyHertz) {
   }
   ASSERT_TRUE(is_finite(state));
   const size_t inverted = count_inverted(*model, state.x);
-  if (c.require_no_inversion) EXPECT_EQ(inverted, 0u);
-  else std::cout << "[ inverted ] " << c.mesh << " E=" << young << ": " << inverted << " of " << model->tet_count() << "\n";
+  EXPECT_LE(inverted, c.max_inverted) << "inverted tets of " << model->tet_count() << " after " << c.ticks << " ticks";
   // Nothing flew away: every vertex stays within a few body lengths of its rest place.
   const double size = bounding_box(mesh.vertices).extent().maxCoeff();
   double worst = 0;
@@ -62,8 +64,8 @@ TEST_P(Robustness, StaysStableAtSixtyHertz) {
 
 INSTANTIATE_TEST_SUITE_P(
     Matrix, Robustness,
-    ::testing::Combine(::testing::Values(Case{"beam1", 60, true}, Case{"beam2", 60, true}, Case{"beam3", 60, true},
-                                         Case{"hippo", 20, false}, Case{"armadillo", 6, false}),
+    ::testing::Combine(::testing::Values(Case{"beam1", 60, 0}, Case{"beam2", 60, 0}, Case{"beam3", 60, 0},
+                                         Case{"hippo", 20, 3}, Case{"armadillo", 6, 2}),
                        ::testing::Values(1e4, 1e5, 1e6, 1e7)),
     [](const auto& info) {
       return std::string(std::get<0>(info.param).mesh) + "_E" +
@@ -73,9 +75,9 @@ INSTANTIATE_TEST_SUITE_P(
 // The same for the corotated strain on the beams (the thesis models: docs/data/rest_matrix_corotated.jsonl).
 INSTANTIATE_TEST_SUITE_P(
     CorotatedMatrix, Robustness,
-    ::testing::Combine(::testing::Values(Case{"beam1", 60, true, ElasticModel::Corotated},
-                                         Case{"beam2", 60, true, ElasticModel::Corotated},
-                                         Case{"beam3", 60, true, ElasticModel::Corotated}),
+    ::testing::Combine(::testing::Values(Case{"beam1", 60, 0, ElasticModel::Corotated},
+                                         Case{"beam2", 60, 0, ElasticModel::Corotated},
+                                         Case{"beam3", 60, 0, ElasticModel::Corotated}),
                        ::testing::Values(1e4, 1e5, 1e6, 1e7)),
     [](const auto& info) {
       return std::string(std::get<0>(info.param).mesh) + "_E" +

@@ -1,0 +1,57 @@
+# pliant_add_gtest: one GoogleTest executable, its tests registered with ctest under one label
+# and one per-test timeout. Sources are listed explicitly (a new test file is added to the
+# executable whose speed and area it shares; tests/README.md says which).
+#
+#   pliant_add_gtest(NAME <executable>
+#                    LABELS <label>             one of: unit physics slow service browser deploy
+#                    TIMEOUT <seconds>          per test, sized to what the executable does
+#                    SOURCES <file>...
+#                    [LIBRARIES <target>...]    linked PRIVATE (GTest and pliant_test_support always)
+#                    [DEFINITIONS <def>...]     compile definitions, PRIVATE
+#                    [DEPENDS <target>...])     built before the tests run (tools they start)
+set(PLIANT_TEST_LABELS unit physics slow service browser deploy)
+
+# Fails the configure step for a label outside the documented set (a typo would hide a test
+# from `ctest -L`).
+function(pliant_check_test_labels where)
+  string(REPLACE ";" ", " known "${PLIANT_TEST_LABELS}")
+  if(NOT ARGN)
+    message(FATAL_ERROR "${where}: LABELS is required (one of: ${known})")
+  endif()
+  foreach(label ${ARGN})
+    if(NOT label IN_LIST PLIANT_TEST_LABELS)
+      message(FATAL_ERROR "${where}: unknown test label '${label}' (one of: ${known})")
+    endif()
+  endforeach()
+endfunction()
+
+function(pliant_add_gtest)
+  cmake_parse_arguments(PARSE_ARGV 0 arg "" "NAME;TIMEOUT" "LABELS;SOURCES;LIBRARIES;DEFINITIONS;DEPENDS")
+  if(arg_UNPARSED_ARGUMENTS)
+    message(FATAL_ERROR "pliant_add_gtest: unexpected arguments '${arg_UNPARSED_ARGUMENTS}'")
+  endif()
+  if(NOT arg_NAME OR NOT arg_SOURCES)
+    message(FATAL_ERROR "pliant_add_gtest: NAME and SOURCES are required")
+  endif()
+  if(NOT arg_TIMEOUT MATCHES "^[1-9][0-9]*$")
+    message(FATAL_ERROR "pliant_add_gtest(${arg_NAME}): TIMEOUT must be a whole number of seconds, got '${arg_TIMEOUT}'")
+  endif()
+  pliant_check_test_labels("pliant_add_gtest(${arg_NAME})" ${arg_LABELS})
+  # One label per executable: gtest_discover_tests hands PROPERTIES on as a flat list, so a
+  # second label would be read as a property name.
+  list(LENGTH arg_LABELS label_count)
+  if(NOT label_count EQUAL 1)
+    message(FATAL_ERROR "pliant_add_gtest(${arg_NAME}): one label per executable, got '${arg_LABELS}'")
+  endif()
+
+  add_executable(${arg_NAME} ${arg_SOURCES})
+  target_link_libraries(${arg_NAME} PRIVATE ${arg_LIBRARIES} pliant_test_support GTest::gtest GTest::gtest_main)
+  if(arg_DEFINITIONS)
+    target_compile_definitions(${arg_NAME} PRIVATE ${arg_DEFINITIONS})
+  endif()
+  if(arg_DEPENDS)
+    add_dependencies(${arg_NAME} ${arg_DEPENDS})
+  endif()
+  gtest_discover_tests(${arg_NAME} DISCOVERY_TIMEOUT 60
+                       PROPERTIES LABELS ${arg_LABELS} TIMEOUT ${arg_TIMEOUT})
+endfunction()
