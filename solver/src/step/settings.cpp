@@ -109,7 +109,7 @@ std::string validate(const SolverSettings& s) {
   else if (!s.gravity.allFinite()) bad("gravity", s.gravity.norm(), "must be finite");
   else if (!(s.inversion_floor >= 0 && s.inversion_floor < 1)) bad("inversion_floor", s.inversion_floor, "must be in [0, 1)");
   else if (s.threads < 1 || s.threads > 256) bad("threads", s.threads, "must be in [1, 256]");
-  else if (s.method == Method::Vbd || s.method == Method::Newton)
+  else if (s.method == Method::Newton)
     os << "solver.method " << to_string(s.method) << " is not available in this build";
   else if (!s.record_residuals && (s.method == Method::Anderson || s.method == Method::AndersonSor ||
                                    s.method == Method::Extrapolation || s.tolerance > 0))
