@@ -403,3 +403,34 @@ TEST(VertexBlockDescent, StopsOnToleranceAndCancelAndReportsResiduals) {
   newton.method = Method::Newton;
   EXPECT_NE(validate(newton), "");
 }
+
+TEST(VertexBlockDescent, TheAdaptiveGuessKeepsAnEquilibriumAtRest) {
+  // From Newton's static solution at rest, a step of the real-time budget (64 substeps of one
+  // iteration) leaves the body where it is with the adaptive guess (a body at rest starts at
+  // x_t, where the gradient of G is 0); started from the prediction y instead, one iteration
+  // does not get back to the equilibrium and the body moves.
+  auto m = beam1(1e6, ElasticModel::StVK);
+  NewtonOptions opt;
+  opt.tolerance = 1e-12;
+  const NewtonResult eq = solve_static(*m, m->rest_positions, Vec3(0, -9.81, 0), {}, opt);
+  ASSERT_TRUE(eq.converged);
+  const double sag = tip_displacement(*m, eq.x).norm();
+  SolverSettings s = vbd_settings();
+  s.substeps = 64;
+  s.iterations = 1;
+  s.damping = Damping::None;
+  for (detail::VbdInitialGuess guess : {detail::VbdInitialGuess::Adaptive, detail::VbdInitialGuess::Inertial}) {
+    detail::VbdOptions o;
+    o.initial_guess = guess;
+    auto family = detail::make_vbd_family(o);
+    BodyState st = rest_state(*m);
+    st.x = eq.x;
+    family->step(*m, st, s, {}, {});
+    const double moved = (tip_displacement(*m, st.x) - tip_displacement(*m, eq.x)).norm();
+    if (guess == detail::VbdInitialGuess::Adaptive) {
+      EXPECT_LT(moved, 1e-6 * sag);
+    } else {
+      EXPECT_GT(moved, 1e-3 * sag);
+    }
+  }
+}

@@ -25,11 +25,15 @@ enum class VbdHessian {
 enum class VbdInitialGuess {
   Inertial,  // y, the prediction
   Adaptive,  // x + h v + h^2 a~, a~ the external acceleration scaled by the part of the previous
-             // substep's acceleration along it, in [0, 1] (the paper's adaptive guess)
+             // substep's acceleration along it, in [0, 1] (the paper's adaptive guess; 0 without
+             // a previous substep). A body at rest in equilibrium starts where it is, so the
+             // equilibrium is a fixed point of a step with any number of iterations.
 };
 
+// Defaults: the Gauss-Newton block converges as well as the projected one on the bent beams
+// and costs about half (bench_solver, vbd_* on beam3; docs/solver.md).
 struct VbdOptions {
-  VbdHessian hessian = VbdHessian::Projected;
+  VbdHessian hessian = VbdHessian::GaussNewton;
   VbdInitialGuess initial_guess = VbdInitialGuess::Adaptive;
 };
 

@@ -107,7 +107,6 @@ class VbdFamily final : public SolverFamily {
   uint64_t model_id_ = 0;               // the model rest_stiffness_ belongs to
   std::vector<double> rest_stiffness_;  // sum over the vertex's tets of V0 (lambda + 2 mu) |b|^2
   std::vector<Vec3> x_start_, y_, v_before_, v_last_, x_prev_, x_prev2_;
-  bool v_last_valid_ = false;
   std::vector<double> partial_;
   Substep sub_;
   std::vector<ToolPose> tools_;
@@ -135,7 +134,7 @@ void VbdFamily::prepare_model(const BodyModel& m) {
       rest_stiffness_[t.v[k]] += t.volume * modulus * b2;
     }
   }
-  v_last_valid_ = false;
+  v_last_.clear();
 }
 
 void VbdFamily::prepare_grabs(const BodyModel& m, const StepInputs& inputs, double h) {
@@ -159,7 +158,9 @@ void VbdFamily::prepare_grabs(const BodyModel& m, const StepInputs& inputs, doub
 
 void VbdFamily::initial_guess(const BodyModel& m, BodyState& state, const SolverSettings& s,
                               const StepInputs& inputs, double h, const std::vector<Vec3>& v_before) {
-  if (opt_.initial_guess == VbdInitialGuess::Inertial || !v_last_valid_) return;  // x = y already
+  if (opt_.initial_guess == VbdInitialGuess::Inertial) return;  // x = y already
+  // Without a previous substep (first use, another model) the previous acceleration is 0.
+  const bool history = v_last_.size() == m.vertex_count();
   const bool forces = inputs.external_forces.size() == m.vertex_count();
   for (size_t i = 0; i < m.vertex_count(); ++i) {
     if (m.inv_mass[i] == 0) continue;
@@ -169,7 +170,7 @@ void VbdFamily::initial_guess(const BodyModel& m, BodyState& state, const Solver
     Vec3 a = Vec3::Zero();
     if (norm > 0) {
       const Vec3 dir = a_ext / norm;
-      const double along = (v_before[i] - v_last_[i]).dot(dir) / h;  // previous acceleration
+      const double along = history ? (v_before[i] - v_last_[i]).dot(dir) / h : 0.0;  // previous acceleration
       a = std::clamp(along, 0.0, norm) * dir;
     }
     state.x[i] = x_start_[i] + h * v_before[i] + h * h * a;
@@ -380,7 +381,6 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
   sub_.inputs = &inputs;
   sub_.line_search = s.line_search;
   prepare_grabs(m, inputs, h);
-  if (v_last_.size() != nv) v_last_valid_ = false;
 
   for (int substep = 0; substep < n; ++substep) {
     const bool last = substep + 1 == n;
@@ -390,7 +390,6 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
     y_ = state.x;
     initial_guess(m, state, s, inputs, h, v_before_);
     v_last_ = v_before_;
-    v_last_valid_ = true;
     tools_.clear();
     for (const RigidTool& t : inputs.tools) {
       ToolPose p{t, t.velocity * h};
