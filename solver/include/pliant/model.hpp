@@ -107,7 +107,7 @@ void vertex_tet_adjacency(const std::vector<TetRest>& tets, size_t vertex_count,
                           std::vector<int32_t>& start, std::vector<int32_t>& entry);
 
 // Greedy colouring of vertices by shared tets (each vertex takes the lowest colour none of its
-// tet neighbours has), from the adjacency above.
+// tet neighbours has), from the adjacency above. Every vertex gets a colour (one in no tet: 0).
 std::vector<std::vector<int32_t>> colour_vertices(const std::vector<TetRest>& tets,
                                                   const std::vector<int32_t>& start,
                                                   const std::vector<int32_t>& entry);

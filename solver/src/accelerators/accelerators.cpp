@@ -163,6 +163,10 @@ std::unique_ptr<Accelerator> make_accelerator(const SolverSettings& s) {
     }
     case Method::Extrapolation:
       return std::make_unique<MultiplierAcceleration>(s, MultiplierAcceleration::Form::Extrapolation, s.omega);
+    case Method::Vbd:
+    case Method::Newton:
+    case Method::Auto:
+      break;  // not projection methods: the step never asks for their accelerator
   }
   return std::make_unique<NoAcceleration>();
 }

@@ -134,7 +134,6 @@ std::vector<std::vector<int32_t>> colour_vertices(const std::vector<TetRest>& te
   std::vector<uint8_t> taken;  // colours used by the current vertex's neighbours
   std::vector<std::vector<int32_t>> colours;
   for (size_t i = 0; i < nv; ++i) {
-    if (start[i] == start[i + 1]) continue;  // in no tet: nothing to solve
     taken.assign(colours.size() + 1, 0);
     for (int32_t a = start[i]; a < start[i + 1]; ++a) {
       const Tet& v = tets[entry[a] / 4].v;
