@@ -434,3 +434,26 @@ TEST(VertexBlockDescent, TheAdaptiveGuessKeepsAnEquilibriumAtRest) {
     }
   }
 }
+
+TEST(VertexBlockDescent, ThreadsDoNotChangeTheResult) {
+  // The vertices of a colour share no tet: splitting a colour over threads gives the same
+  // positions bit for bit.
+  auto m = beam1(1e6, ElasticModel::Corotated);
+  SolverSettings s = vbd_settings();
+  s.substeps = 2;
+  s.iterations = 15;
+  s.chebyshev.delay = 5;
+  StepInputs in;
+  in.tools.push_back(RigidTool::sphere(Vec3(0.1, 0.019, 0.005), 0.01));
+  in.attachments.push_back(Attachment::vertex(int32_t(m->vertex_count() - 1), m->rest_positions.back() + Vec3(0, 0.002, 0), 1e-3));
+  size_t largest = 0;
+  for (const auto& c : m->vertex_colours) largest = std::max(largest, c.size());
+  ASSERT_GE(largest, 32u) << "colours too small to be split over threads";
+  BodyState one = rest_state(*m), two = one;
+  Stepper a, b;
+  s.threads = 1;
+  a.step(*m, one, s, in);
+  s.threads = 2;
+  b.step(*m, two, s, in);
+  for (size_t i = 0; i < one.x.size(); ++i) ASSERT_EQ(one.x[i], two.x[i]) << "vertex " << i;
+}

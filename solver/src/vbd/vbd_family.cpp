@@ -292,7 +292,7 @@ void VbdFamily::sweep(const BodyModel& m, std::vector<Vec3>& x, ThreadPool& tp) 
     tp.parallel_for(colour.size(), [&](int, size_t b, size_t e) {
       for (size_t c = b; c < e; ++c)
         if (m.inv_mass[colour[c]] > 0) solve_vertex(m, colour[c], x);
-    }, 64);
+    }, 16);  // a vertex costs microseconds: even small colours are worth splitting
 }
 
 double VbdFamily::gradient_norm(const BodyModel& m, const std::vector<Vec3>& x, ThreadPool& tp) {
