@@ -3,9 +3,15 @@
 //   build/bench/bench_solver --benchmark_counters_tabular=true
 //   PLIANT_BENCH_MESHES=a.node:b.node build/bench/bench_solver ...   (more meshes)
 // The counter s_per_tet_iter is wall time / (iterations x tets) of one substep solve.
+// vbd_* (vertex block descent): s_per_vertex_iter is wall time / (iterations x vertices) of one
+// step of one substep from the bent beam at rest, and residual_ratio the gradient norm after
+// the 20 iterations over the initial one (lower converges better), per Hessian choice
+// (vbd: Gauss-Newton blocks, the default; _projected: each tet's exact block, eigenvalues
+// clamped at 0; corotated: Gauss-Newton there means the rotation held fixed).
 #include "pliant/experiments.hpp"
 #include "pliant/mesh_io.hpp"
 #include "pliant/stepper.hpp"
+#include "vbd/vbd.hpp"
 
 #include <benchmark/benchmark.h>
 
@@ -75,6 +81,40 @@ void run(benchmark::State& state, const std::string& mesh, Method method, Sweep 
   }
 }
 
+void run_vbd(benchmark::State& state, const std::string& mesh, ElasticModel elastic, detail::VbdHessian hessian,
+             bool line_search, bool chebyshev) {
+  const Setup& su = setup(mesh, elastic);
+  SolverSettings s;
+  s.method = Method::Vbd;
+  s.substeps = 1;
+  s.iterations = 20;
+  s.line_search = line_search;
+  s.chebyshev.delay = chebyshev ? 2 : s.iterations;
+  s.threads = int(state.range(0));
+  s.record_residuals = false;  // the last step's residuals are taken once, outside the timing
+  detail::VbdOptions opt;
+  opt.hessian = hessian;
+  auto family = detail::make_vbd_family(opt);
+  BodyState body = rest_state(*su.model);
+  long iterations = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    body = rest_state(*su.model);
+    body.x = su.x0;
+    state.ResumeTiming();
+    iterations += family->step(*su.model, body, s, {}, {}).iterations;
+    benchmark::DoNotOptimize(body.x.data());
+  }
+  body = rest_state(*su.model);
+  body.x = su.x0;
+  s.record_residuals = true;
+  const StepReport last = family->step(*su.model, body, s, {}, {});
+  state.counters["vertices"] = double(su.model->vertex_count());
+  state.counters["s_per_vertex_iter"] = benchmark::Counter(
+      double(iterations) * double(su.model->vertex_count()), benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+  state.counters["residual_ratio"] = last.residual_initial > 0 ? last.residual_final / last.residual_initial : 0.0;
+}
+
 void register_all() {
   std::vector<std::string> meshes = {"beam3", "armadillo"};
   // More meshes (a builtin name or a mesh path each, ':'-separated) to compare layouts.
@@ -105,6 +145,24 @@ void register_all() {
                              Variant{"gs_anderson_sor", Method::AndersonSor, Sweep::GaussSeidel, true}}) {
       benchmark::RegisterBenchmark((std::string(v.name) + "/" + mesh).c_str(),
                                    [=](benchmark::State& st) { run(st, mesh, v.method, v.sweep, v.residuals, v.line_search, v.elastic); })
+          ->Arg(1)->Arg(2)->ArgName("threads")->Unit(benchmark::kMillisecond)->UseRealTime();
+    }
+    struct VbdVariant {
+      const char* name;
+      ElasticModel elastic;
+      detail::VbdHessian hessian;
+      bool line_search = true;
+      bool chebyshev = false;
+    };
+    using detail::VbdHessian;
+    for (const VbdVariant& v : {VbdVariant{"vbd", ElasticModel::StVK, VbdHessian::GaussNewton},
+                                VbdVariant{"vbd_projected", ElasticModel::StVK, VbdHessian::Projected},
+                                VbdVariant{"vbd_no_line_search", ElasticModel::StVK, VbdHessian::GaussNewton, false},
+                                VbdVariant{"vbd_chebyshev", ElasticModel::StVK, VbdHessian::GaussNewton, true, true},
+                                VbdVariant{"vbd_corotated", ElasticModel::Corotated, VbdHessian::GaussNewton},
+                                VbdVariant{"vbd_corotated_projected", ElasticModel::Corotated, VbdHessian::Projected}}) {
+      benchmark::RegisterBenchmark((std::string(v.name) + "/" + mesh).c_str(),
+                                   [=](benchmark::State& st) { run_vbd(st, mesh, v.elastic, v.hessian, v.line_search, v.chebyshev); })
           ->Arg(1)->Arg(2)->ArgName("threads")->Unit(benchmark::kMillisecond)->UseRealTime();
     }
   }

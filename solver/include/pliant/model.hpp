@@ -53,6 +53,12 @@ struct BodyModel {
   // Tets grouped so that no two tets of a colour share a vertex: a colour can be projected
   // in parallel with the same result as sequentially (Gauss-Seidel stays deterministic).
   std::vector<std::vector<int32_t>> colours;
+  // Vertex -> (tet, corner) adjacency, compressed rows: the tets at vertex i are the entries
+  // vertex_tet_entry[vertex_tet_start[i] .. vertex_tet_start[i + 1]), each 4 x tet + corner.
+  std::vector<int32_t> vertex_tet_start, vertex_tet_entry;
+  // Vertices grouped so that no two vertices of a colour share a tet: vertex block descent
+  // updates a colour in parallel with the same result as sequentially.
+  std::vector<std::vector<int32_t>> vertex_colours;
 
   size_t vertex_count() const { return rest_positions.size(); }
   size_t tet_count() const { return tets.size(); }
@@ -95,5 +101,15 @@ std::vector<int32_t> select_vertices(const std::vector<Vec3>& positions, const F
 
 // Greedy colouring of tets by shared vertices.
 std::vector<std::vector<int32_t>> colour_tets(const std::vector<TetRest>& tets, size_t vertex_count);
+
+// Vertex -> (tet, corner) adjacency in compressed rows (BodyModel::vertex_tet_start/entry).
+void vertex_tet_adjacency(const std::vector<TetRest>& tets, size_t vertex_count,
+                          std::vector<int32_t>& start, std::vector<int32_t>& entry);
+
+// Greedy colouring of vertices by shared tets (each vertex takes the lowest colour none of its
+// tet neighbours has), from the adjacency above. Every vertex gets a colour (one in no tet: 0).
+std::vector<std::vector<int32_t>> colour_vertices(const std::vector<TetRest>& tets,
+                                                  const std::vector<int32_t>& start,
+                                                  const std::vector<int32_t>& entry);
 
 }  // namespace pliant

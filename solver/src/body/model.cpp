@@ -114,6 +114,41 @@ std::vector<std::vector<int32_t>> colour_tets(const std::vector<TetRest>& tets, 
   return colours;
 }
 
+void vertex_tet_adjacency(const std::vector<TetRest>& tets, size_t nv, std::vector<int32_t>& start,
+                          std::vector<int32_t>& entry) {
+  start.assign(nv + 1, 0);
+  for (const TetRest& t : tets)
+    for (int k = 0; k < 4; ++k) start[t.v[k] + 1]++;
+  for (size_t i = 0; i < nv; ++i) start[i + 1] += start[i];
+  entry.assign(start.back(), 0);
+  std::vector<int32_t> fill(start.begin(), start.end() - 1);
+  for (size_t t = 0; t < tets.size(); ++t)
+    for (int k = 0; k < 4; ++k) entry[fill[tets[t].v[k]]++] = int32_t(4 * t + k);
+}
+
+std::vector<std::vector<int32_t>> colour_vertices(const std::vector<TetRest>& tets,
+                                                  const std::vector<int32_t>& start,
+                                                  const std::vector<int32_t>& entry) {
+  const size_t nv = start.empty() ? 0 : start.size() - 1;
+  std::vector<int32_t> colour(nv, -1);
+  std::vector<uint8_t> taken;  // colours used by the current vertex's neighbours
+  std::vector<std::vector<int32_t>> colours;
+  for (size_t i = 0; i < nv; ++i) {
+    taken.assign(colours.size() + 1, 0);
+    for (int32_t a = start[i]; a < start[i + 1]; ++a) {
+      const Tet& v = tets[entry[a] / 4].v;
+      for (int k = 0; k < 4; ++k)
+        if (colour[v[k]] >= 0) taken[colour[v[k]]] = 1;
+    }
+    int c = 0;
+    while (taken[c]) ++c;
+    colour[i] = c;
+    if (colours.size() <= size_t(c)) colours.resize(c + 1);
+    colours[c].push_back(int32_t(i));
+  }
+  return colours;
+}
+
 namespace {
 
 uint64_t next_model_id() {
@@ -212,6 +247,8 @@ std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material
   set_fixed(*m, fixed);
   set_inertia(*m);
   m->colours = colour_tets(m->tets, nv);
+  vertex_tet_adjacency(m->tets, nv, m->vertex_tet_start, m->vertex_tet_entry);
+  m->vertex_colours = colour_vertices(m->tets, m->vertex_tet_start, m->vertex_tet_entry);
   return m;
 }
 

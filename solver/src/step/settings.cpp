@@ -111,8 +111,6 @@ std::string validate(const SolverSettings& s) {
   else if (s.threads < 1 || s.threads > 256) bad("threads", s.threads, "must be in [1, 256]");
   else if (s.sweep == Sweep::Sequential && s.threads != 1 && family_of(s.method) == SolverFamilyKind::ConstraintProjection)
     bad("threads", s.threads, "must be 1 for sweep sequential (one tet at a time in mesh order, on one thread)");
-  else if (s.method == Method::Vbd)
-    os << "solver.method " << to_string(s.method) << " is not available in this build";
   else if (!s.record_residuals && (s.method == Method::Anderson || s.method == Method::AndersonSor ||
                                    s.method == Method::Extrapolation || s.tolerance > 0))
     os << "solver.record_residuals must be true for method " << to_string(s.method)
