@@ -50,10 +50,9 @@ TEST(MeshFormats, IpcGmsh41WithCustomSectionLoads) {
   EXPECT_TRUE(r.report.surface.closed_manifold);
 }
 
-TEST(MeshFormats, ThesisArmadilloLoadsQuicklyWithThesisCountsAndSize) {
-  const auto t0 = std::chrono::steady_clock::now();
+// How long the load takes is a figure (pliant-mesh info prints it), not an assertion.
+TEST(MeshFormats, ThesisArmadilloLoadsWithThesisCountsAndSize) {
   const MeshLoadResult r = resolve_mesh_with_report("armadillo", {model_dir()}, quiet());
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   EXPECT_EQ(r.report.vertices, 14779);
   EXPECT_EQ(r.report.tets, 54855);
   const Vec3 e = r.report.bbox.extent();
@@ -63,10 +62,6 @@ TEST(MeshFormats, ThesisArmadilloLoadsQuicklyWithThesisCountsAndSize) {
   EXPECT_NEAR(1027.0 * r.report.volume, 0.125, 0.001);  // the thesis mass, 125 g
   EXPECT_TRUE(r.report.surface.closed_manifold);
   EXPECT_EQ(r.report.surface.euler_characteristic, 2);
-#ifdef NDEBUG
-  EXPECT_LT(seconds, 1.0) << "armadillo: " << r.report.vertices << " V / " << r.report.tets
-                          << " T loaded and validated in " << seconds << " s";
-#endif
 }
 
 TEST(MeshResolve, EveryRegisteredModelLoadsAtItsDocumentedSize) {

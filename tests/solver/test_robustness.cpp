@@ -1,4 +1,4 @@
-// Real-time robustness (issue item 10): at a 60 Hz tick with the default substeps x iterations,
+// Real-time robustness: at a 60 Hz tick with the default substeps x iterations,
 // the thesis beams, hippo and armadillo hang under gravity from a clamp for E from 10 kPa to
 // 10 MPa (nu = 0.4) without blowing up, the beams with no inverted tet at the end and the thesis
 // models within a documented bound; the hippo brought to rest at the default budget; and a
@@ -120,7 +120,7 @@ void expect_at_rest_upright(const Hung& h) {
 class DefaultBudget : public ::testing::TestWithParam<double> {};
 
 TEST_P(DefaultBudget, HippoComesToRestWithNoInvertedTet) {
-  // Item 10 brought to rest on the thesis hippo. At 1 MPa under the default 64 x 1 with plain
+  // The robustness case brought to rest on the thesis hippo. At 1 MPa under the default 64 x 1 with plain
   // lumped masses it keeps a sliver (tet 594) inverted and a 1.6 mg vertex jittering at 2 m/s
   // after 600 ticks, at 100 kPa one inverted tet and 0.11 m/s (docs/solver.md, "Real-time
   // robustness"). With the default inertia floor (vertices of tiny tets move as if they
@@ -165,7 +165,7 @@ TEST(ResolvedBudget, HippoSettlesWithNoInvertedTet) {
 class SupportInertiaMatrix : public ::testing::TestWithParam<std::tuple<std::string, double>> {};
 
 TEST_P(SupportInertiaMatrix, ComesToRestWithNoInvertedTetAtTheDefaultBudget) {
-  // Item 10 brought to rest on both thesis models at every E, under the default 64 x 1 at
+  // The robustness case brought to rest on both thesis models at every E, under the default 64 x 1 at
   // 60 Hz, with support_inertia 1 (docs/solver.md, "Support inertia"). Without it the armadillo
   // at 1 and 10 MPa never settles: a band of vertices next to the clamp keeps moving at 2.6 /
   // 3.2 m/s after 400 ticks, and both models' 10 kPa runs keep a spot creeping at mm/s
