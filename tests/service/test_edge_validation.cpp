@@ -9,7 +9,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <functional>
+#include <sys/wait.h>
 
 using namespace pliant;
 using server::Code;
@@ -143,4 +145,18 @@ TEST(EdgeValidation, ServerFlagsAreRangeChecked) {
                                         {"--checkpoint-ms", "0"},
                                         {"--max-tick-ms", "0", "--stuck-tick-ms", "0"}})
     EXPECT_TRUE(parse(good).ok()) << good[1];
+}
+
+// The CLI refuses a --tls-ca file it cannot read instead of trusting the system roots.
+TEST(EdgeValidation, UnreadableTlsCaIsRefused) {
+  const std::string cmd = std::string(PLIANT_CLI_BIN) +
+                          " --address 127.0.0.1:1 --tls-ca /nonexistent/ca.pem health 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  std::string out;
+  char buf[512];
+  for (size_t n; (n = fread(buf, 1, sizeof buf, p)) > 0;) out.append(buf, n);
+  const int status = pclose(p);
+  EXPECT_NE(WEXITSTATUS(status), 0) << out;
+  EXPECT_NE(out.find("--tls-ca '/nonexistent/ca.pem' cannot be read as PEM certificates"), std::string::npos) << out;
 }
