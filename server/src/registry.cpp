@@ -1172,6 +1172,17 @@ int SceneRegistry::restore_from_data_dir() {
 }
 
 void SceneRegistry::start_background() {
+  if (!options_.data_dir.empty()) {
+    // Temporary files a crash left mid-write: never loaded, removed.
+    std::error_code ec;
+    for (const char* sub : {"scenes", "snapshots"})
+      for (auto it = fs::directory_iterator(fs::path(options_.data_dir) / sub, ec);
+           !ec && it != fs::directory_iterator(); it.increment(ec))
+        if (it->path().filename().string().find(".snapshot.tmp.") != std::string::npos) {
+          std::error_code removed;
+          fs::remove(it->path(), removed);
+        }
+  }
   std::lock_guard lk(bg_mu_);
   if (bg_stop_ || watchdog_.joinable()) return;
   watchdog_ = std::thread([this] { watchdog_loop(); });

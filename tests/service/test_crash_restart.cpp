@@ -144,8 +144,12 @@ int64_t stored_tick(const fs::path& data, const std::string& id) {
 
 TEST(CrashRestart, CreatedAndDeletedScenesReachTheDataDirectoryAtOnce) {
   const fs::path dir = fresh_dir("promptly");
+  // A temporary file left by a crash mid-write is removed on start.
+  fs::create_directories(dir / "data" / "scenes");
+  std::ofstream(dir / "data" / "scenes" / "old.snapshot.tmp.123.0") << "torn";
   Server s(dir / "data", dir / "server.log", {"--checkpoint-ms", "60000"});
   ASSERT_GT(s.port(), 0) << s.log();
+  EXPECT_FALSE(fs::exists(dir / "data" / "scenes" / "old.snapshot.tmp.123.0"));
   Client c = s.client();
   ASSERT_TRUE(c.create_scene(beam("made", v1::TICK_MODE_LOCKSTEP)).ok());
   // Written on creation, not after the (one-minute) interval.
