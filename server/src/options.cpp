@@ -141,6 +141,27 @@ const std::vector<Flag>& flags() {
        [](const std::string& v, ServerOptions& o) { return parse_ms("max-tick-ms", v, &o.max_tick_ms); }},
       {"stuck-tick-ms", "health is NOT_SERVING while a tick has run longer than this (default 15000; 0: never)",
        [](const std::string& v, ServerOptions& o) { return parse_ms("stuck-tick-ms", v, &o.stuck_tick_ms); }},
+      {"max-streams", "most open StreamFrames + HapticStream calls (default 256)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-streams", v, 1, 100000, &x); !e.ok()) return e;
+         o.max_streams = static_cast<int>(x);
+         return Error{};
+       }},
+      {"max-streams-per-scene", "most open streams on one scene (default 64)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-streams-per-scene", v, 1, 100000, &x); !e.ok()) return e;
+         o.max_streams_per_scene = static_cast<int>(x);
+         return Error{};
+       }},
+      {"max-grabs-per-scene", "most grabs held on one scene at once (default 64)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-grabs-per-scene", v, 1, 100000, &x); !e.ok()) return e;
+         o.max_grabs_per_scene = static_cast<int>(x);
+         return Error{};
+       }},
       {"checkpoint-ms", "scenes that changed are saved to --data-dir this often (default 5000; 0: only at "
                         "shutdown)",
        [](const std::string& v, ServerOptions& o) {

@@ -644,6 +644,27 @@ Error SceneRegistry::find(const std::string& id, std::shared_ptr<Scene>* out) co
   return {};
 }
 
+Error SceneRegistry::open_stream(const std::string& scene_id, std::shared_ptr<void>* slot) {
+  std::lock_guard lk(mu_);
+  if (open_streams_ >= options_.max_streams)
+    return Error::make(Code::ResourceExhausted,
+                       fmt::format("this server already has {} open streams (--max-streams {})", open_streams_,
+                                   options_.max_streams));
+  int& here = scene_streams_[scene_id];
+  if (here >= options_.max_streams_per_scene)
+    return Error::make(Code::ResourceExhausted,
+                       fmt::format("scene '{}' already has {} open streams (--max-streams-per-scene {})", scene_id,
+                                   here, options_.max_streams_per_scene));
+  ++open_streams_;
+  ++here;
+  *slot = std::shared_ptr<void>(nullptr, [this, scene_id](void*) {
+    std::lock_guard lk(mu_);
+    --open_streams_;
+    if (--scene_streams_[scene_id] <= 0) scene_streams_.erase(scene_id);
+  });
+  return {};
+}
+
 Error SceneRegistry::describe(const Scene& scene, v1::Scene* out) const {
   out->Clear();
   auto model = scene.model();
@@ -911,7 +932,9 @@ Error SceneRegistry::grab(const v1::GrabRequest& req, v1::GrabResponse* out) {
   }
   if (std::string msg = validate_interaction({a}, {}, *m); !msg.empty()) return invalid(msg);
   uint64_t id = 0, first = 0;
-  if (Error e = s->grab(a, &id, &first); !e.ok()) return e;
+  if (Error e = s->grab(a, &id, &first, std::chrono::seconds(10), static_cast<size_t>(options_.max_grabs_per_scene));
+      !e.ok())
+    return e;
   out->set_grab_id(id);
   out->set_first_tick(first);
   return {};

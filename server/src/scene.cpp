@@ -253,10 +253,14 @@ bool Scene::post(Command fn) {
 }
 
 Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
-                  std::chrono::milliseconds timeout) {
+                  std::chrono::milliseconds timeout, size_t max_grabs) {
   auto id = std::make_shared<uint64_t>(0), first = std::make_shared<uint64_t>(0);
   Error e = call(
-      [this, attachment, id, first] {
+      [this, attachment, id, first, max_grabs] {
+        if (ts_->grabs.size() >= max_grabs)
+          return Error::make(Code::ResourceExhausted,
+                             "scene '" + id_ + "' already has " + std::to_string(ts_->grabs.size()) +
+                                 " grabs (--max-grabs-per-scene " + std::to_string(max_grabs) + "); release one first");
         *id = ts_->next_grab_id++;
         ts_->grabs[*id] = attachment;
         ++generation_;  // grabs are saved: a checkpoint is due

@@ -164,6 +164,8 @@ class FrameServiceImpl final : public v1::FrameService::Service {
   Error stream(grpc::ServerContext* c, const v1::StreamFramesRequest& r, grpc::ServerWriter<v1::Frame>* writer) {
     std::shared_ptr<Scene> scene;
     if (Error e = sc_.registry->find(r.scene_id(), &scene); !e.ok()) return e;
+    std::shared_ptr<void> slot;
+    if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
     FrameSelection sel;
     if (Error e = SceneRegistry::parse_stream_request(r, &sel); !e.ok()) return e;
     const uint64_t every = r.every_nth_tick() <= 1 ? 1 : r.every_nth_tick();
@@ -247,6 +249,8 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
     if (!stream->Read(&pose)) return {};
     std::shared_ptr<Scene> scene;
     if (Error e = sc_.registry->find(pose.scene_id(), &scene); !e.ok()) return e;
+    std::shared_ptr<void> slot;
+    if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
     RigidTool tool;
     if (Error e = SceneRegistry::parse_tool_pose(pose, nullptr, &tool); !e.ok()) return e;
     const uint64_t tool_id = scene->new_tool_id();
@@ -444,6 +448,9 @@ PliantServer::PliantServer(ServerOptions options) : impl_(std::make_unique<Impl>
   ro.max_tick_ms = impl_->options.max_tick_ms;
   ro.stuck_tick_ms = impl_->options.stuck_tick_ms;
   ro.checkpoint_ms = impl_->options.checkpoint_ms;
+  ro.max_streams = impl_->options.max_streams;
+  ro.max_streams_per_scene = impl_->options.max_streams_per_scene;
+  ro.max_grabs_per_scene = impl_->options.max_grabs_per_scene;
   // A stuck tick turns the scene services NOT_SERVING (not during shutdown: that is final).
   ro.on_health = [impl = impl_.get()](bool serving) {
     std::lock_guard lk(impl->mu);

@@ -38,6 +38,10 @@ struct RegistryOptions {
   // Scenes that changed are written to <data-dir>/scenes/ this often, off the tick threads;
   // created scenes at once. 0: only at shutdown.
   int64_t checkpoint_ms = 5'000;
+  // Open StreamFrames + HapticStream calls, server-wide and per scene; grabs per scene.
+  int max_streams = 256;
+  int max_streams_per_scene = 64;
+  int max_grabs_per_scene = 64;
   // Called by the watchdog when a tick becomes stuck (false) or no tick is stuck any more (true).
   std::function<void(bool serving)> on_health;
 };
@@ -82,6 +86,10 @@ class SceneRegistry {
   Error restore_snapshot(const v1::RestoreSnapshotRequest& request, v1::Scene* out);
   Error list_snapshots(v1::ListSnapshotsResponse* out) const;
 
+  // Counts an open stream on the scene against max_streams and max_streams_per_scene
+  // (RESOURCE_EXHAUSTED naming the limit); releasing *slot ends the count.
+  Error open_stream(const std::string& scene_id, std::shared_ptr<void>* slot);
+
   // The scene with this id, or NotFound.
   Error find(const std::string& id, std::shared_ptr<Scene>* out) const;
   // Checks a StreamFramesRequest and fills the selection.
@@ -123,6 +131,8 @@ class SceneRegistry {
   uint64_t next_id_ = 1;
   std::atomic<bool> shutting_down_{false};
   int failed_saves_ = 0;
+  int open_streams_ = 0;                        // under mu_
+  std::map<std::string, int> scene_streams_;    // under mu_
 
   // Background threads: watchdog and checkpoint writer (bg_mu_ guards the flags).
   std::mutex bg_mu_;

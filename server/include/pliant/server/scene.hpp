@@ -190,8 +190,9 @@ class Scene {
              const std::function<bool()>& cancelled = {});
   // Interaction. Grabs are validated by the caller (validate_interaction) and wait for the
   // tick like the other commands; first_tick is the first tick they act in.
+  // At most max_grabs at once (RESOURCE_EXHAUSTED).
   Error grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
-             std::chrono::milliseconds timeout = std::chrono::seconds(10));
+             std::chrono::milliseconds timeout = std::chrono::seconds(10), size_t max_grabs = SIZE_MAX);
   Error move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tick, Vec3* last_force,
                   std::chrono::milliseconds timeout = std::chrono::seconds(10));
   Error release(uint64_t grab_id, std::chrono::milliseconds timeout = std::chrono::seconds(10));
