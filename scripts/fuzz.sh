@@ -17,7 +17,7 @@ SAN="-fsanitize=address,undefined -fno-sanitize-recover=undefined -fno-omit-fram
 GEN=(); command -v ninja >/dev/null && GEN=(-G Ninja)
 if [ ! -f "$BUILD/CMakeCache.txt" ]; then
   cmake -S . -B "$BUILD" "${GEN[@]}" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
+    -DCMAKE_CXX_COMPILER=clang++-14 \
     -DCMAKE_CXX_FLAGS="$SAN -fsanitize=fuzzer-no-link" \
     -DCMAKE_EXE_LINKER_FLAGS="$SAN" \
     -DPLIANT_BUILD_FUZZERS=ON -DPLIANT_BUILD_TESTS=OFF -DPLIANT_BUILD_BENCH=OFF -DPLIANT_BUILD_CLIENTS=OFF \

@@ -23,7 +23,7 @@ namespace {
 
 constexpr int kInvalidArgument = 3, kResourceExhausted = 8;
 
-// A 5,184-tet beam at the sweep limit (2000 substeps x 100 iterations): minutes per tick.
+// A 2,875-tet beam at the sweep limit (2000 substeps x 100 iterations): minutes per tick.
 v1::CreateSceneRequest slow_request(const std::string& id, v1::TickMode mode) {
   v1::CreateSceneRequest r;
   r.set_scene_id(id);

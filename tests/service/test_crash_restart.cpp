@@ -231,7 +231,7 @@ TEST(CrashRestart, SigtermEndsAServerWithAMinutesLongTick) {
   Server s(dir / "data", dir / "server.log", {"--max-tick-ms", "0", "--stuck-tick-ms", "0"});
   ASSERT_GT(s.port(), 0) << s.log();
   Client c = s.client();
-  // A 5,184-tet beam at the sweep limit: minutes per tick.
+  // A 2,875-tet beam at the sweep limit: minutes per tick.
   v1::CreateSceneRequest r;
   r.set_scene_id("slow");
   const TetMesh mesh = make_beam(24, 6, 6, 0.01);
