@@ -746,7 +746,14 @@ int main(int argc, char** argv) {
         else if (name == "token") opt.token = value;
         else if (name == "json") json = true;
         else if (name == "tls") opt.tls = true;
-        else if (name == "tls-ca") opt.tls_ca_file = value;
+        else if (name == "tls-ca") {
+          std::ifstream ca(value);
+          std::stringstream pem;
+          pem << ca.rdbuf();
+          if (!ca || pem.str().find("-----BEGIN") == std::string::npos)
+            throw Usage("--tls-ca '" + value + "' cannot be read as PEM certificates");
+          opt.tls_ca_file = value;
+        }
         else if (name == "timeout") {
           double t = to_double("timeout", value);
           if (t <= 0) throw Usage("--timeout must be > 0 s");

@@ -157,6 +157,9 @@ Client::Client(ConnectOptions options) : impl_(std::make_unique<Impl>()) {
       std::stringstream ss;
       ss << f.rdbuf();
       ssl.pem_root_certs = ss.str();
+      // Never fall back to the system roots: with roots that cannot be read, no server is trusted.
+      // (the CLI refuses such a file up front; calls then fail with UNAVAILABLE).
+      if (!f || ssl.pem_root_certs.find("-----BEGIN") == std::string::npos) ssl.pem_root_certs = "unreadable";
     }
     creds = grpc::SslCredentials(ssl);
   }

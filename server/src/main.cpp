@@ -5,6 +5,8 @@
 
 #include <csignal>
 #include <cstdio>
+#include <cstdlib>
+#include <thread>
 #include <pthread.h>
 
 int main(int argc, char** argv) {
@@ -38,8 +40,20 @@ int main(int argc, char** argv) {
   }
   int sig = 0;
   sigwait(&stop_signals, &sig);
-  spdlog::info("received {}", sig == SIGTERM ? "SIGTERM" : "SIGINT");
+  spdlog::info("received {}: stopping within {} s plus the time to save the scenes", sig == SIGTERM ? "SIGTERM" : "SIGINT",
+               kShutdownGrace.count());
+  // A second SIGTERM/SIGINT during the shutdown ends the process at once, unsaved.
+  std::thread([stop_signals] {
+    int again = 0;
+    sigwait(&stop_signals, &again);
+    spdlog::critical("received a second stop signal during shutdown: exiting without saving");
+    std::_Exit(3);
+  }).detach();
   int written = server.shutdown();
+  if (server.save_failed()) {
+    spdlog::critical("stopped, but some scene snapshots could not be written ({} written)", written);
+    return 1;
+  }
   spdlog::info("stopped ({} scene snapshot(s) written)", written);
   return 0;
 }

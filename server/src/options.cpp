@@ -1,6 +1,8 @@
 // Flags, environment and config file for pliant-server.
 #include "pliant/server/options.hpp"
 
+#include "pliant/server/edge.hpp"
+
 #include <spdlog/fmt/fmt.h>
 
 #include <cstdlib>
@@ -18,7 +20,7 @@ struct Flag {
 };
 
 Error bad(const std::string& flag, const std::string& value, const std::string& rule) {
-  return Error::make(Code::InvalidArgument, fmt::format("--{} {}, got '{}'", flag, rule, value));
+  return Error::make(Code::InvalidArgument, fmt::format("--{} {}, got {}", flag, rule, echo(value)));
 }
 
 Error parse_int(const std::string& flag, const std::string& v, int64_t lo, int64_t hi, int64_t* out) {
@@ -33,11 +35,39 @@ Error parse_int(const std::string& flag, const std::string& v, int64_t lo, int64
   }
 }
 
+// HOST:PORT with a port in [0, 65535] ("[v6]:PORT" and "unix:PATH" too).
+Error check_listen(const std::string& v) {
+  if (v.rfind("unix:", 0) == 0) {
+    if (v.size() == 5) return bad("listen", v, "needs a socket path after unix:");
+    return {};
+  }
+  const size_t colon = v.rfind(':');
+  if (colon == std::string::npos || colon == 0) return bad("listen", v, "must be HOST:PORT");
+  const std::string port = v.substr(colon + 1);
+  int64_t p = 0;
+  if (port.empty() || port.find_first_not_of("0123456789") != std::string::npos ||
+      !parse_int("listen", port, 0, 65535, &p).ok())
+    return bad("listen", v, "must be HOST:PORT with a port in [0, 65535]");
+  return {};
+}
+
+// A token travels in an HTTP/2 header: printable ASCII without spaces, 1 to 4096 characters.
+Error check_token(const std::string& flag, const std::string& v) {
+  if (v.empty() || v.size() > 4096) return bad(flag, "(hidden)", "must hold 1 to 4096 characters");
+  for (unsigned char c : v)
+    if (c <= 0x20 || c >= 0x7f) return bad(flag, "(hidden)", "must be printable ASCII without spaces");
+  return {};
+}
+
+Error parse_ms(const std::string& flag, const std::string& v, int64_t* out) {
+  return parse_int(flag, v, 0, 86'400'000, out);
+}
+
 const std::vector<Flag>& flags() {
   static const std::vector<Flag> f = {
       {"listen", "HOST:PORT to listen on (default 0.0.0.0:50051; port 0 picks a free port)",
        [](const std::string& v, ServerOptions& o) {
-         if (v.find(':') == std::string::npos) return bad("listen", v, "must be HOST:PORT");
+         if (Error e = check_listen(v); !e.ok()) return e;
          o.listen = v;
          return Error{};
        }},
@@ -81,8 +111,64 @@ const std::vector<Flag>& flags() {
        [](const std::string& v, ServerOptions& o) { o.tls_cert = v; return Error{}; }},
       {"tls-key", "PEM private key for --tls-cert",
        [](const std::string& v, ServerOptions& o) { o.tls_key = v; return Error{}; }},
-      {"token", "access token clients must send as 'authorization: Bearer TOKEN'",
-       [](const std::string& v, ServerOptions& o) { o.token = v; return Error{}; }},
+      {"token", "access token clients must send as 'authorization: Bearer TOKEN' (visible in the process "
+                "list: prefer --token-file or PLIANT_TOKEN)",
+       [](const std::string& v, ServerOptions& o) {
+         if (Error e = check_token("token", v); !e.ok()) return e;
+         o.token = v;
+         return Error{};
+       }},
+      {"token-file", "file holding the access token (one line; wins over --token)",
+       [](const std::string& v, ServerOptions& o) {
+         std::ifstream f(v, std::ios::binary);
+         std::string line;
+         if (!f || !std::getline(f, line)) return bad("token-file", v, "must be a readable file holding the token");
+         if (!line.empty() && line.back() == '\r') line.pop_back();
+         if (Error e = check_token("token-file", line); !e.ok())
+           return bad("token-file", v, "must hold the token on its first line (printable ASCII, no spaces)");
+         o.token_file_token = line;
+         return Error{};
+       }},
+      {"reflection", "open | token | off: gRPC reflection without the token (default open), only with it, or not "
+                     "served",
+       [](const std::string& v, ServerOptions& o) {
+         if (v != "open" && v != "token" && v != "off") return bad("reflection", v, "must be open, token or off");
+         o.reflection = v;
+         return Error{};
+       }},
+      {"max-tick-ms", "a tick whose solver runs longer is stopped, undone and its scene paused (default 10000; "
+                      "0: no limit)",
+       [](const std::string& v, ServerOptions& o) { return parse_ms("max-tick-ms", v, &o.max_tick_ms); }},
+      {"stuck-tick-ms", "health is NOT_SERVING while a tick has run longer than this (default 15000; 0: never)",
+       [](const std::string& v, ServerOptions& o) { return parse_ms("stuck-tick-ms", v, &o.stuck_tick_ms); }},
+      {"max-streams", "most open StreamFrames + HapticStream calls (default 256)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-streams", v, 1, 100000, &x); !e.ok()) return e;
+         o.max_streams = static_cast<int>(x);
+         return Error{};
+       }},
+      {"max-streams-per-scene", "most open streams on one scene (default 64)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-streams-per-scene", v, 1, 100000, &x); !e.ok()) return e;
+         o.max_streams_per_scene = static_cast<int>(x);
+         return Error{};
+       }},
+      {"max-grabs-per-scene", "most grabs held on one scene at once (default 64)",
+       [](const std::string& v, ServerOptions& o) {
+         int64_t x = 0;
+         if (Error e = parse_int("max-grabs-per-scene", v, 1, 100000, &x); !e.ok()) return e;
+         o.max_grabs_per_scene = static_cast<int>(x);
+         return Error{};
+       }},
+      {"checkpoint-ms", "scenes that changed are saved to --data-dir this often (default 5000; 0: only at "
+                        "shutdown)",
+       [](const std::string& v, ServerOptions& o) {
+         if (Error e = parse_ms("checkpoint-ms", v, &o.checkpoint_ms); !e.ok()) return e;
+         if (o.checkpoint_ms > 0 && o.checkpoint_ms < 100) return bad("checkpoint-ms", v, "must be 0 or at least 100");
+         return Error{};
+       }},
       {"threads", "most solver threads one scene may use (default 1)",
        [](const std::string& v, ServerOptions& o) {
          int64_t x = 0;
@@ -214,6 +300,9 @@ Error parse_server_options(const std::vector<std::string>& args, const EnvLookup
     if (n == "config") continue;
     if (Error e = find_flag(n)->set(v, o); !e.ok()) return e;
   }
+  if (!o.token_file_token.empty()) o.token = o.token_file_token;
+  if (o.reflection == "token" && o.token.empty())
+    return Error::make(Code::InvalidArgument, "--reflection token needs a token (--token-file, PLIANT_TOKEN or --token)");
   if (o.tls_cert.empty() != o.tls_key.empty())
     return Error::make(Code::InvalidArgument, "--tls-cert and --tls-key must be given together");
   *out = std::move(o);

@@ -2,6 +2,8 @@
 // limits, proto conversions, snapshots on disk.
 #include "pliant/server/registry.hpp"
 
+#include "pliant/server/edge.hpp"
+
 #include "pliant/proto/enums.hpp"
 
 #include "pliant/builtin_meshes.hpp"
@@ -13,8 +15,12 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstring>
+#include <fcntl.h>
 #include <filesystem>
+#include <unistd.h>
 #include <fstream>
 #include <sstream>
 
@@ -37,8 +43,8 @@ bool valid_name(const std::string& s) {
 
 Error check_name(const std::string& field, const std::string& value) {
   if (valid_name(value)) return {};
-  return invalid(fmt::format("{} '{}' is not a valid name: use 1 to 64 of A-Z a-z 0-9 _ . -",
-                             field, value));
+  return invalid(fmt::format("{} {} is not a valid name: use 1 to 64 of A-Z a-z 0-9 _ . -",
+                             field, echo(value)));
 }
 
 Error check_id_present(const std::string& id) {
@@ -232,8 +238,8 @@ Error resolve_source(const v1::MeshSource& src, const RegistryOptions& opt, Scen
       if (!m) {
         std::string names;
         for (auto& n : builtin_mesh_names()) names += (names.empty() ? "" : ", ") + n;
-        return invalid(fmt::format("spec.mesh.builtin '{}' is not a builtin mesh; choose one of {}",
-                                   src.builtin(), names));
+        return invalid(fmt::format("spec.mesh.builtin {} is not a builtin mesh; choose one of {}",
+                                   echo(src.builtin()), names));
       }
       *mesh = std::move(*m);
       cfg.mesh_kind = "builtin";
@@ -241,34 +247,32 @@ Error resolve_source(const v1::MeshSource& src, const RegistryOptions& opt, Scen
       break;
     }
     case v1::MeshSource::kModelPath: {
+      // Builtin and model-set names first; anything else is a file inside --model-path.
       const std::string& name = src.model_path();
-      fs::path p(name);
-      bool escapes = name.empty() || p.is_absolute();
-      for (const auto& part : p)
-        if (part == "..") escapes = true;
-      if (escapes)
-        return invalid(fmt::format(
-            "spec.mesh.model_path '{}' must be a relative name on the server's model path "
-            "(no '..', not absolute)", name));
-      if (opt.model_path.empty())
-        return Error::make(Code::FailedPrecondition,
-                           fmt::format("spec.mesh.model_path '{}': this server has no --model-path", name));
-      std::string found;
-      for (const auto& dir : opt.model_path) {
-        std::error_code ec;
-        if (fs::is_regular_file(fs::path(dir) / p, ec)) {
-          found = (fs::path(dir) / p).string();
+      const std::string field = "spec.mesh.model_path";
+      if (name.find('\0') == std::string::npos)
+        if (auto b = builtin_mesh(name)) {
+          *mesh = std::move(*b);
+          cfg.mesh_kind = "model_path";
+          cfg.mesh_name = name;
           break;
         }
+      const ModelEntry* model = name.find('\0') == std::string::npos ? find_model(name) : nullptr;
+      std::string file;
+      if (Error e = resolve_model_file(field, model ? model->file : name, opt.model_path, &file); !e.ok()) {
+        if (model) e.message = fmt::format("{} {}: {}", field, echo(name), e.message);
+        return e;
       }
       try {
-        *mesh = found.empty() ? resolve_mesh(name, opt.model_path) : resolve_mesh(found, opt.model_path);
+        MeshLoadOptions lo;
+        if (model && model->scale > 0) lo.scale = model->scale;
+        *mesh = load_mesh(file, lo);
+        if (model) mesh->name = model->name;
       } catch (const std::exception& e) {
-        if (found.empty())
-          return Error::make(Code::NotFound,
-                             fmt::format("spec.mesh.model_path '{}' not found on the model path ({})",
-                                         name, e.what()));
-        return invalid(fmt::format("spec.mesh.model_path '{}': {}", name, e.what()));
+        // The loader's message may quote the file: it goes to the log, not to the client.
+        spdlog::warn("{} {}: {} cannot be loaded: {}", field, echo(name), file, e.what());
+        return invalid(fmt::format("{} {} is not a valid tet mesh (.node/.ele, .msh, .vtk or .vtu); the server log "
+                                   "says why", field, echo(name)));
       }
       cfg.mesh_kind = "model_path";
       cfg.mesh_name = name;
@@ -292,8 +296,8 @@ Error resolve_source(const v1::MeshSource& src, const RegistryOptions& opt, Scen
   }
   if (static_cast<int64_t>(mesh->vertices.size()) > opt.max_vertices)
     return Error::make(Code::ResourceExhausted,
-                       fmt::format("spec.mesh '{}' has {} vertices, more than this server's --max-vertices {}",
-                                   mesh->name, mesh->vertices.size(), opt.max_vertices));
+                       fmt::format("spec.mesh {} has {} vertices, more than this server's --max-vertices {}",
+                                   echo(mesh->name), mesh->vertices.size(), opt.max_vertices));
   return {};
 }
 
@@ -367,19 +371,65 @@ v1::SceneState state_of(const SceneStatus& st) {
   return st.running ? v1::SCENE_STATE_RUNNING : v1::SCENE_STATE_PAUSED;
 }
 
+// Writes a temporary file next to `path`, fsyncs it, renames it over `path` and fsyncs the
+// directory: after a crash the file is the old one or the new one, never a torn one.
 Error write_file_atomically(const std::string& path, const std::string& bytes) {
+  static std::atomic<uint64_t> counter{0};
   std::error_code ec;
-  fs::create_directories(fs::path(path).parent_path(), ec);
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
-    if (!f) return Error::make(Code::Internal, fmt::format("cannot write '{}'", tmp));
-    f.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    if (!f) return Error::make(Code::Internal, fmt::format("cannot write '{}'", tmp));
+  const fs::path dir = fs::path(path).parent_path();
+  fs::create_directories(dir, ec);
+  const std::string tmp = fmt::format("{}.tmp.{}.{}", path, ::getpid(), counter++);
+  auto fail = [&](const char* what) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    return Error::make(Code::Internal, fmt::format("cannot {} '{}': {}", what, tmp, std::strerror(err)));
+  };
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return fail("create");
+  for (size_t done = 0; done < bytes.size();) {
+    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      Error e = fail("write");
+      ::close(fd);
+      return e;
+    }
+    done += static_cast<size_t>(n);
   }
-  fs::rename(tmp, path, ec);
-  if (ec) return Error::make(Code::Internal, fmt::format("cannot rename '{}' to '{}': {}", tmp, path, ec.message()));
+  if (::fsync(fd) != 0) {
+    Error e = fail("fsync");
+    ::close(fd);
+    return e;
+  }
+  if (::close(fd) != 0) return fail("close");
+  if (::rename(tmp.c_str(), path.c_str()) != 0) return fail("rename");
+  if (const int dfd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); dfd >= 0) {
+    const int rc = ::fsync(dfd);
+    ::close(dfd);
+    if (rc != 0) return Error::make(Code::Internal, fmt::format("cannot fsync '{}': {}", dir.string(), std::strerror(errno)));
+  }
   return {};
+}
+
+// Removes a file and makes the removal durable (fsync of its directory).
+void remove_file_durably(const std::string& path) {
+  if (::unlink(path.c_str()) != 0) return;
+  const fs::path dir = fs::path(path).parent_path();
+  if (const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+// A tick's work: substeps x iterations within kMaxSweepsPerTick (the substeps a target wave
+// Courant number picks for this body included).
+Error check_work(const BodyModel& model, const SolverSettings& s, const std::string& prefix) {
+  const int64_t substeps = effective_substeps(model, s);
+  const int64_t iterations = std::max(1, s.iterations);
+  if (substeps * iterations <= kMaxSweepsPerTick) return {};
+  return invalid(fmt::format("{}.substeps x {}.iterations = {} x {} = {} sweeps per tick, more than this server's "
+                             "limit of {} (lower either, or use time_budget_ms)",
+                             prefix, prefix, substeps, iterations, substeps * iterations, kMaxSweepsPerTick));
 }
 
 Error read_snapshot_file(const std::string& path, v1::Snapshot* out) {
@@ -439,6 +489,9 @@ Error snapshot_to_proto(const SceneSnapshot& s, v1::Snapshot* out) {
   return {};
 }
 
+// Ticks and grab ids in a snapshot stay below 2^53: exact as doubles, far from wrapping.
+constexpr uint64_t kMaxTick = uint64_t{1} << 53;
+
 Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_vertices,
                           SceneSnapshot* out) {
   if (p.format_version() != 1)
@@ -489,12 +542,21 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
   st.time = p.sim_time();
   st.steps = p.tick();
   if (!is_finite(st)) return invalid("snapshot.x/v contain non-finite values");
+  for (size_t t = 0; t < nt; ++t)
+    if (!st.lambda[t].allFinite()) return invalid(fmt::format("snapshot.lambda: tet {} has a non-finite value", t));
+  if (!std::isfinite(p.sim_time()) || p.sim_time() < 0)
+    return invalid(fmt::format("snapshot.sim_time must be a finite value >= 0 s, got {}", p.sim_time()));
+  if (p.tick() > kMaxTick)
+    return invalid(fmt::format("snapshot.tick must be at most {}, got {}", kMaxTick, p.tick()));
+  if (Error e = check_work(*model, cfg.settings, "snapshot.spec.solver"); !e.ok()) return e;
   // Grabs (absent from snapshots written before they were saved: none).
   std::map<uint64_t, Attachment> grabs;
   for (int i = 0; i < p.grabs_size(); ++i) {
     const auto& g = p.grabs(i);
     const std::string field = fmt::format("snapshot.grabs[{}]", i);
     if (g.grab_id() == 0) return invalid(field + ".grab_id = 0 is not a grab id (ids start at 1)");
+    if (g.grab_id() > kMaxTick)
+      return invalid(fmt::format("{}.grab_id = {} is larger than {}", field, g.grab_id(), kMaxTick));
     if (grabs.count(g.grab_id()))
       return invalid(fmt::format("{}.grab_id = {} appears twice", field, g.grab_id()));
     if (g.vertices_size() < 1 || g.vertices_size() > 4 || g.weights_size() != g.vertices_size())
@@ -515,6 +577,8 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
     }
     grabs.emplace(g.grab_id(), a);
   }
+  if (p.next_grab_id() > kMaxTick)
+    return invalid(fmt::format("snapshot.next_grab_id = {} is larger than {}", p.next_grab_id(), kMaxTick));
   uint64_t next_grab_id = std::max<uint64_t>(p.next_grab_id(), 1);
   for (const auto& [gid, a] : grabs) next_grab_id = std::max(next_grab_id, gid + 1);
   out->grabs = std::move(grabs);
@@ -533,6 +597,7 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
 SceneRegistry::SceneRegistry(RegistryOptions options) : options_(std::move(options)) {}
 
 SceneRegistry::~SceneRegistry() {
+  stop_background();
   std::map<std::string, std::shared_ptr<Scene>> scenes;
   {
     std::lock_guard lk(mu_);
@@ -588,8 +653,29 @@ Error SceneRegistry::find(const std::string& id, std::shared_ptr<Scene>* out) co
   std::lock_guard lk(mu_);
   auto it = scenes_.find(id);
   if (it == scenes_.end())
-    return Error::make(Code::NotFound, fmt::format("scene_id '{}' not found", id));
+    return Error::make(Code::NotFound, fmt::format("scene_id {} not found", echo(id)));
   *out = it->second;
+  return {};
+}
+
+Error SceneRegistry::open_stream(const std::string& scene_id, std::shared_ptr<void>* slot) {
+  std::lock_guard lk(mu_);
+  if (open_streams_ >= options_.max_streams)
+    return Error::make(Code::ResourceExhausted,
+                       fmt::format("this server already has {} open streams (--max-streams {})", open_streams_,
+                                   options_.max_streams));
+  int& here = scene_streams_[scene_id];
+  if (here >= options_.max_streams_per_scene)
+    return Error::make(Code::ResourceExhausted,
+                       fmt::format("scene '{}' already has {} open streams (--max-streams-per-scene {})", scene_id,
+                                   here, options_.max_streams_per_scene));
+  ++open_streams_;
+  ++here;
+  *slot = std::shared_ptr<void>(nullptr, [this, scene_id](void*) {
+    std::lock_guard lk(mu_);
+    --open_streams_;
+    if (--scene_streams_[scene_id] <= 0) scene_streams_.erase(scene_id);
+  });
   return {};
 }
 
@@ -675,9 +761,11 @@ Error SceneRegistry::create(const v1::CreateSceneRequest& req, v1::Scene* out) {
   if (spec.solver().method() == v1::METHOD_UNSPECIFIED && cfg.mode == TickMode::Realtime) cfg.settings.method = Method::Auto;
   cfg.method_auto = cfg.settings.method == Method::Auto;
   resolve_auto_method(id, *model, cfg);
+  if (Error e = check_work(*model, cfg.settings, "spec.solver"); !e.ok()) return e;
   BodyState state = rest_state(*model);
   auto scene = std::make_shared<Scene>(id, cfg, model, std::move(state), 0, spec.start_paused());
   if (Error e = add_scene(scene, false); !e.ok()) return e;
+  wake_checkpoint();
   spdlog::info("scene '{}' created: {} ({} vertices, {} tets), {} mode, dt {} s, {}", id,
                cfg.mesh_name, model->vertex_count(), model->tet_count(), to_string(cfg.mode),
                cfg.settings.dt, pliant::to_string(cfg.settings.method));
@@ -741,9 +829,10 @@ Error SceneRegistry::update(const v1::UpdateSceneRequest& req, v1::Scene* out) {
     up.method_auto = resolved.method_auto;
     up.method_choice = resolved.method_choice;
   }
+  if (Error e = check_work(up.model ? *up.model : *s->model(), *up.settings, "solver"); !e.ok()) return e;
   if (Error e = s->update(up); !e.ok()) return e;
   spdlog::info("scene '{}' updated", s->id());
-  warn_if_under_resolved(s->id(), up.model ? *up.model : *s->model(), settings);
+  warn_if_under_resolved(s->id(), up.model ? *up.model : *s->model(), *up.settings);
   return describe(*s, out);
 }
 
@@ -753,14 +842,15 @@ Error SceneRegistry::remove(const std::string& id) {
     if (Error e = check_id_present(id); !e.ok()) return e;
     std::lock_guard lk(mu_);
     auto it = scenes_.find(id);
-    if (it == scenes_.end()) return Error::make(Code::NotFound, fmt::format("scene_id '{}' not found", id));
+    if (it == scenes_.end()) return Error::make(Code::NotFound, fmt::format("scene_id {} not found", echo(id)));
     s = it->second;
     scenes_.erase(it);
   }
   s->stop();
   if (!options_.data_dir.empty()) {
-    std::error_code ec;
-    fs::remove(scene_file(id), ec);
+    std::lock_guard files(files_mu_);
+    remove_file_durably(scene_file(id));
+    written_.erase(id);
   }
   spdlog::info("scene '{}' deleted", id);
   return {};
@@ -874,7 +964,9 @@ Error SceneRegistry::grab(const v1::GrabRequest& req, v1::GrabResponse* out) {
   }
   if (std::string msg = validate_interaction({a}, {}, *m); !msg.empty()) return invalid(msg);
   uint64_t id = 0, first = 0;
-  if (Error e = s->grab(a, &id, &first); !e.ok()) return e;
+  if (Error e = s->grab(a, &id, &first, std::chrono::seconds(10), static_cast<size_t>(options_.max_grabs_per_scene));
+      !e.ok())
+    return e;
   out->set_grab_id(id);
   out->set_first_tick(first);
   return {};
@@ -982,8 +1074,10 @@ Error SceneRegistry::parse_stream_request(const v1::StreamFramesRequest& req, Fr
     }
   }
   out->surface_only = req.surface_only();
-  if (!std::isfinite(req.max_rate_hz()) || req.max_rate_hz() < 0)
-    return invalid(fmt::format("max_rate_hz must be a finite value >= 0, got {}", req.max_rate_hz()));
+  if (!std::isfinite(req.max_rate_hz()) || req.max_rate_hz() < 0 ||
+      (req.max_rate_hz() > 0 && (req.max_rate_hz() < kMinRateHz || req.max_rate_hz() > kMaxRateHz)))
+    return invalid(fmt::format("max_rate_hz must be 0 (no limit) or in [{}, {}] Hz, got {}", kMinRateHz, kMaxRateHz,
+                               req.max_rate_hz()));
   return {};
 }
 
@@ -1084,6 +1178,7 @@ Error SceneRegistry::restore_snapshot(const v1::RestoreSnapshotRequest& req, v1:
   const uint64_t tick = snap.tick;
   auto scene = std::make_shared<Scene>(std::move(snap), id);
   if (Error e = add_scene(scene, req.replace()); !e.ok()) return e;
+  wake_checkpoint();
   spdlog::info("scene '{}' restored from a snapshot at tick {}", id, tick);
   return describe(*scene, out);
 }
@@ -1118,6 +1213,8 @@ int SceneRegistry::restore_from_data_dir() {
     if (e.ok()) {
       auto scene = std::make_shared<Scene>(snap);
       e = add_scene(scene, false);
+      // The file holds this state already: no checkpoint until the scene changes.
+      if (e.ok()) written_[snap.id] = {scene, scene->generation()};
     }
     if (!e.ok()) {
       spdlog::error("not restoring {}: {}", f.string(), e.message);
@@ -1130,10 +1227,139 @@ int SceneRegistry::restore_from_data_dir() {
   return restored;
 }
 
-void SceneRegistry::begin_shutdown() { shutting_down_ = true; }
+void SceneRegistry::start_background() {
+  if (!options_.data_dir.empty()) {
+    // Temporary files a crash left mid-write: never loaded, removed.
+    std::error_code ec;
+    for (const char* sub : {"scenes", "snapshots"})
+      for (auto it = fs::directory_iterator(fs::path(options_.data_dir) / sub, ec);
+           !ec && it != fs::directory_iterator(); it.increment(ec))
+        if (it->path().filename().string().find(".snapshot.tmp.") != std::string::npos) {
+          std::error_code removed;
+          fs::remove(it->path(), removed);
+        }
+  }
+  std::lock_guard lk(bg_mu_);
+  if (bg_stop_ || watchdog_.joinable()) return;
+  watchdog_ = std::thread([this] { watchdog_loop(); });
+  if (!options_.data_dir.empty() && options_.checkpoint_ms > 0)
+    checkpointer_ = std::thread([this] { checkpoint_loop(); });
+}
+
+void SceneRegistry::stop_background() {
+  {
+    std::lock_guard lk(bg_mu_);
+    bg_stop_ = true;
+  }
+  bg_cv_.notify_all();
+  if (watchdog_.joinable()) watchdog_.join();
+  if (checkpointer_.joinable()) checkpointer_.join();
+}
+
+void SceneRegistry::wake_checkpoint() {
+  {
+    std::lock_guard lk(bg_mu_);
+    checkpoint_requested_ = true;
+  }
+  bg_cv_.notify_all();
+}
+
+// Every 50 ms: stops ticks past max_tick_ms and reports ticks past stuck_tick_ms.
+void SceneRegistry::watchdog_loop() {
+  using namespace std::chrono;
+  bool stuck_before = false;
+  std::unique_lock lk(bg_mu_);
+  while (!bg_stop_) {
+    bg_cv_.wait_for(lk, milliseconds(50));
+    if (bg_stop_) break;
+    lk.unlock();
+    std::vector<std::shared_ptr<Scene>> scenes;
+    {
+      std::lock_guard slk(mu_);
+      for (auto& [id, s] : scenes_) scenes.push_back(s);
+    }
+    bool stuck = false;
+    for (auto& s : scenes) {
+      const auto running = s->tick_running_for();
+      if (options_.max_tick_ms > 0 && running > milliseconds(options_.max_tick_ms))
+        s->abort_tick(fmt::format("a tick ran longer than this server's --max-tick-ms {}", options_.max_tick_ms));
+      if (options_.stuck_tick_ms > 0 && running > milliseconds(options_.stuck_tick_ms)) {
+        if (!stuck_before) spdlog::error("scene '{}': a tick has been running for {} ms: NOT_SERVING until it ends",
+                                         s->id(), duration_cast<milliseconds>(running).count());
+        stuck = true;
+      }
+    }
+    if (stuck != stuck_before) {
+      if (!stuck) spdlog::info("no tick is stuck any more: SERVING");
+      if (options_.on_health) options_.on_health(!stuck);
+      stuck_before = stuck;
+    }
+    lk.lock();
+  }
+}
+
+void SceneRegistry::checkpoint_loop() {
+  std::unique_lock lk(bg_mu_);
+  while (!bg_stop_) {
+    bg_cv_.wait_for(lk, std::chrono::milliseconds(options_.checkpoint_ms),
+                    [&] { return bg_stop_ || checkpoint_requested_; });
+    if (bg_stop_) break;
+    checkpoint_requested_ = false;
+    lk.unlock();
+    checkpoint();
+    lk.lock();
+  }
+}
+
+int SceneRegistry::checkpoint() {
+  if (options_.data_dir.empty()) return 0;
+  std::vector<std::shared_ptr<Scene>> scenes;
+  {
+    std::lock_guard lk(mu_);
+    for (auto& [id, s] : scenes_) scenes.push_back(s);
+  }
+  int written = 0;
+  for (auto& s : scenes) {
+    const uint64_t generation = s->generation();
+    {
+      std::lock_guard files(files_mu_);
+      auto it = written_.find(s->id());
+      if (it != written_.end() && it->second.first.lock() == s && it->second.second == generation) continue;
+    }
+    // The state is copied on the tick thread at a tick boundary; serialised and written here.
+    SceneSnapshot snap;
+    if (Error e = s->snapshot(&snap, std::chrono::seconds(1)); !e.ok()) {
+      spdlog::debug("scene '{}': checkpoint skipped: {}", s->id(), e.message);
+      continue;
+    }
+    v1::Snapshot proto;
+    snapshot_to_proto(snap, &proto);
+    const std::string bytes = proto.SerializeAsString();
+    std::lock_guard files(files_mu_);
+    {
+      std::lock_guard lk(mu_);  // deleted or replaced meanwhile: its file is not ours to write
+      auto it = scenes_.find(s->id());
+      if (it == scenes_.end() || it->second != s) continue;
+    }
+    if (Error e = write_file_atomically(scene_file(s->id()), bytes); !e.ok()) {
+      spdlog::error("scene '{}': checkpoint failed: {}", s->id(), e.message);
+      continue;
+    }
+    written_[s->id()] = {s, generation};
+    ++written;
+  }
+  return written;
+}
+
+void SceneRegistry::begin_shutdown() {
+  shutting_down_ = true;
+  std::lock_guard lk(mu_);
+  for (auto& [id, s] : scenes_) s->request_stop();
+}
 
 int SceneRegistry::shutdown() {
   shutting_down_ = true;
+  stop_background();
   std::map<std::string, std::shared_ptr<Scene>> scenes;
   {
     std::lock_guard lk(mu_);
@@ -1142,11 +1368,13 @@ int SceneRegistry::shutdown() {
   for (auto& [id, s] : scenes) s->stop();
   int written = 0;
   if (!options_.data_dir.empty()) {
+    std::lock_guard files(files_mu_);
     for (auto& [id, s] : scenes) {
       v1::Snapshot proto;
       snapshot_to_proto(s->snapshot_stopped(), &proto);
       if (Error e = write_file_atomically(scene_file(id), proto.SerializeAsString()); !e.ok()) {
         spdlog::error("scene '{}': shutdown snapshot failed: {}", id, e.message);
+        ++failed_saves_;
         continue;
       }
       ++written;

@@ -25,6 +25,13 @@ std::string_view to_string(TickMode mode) {
   return "?";
 }
 
+namespace {
+// A Step's tick stopped by the per-tick time limit.
+struct TickAborted : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+}  // namespace
+
 struct Scene::StepJob {
   uint32_t remaining;
   uint64_t rollbacks_before;
@@ -129,13 +136,18 @@ void Scene::start() {
   thread_ = std::thread([this] { run(); });
 }
 
-void Scene::stop() {
+void Scene::request_stop() {
   {
     std::lock_guard lk(mu_);
     stop_ = true;
+    cancel_tick_ = true;
   }
   cv_.notify_all();
-  if (thread_.joinable()) thread_.join();
+}
+
+void Scene::stop() {
+  request_stop();
+  if (thread_.joinable() && thread_.get_id() != std::this_thread::get_id()) thread_.join();
   {
     std::lock_guard lk(mu_);
     commands_.clear();  // breaks the promises of calls still waiting: they answer Unavailable
@@ -154,6 +166,19 @@ void Scene::stop() {
 bool Scene::stopped() const {
   std::lock_guard lk(mu_);
   return stop_;
+}
+
+Clock::duration Scene::tick_running_for() const {
+  const int64_t started = tick_started_ns_.load();
+  if (started == 0) return Clock::duration::zero();
+  return Clock::now().time_since_epoch() - std::chrono::nanoseconds(started);
+}
+
+void Scene::abort_tick(std::string reason) {
+  std::lock_guard lk(abort_mu_);
+  if (tick_started_ns_.load() == 0) return;  // the tick ended meanwhile
+  abort_reason_ = std::move(reason);
+  cancel_tick_ = true;
 }
 
 std::shared_ptr<const BodyModel> Scene::model() const {
@@ -183,13 +208,14 @@ void Scene::publish_status() {
   s.ticks_per_second = ts_->ticks_per_second;
   s.pause_reason = ts_->pause_reason;
   std::lock_guard lk(info_mu_);
+  ++generation_;
   status_ = std::move(s);
   config_.settings = ts_->settings;
   config_.mode = ts_->mode;
   model_shared_ = ts_->model;
 }
 
-Error Scene::call(std::function<Error()> fn, Clock::time_point deadline) {
+Error Scene::call(std::function<Error()> fn, Clock::time_point deadline, bool interrupt) {
   auto promise = std::make_shared<std::promise<Error>>();
   auto future = promise->get_future();
   bool wake = false;
@@ -198,6 +224,7 @@ Error Scene::call(std::function<Error()> fn, Clock::time_point deadline) {
     if (stop_) return Error::make(Code::Unavailable, "scene '" + id_ + "' is shutting down");
     commands_.push_back([promise, fn = std::move(fn)] { promise->set_value(fn()); });
     wake = waiting_for_commands_;
+    if (interrupt) cancel_tick_ = true;
   }
   if (wake) cv_.notify_all();
   if (future.wait_until(deadline) != std::future_status::ready)
@@ -226,12 +253,17 @@ bool Scene::post(Command fn) {
 }
 
 Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
-                  std::chrono::milliseconds timeout) {
+                  std::chrono::milliseconds timeout, size_t max_grabs) {
   auto id = std::make_shared<uint64_t>(0), first = std::make_shared<uint64_t>(0);
   Error e = call(
-      [this, attachment, id, first] {
+      [this, attachment, id, first, max_grabs] {
+        if (ts_->grabs.size() >= max_grabs)
+          return Error::make(Code::ResourceExhausted,
+                             "scene '" + id_ + "' already has " + std::to_string(ts_->grabs.size()) +
+                                 " grabs (--max-grabs-per-scene " + std::to_string(max_grabs) + "); release one first");
         *id = ts_->next_grab_id++;
         ts_->grabs[*id] = attachment;
+        ++generation_;  // grabs are saved: a checkpoint is due
         *first = ts_->tick + 1;
         return Error{};
       },
@@ -253,6 +285,7 @@ Error Scene::move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tic
         if (it == ts_->grabs.end())
           return Error::make(Code::NotFound, "grab_id " + std::to_string(grab_id) + " is not a grab of scene '" + id_ + "'");
         it->second.target = target;
+        ++generation_;
         if (auto f = ts_->grab_forces.find(grab_id); f != ts_->grab_forces.end()) *force = f->second;
         *first = ts_->tick + 1;
         return Error{};
@@ -271,6 +304,7 @@ Error Scene::release(uint64_t grab_id, std::chrono::milliseconds timeout) {
         if (ts_->grabs.erase(grab_id) == 0)
           return Error::make(Code::NotFound, "grab_id " + std::to_string(grab_id) + " is not a grab of scene '" + id_ + "'");
         ts_->grab_forces.erase(grab_id);
+        ++generation_;
         return Error{};
       },
       Clock::now() + timeout);
@@ -305,7 +339,7 @@ Error Scene::pause(std::chrono::milliseconds timeout) {
         publish_status();
         return Error{};
       },
-      Clock::now() + timeout);
+      Clock::now() + timeout, /*interrupt=*/true);
 }
 
 Error Scene::resume(std::chrono::milliseconds timeout) {
@@ -338,7 +372,7 @@ Error Scene::reset(std::chrono::milliseconds timeout) {
         publish_status();
         return Error{};
       },
-      Clock::now() + timeout);
+      Clock::now() + timeout, /*interrupt=*/true);
 }
 
 Error Scene::update(const SceneUpdate& update, std::chrono::milliseconds timeout) {
@@ -359,7 +393,7 @@ Error Scene::update(const SceneUpdate& update, std::chrono::milliseconds timeout
         publish_status();
         return Error{};
       },
-      Clock::now() + timeout);
+      Clock::now() + timeout, /*interrupt=*/true);
 }
 
 Error Scene::apply_force(std::vector<int32_t> vertices, const Vec3& force, uint32_t ticks,
@@ -417,7 +451,7 @@ Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out,
             }
           return Error{};
         },
-        Clock::now() + std::chrono::seconds(10));
+        Clock::now() + std::chrono::seconds(10), /*interrupt=*/true);
     if (was_cancelled)
       return Error::make(Code::Cancelled, "scene '" + id_ + "': step cancelled by the caller");
     return Error::make(Code::DeadlineExceeded, "scene '" + id_ + "': step of " + std::to_string(ticks) +
@@ -425,6 +459,8 @@ Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out,
   }
   try {
     *out = future.get();
+  } catch (const TickAborted& e) {
+    return Error::make(Code::ResourceExhausted, "scene '" + id_ + "': " + e.what());
   } catch (const std::exception&) {
     return Error::make(Code::Unavailable, "scene '" + id_ + "' stopped during the step");
   }
@@ -505,6 +541,7 @@ void Scene::run() {
     if (stop_) break;
     std::deque<Command> commands;
     commands.swap(commands_);
+    cancel_tick_ = false;  // interrupting commands posted from here on cancel the next tick
     lk.unlock();
     for (auto& c : commands) {
       try {
@@ -524,7 +561,29 @@ void Scene::run() {
     }
     lk.lock();
   }
+  // Waiting calls and Steps answer Unavailable at once, not when stop() joins.
+  commands_.clear();
+  for (auto& job : ts_->steps)
+    job.done->set_exception(std::make_exception_ptr(std::runtime_error("scene stopped")));
+  ts_->steps.clear();
   spdlog::debug("scene '{}': tick thread stopped at tick {}", id_, ts_->tick);
+}
+
+void Scene::cancelled_tick(const std::string& abort_reason) {
+  TickState& t = *ts_;
+  t.state = t.last_good;  // as if the tick had not started
+  if (abort_reason.empty()) return;  // a command or stop interrupted it: they act next
+  spdlog::error("scene '{}': tick {} stopped: {}", id_, t.tick + 1, abort_reason);
+  if (t.mode != TickMode::Lockstep && t.running) {
+    t.running = false;
+    t.schedule_valid = false;
+    t.pause_reason = "paused: " + abort_reason + "; lower substeps or iterations (or set a time budget) and resume";
+  }
+  if (!t.steps.empty()) {  // the Step that asked for the tick fails with the reason
+    t.steps.front().done->set_exception(std::make_exception_ptr(TickAborted(abort_reason)));
+    t.steps.pop_front();
+  }
+  publish_status();
 }
 
 void Scene::tick_once(bool scheduled, Clock::time_point due) {
@@ -538,8 +597,6 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     inputs.external_forces.assign(t.model->vertex_count(), Vec3::Zero());
     for (auto& f : t.forces)
       for (int32_t v : f.vertices) inputs.external_forces[v] += f.force;
-    for (auto& f : t.forces) --f.remaining;
-    std::erase_if(t.forces, [](const ActiveForce& f) { return f.remaining == 0; });
   }
   inputs.attachments.reserve(t.grabs.size());
   for (const auto& [id, a] : t.grabs) inputs.attachments.push_back(a);
@@ -555,6 +612,12 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   t.last_good = t.state;  // copy-assign reuses the buffers
   StepReport report;
   std::string failure;
+  inputs.cancel = &cancel_tick_;
+  {
+    std::lock_guard lk(abort_mu_);
+    abort_reason_.clear();
+    tick_started_ns_ = std::chrono::duration_cast<std::chrono::nanoseconds>(start.time_since_epoch()).count();
+  }
   try {
     report = t.stepper.step(*t.model, t.state, t.settings, inputs);
     if (report.diverged)
@@ -565,6 +628,18 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   } catch (const std::exception& e) {
     failure = std::string("solver error: ") + e.what();
   }
+  std::string abort_reason;
+  {
+    std::lock_guard lk(abort_mu_);
+    tick_started_ns_ = 0;
+    abort_reason.swap(abort_reason_);
+  }
+  if (report.cancelled) {
+    cancelled_tick(abort_reason);
+    return;
+  }
+  for (auto& f : t.forces) --f.remaining;
+  std::erase_if(t.forces, [](const ActiveForce& f) { return f.remaining == 0; });
   ++t.tick;
   const bool rolled_back = !failure.empty();
   if (rolled_back) {

@@ -2,15 +2,21 @@
 // TLS and graceful shutdown.
 #include "pliant/server/server.hpp"
 
+#include "pliant/server/edge.hpp"
+
 #include "pliant/mesh_io.hpp"
 #include "pliant/v1/pliant.grpc.pb.h"
 
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
+#include <grpcpp/support/server_interceptor.h>
+#include <openssl/crypto.h>
+#include <openssl/sha.h>
 #include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
+#include <array>
 #include <atomic>
 #include <condition_variable>
 #include <filesystem>
@@ -40,30 +46,39 @@ grpc::Status to_status(const Error& e) {
     case Code::Cancelled: c = grpc::StatusCode::CANCELLED; break;
     case Code::Internal: c = grpc::StatusCode::INTERNAL; break;
   }
-  return grpc::Status(c, e.message);
+  return grpc::Status(c, cap_message(e.message));
 }
 
-// Shared by the three services: the registry, the token, and error logging.
+using Digest = std::array<unsigned char, SHA256_DIGEST_LENGTH>;
+
+Digest sha256(std::string_view s) {
+  Digest d{};
+  SHA256(reinterpret_cast<const unsigned char*>(s.data()), s.size(), d.data());
+  return d;
+}
+
+// The 'authorization' header against the expected one, by their SHA-256 digests compared in
+// constant time: the time depends neither on the token's content nor on its length.
+grpc::Status check_token(const std::multimap<grpc::string_ref, grpc::string_ref>& md, const Digest& expected) {
+  auto it = md.find("authorization");
+  if (it == md.end())
+    return grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
+                        "missing 'authorization' metadata: this server requires 'Bearer <token>'");
+  const Digest presented = sha256(std::string_view(it->second.data(), it->second.size()));
+  if (CRYPTO_memcmp(presented.data(), expected.data(), expected.size()) != 0)
+    return grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "the access token in 'authorization' is not valid");
+  return grpc::Status::OK;
+}
+
+// Shared by the services: the registry, the token's digest, and error logging.
 struct ServiceContext {
   SceneRegistry* registry;
-  std::string token;
+  bool token_required = false;
+  Digest expected{};  // SHA-256 of "Bearer <token>"
 
   grpc::Status check(grpc::ServerContext* ctx) const {
-    if (token.empty()) return grpc::Status::OK;
-    const auto& md = ctx->client_metadata();
-    auto it = md.find("authorization");
-    if (it == md.end())
-      return grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
-                          "missing 'authorization' metadata: this server requires 'Bearer <token>'");
-    // Compare in time independent of where the first difference is.
-    const std::string expected = "Bearer " + token;
-    std::string_view v(it->second.data(), it->second.size());
-    unsigned char diff = v.size() != expected.size();
-    for (size_t i = 0; i < std::min(v.size(), expected.size()); ++i)
-      diff |= static_cast<unsigned char>(v[i] ^ expected[i]);
-    if (diff != 0)
-      return grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "the access token in 'authorization' is not valid");
-    return grpc::Status::OK;
+    if (!token_required) return grpc::Status::OK;
+    return check_token(ctx->client_metadata(), expected);
   }
 
   grpc::Status answer(const char* rpc, grpc::ServerContext* ctx, const Error& e) const {
@@ -149,6 +164,8 @@ class FrameServiceImpl final : public v1::FrameService::Service {
   Error stream(grpc::ServerContext* c, const v1::StreamFramesRequest& r, grpc::ServerWriter<v1::Frame>* writer) {
     std::shared_ptr<Scene> scene;
     if (Error e = sc_.registry->find(r.scene_id(), &scene); !e.ok()) return e;
+    std::shared_ptr<void> slot;
+    if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
     FrameSelection sel;
     if (Error e = SceneRegistry::parse_stream_request(r, &sel); !e.ok()) return e;
     const uint64_t every = r.every_nth_tick() <= 1 ? 1 : r.every_nth_tick();
@@ -232,6 +249,8 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
     if (!stream->Read(&pose)) return {};
     std::shared_ptr<Scene> scene;
     if (Error e = sc_.registry->find(pose.scene_id(), &scene); !e.ok()) return e;
+    std::shared_ptr<void> slot;
+    if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
     RigidTool tool;
     if (Error e = SceneRegistry::parse_tool_pose(pose, nullptr, &tool); !e.ok()) return e;
     const uint64_t tool_id = scene->new_tool_id();
@@ -299,8 +318,8 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
     Error result;
     while (!done.load() && stream->Read(&pose)) {
       if (!pose.scene_id().empty() && pose.scene_id() != scene->id()) {
-        result = Error::make(Code::InvalidArgument, fmt::format("scene_id '{}' differs from the stream's scene '{}'",
-                                                                pose.scene_id(), scene->id()));
+        result = Error::make(Code::InvalidArgument, fmt::format("scene_id {} differs from the stream's scene '{}'",
+                                                                echo(pose.scene_id()), scene->id()));
         break;
       }
       RigidTool next;
@@ -359,6 +378,43 @@ Error read_file(const std::string& flag, const std::string& path, std::string* o
   return {};
 }
 
+// Reflection (grpc.reflection.*) under --reflection token | off: a call without the token, or
+// every call, is cancelled once its metadata arrives (the plugin's handlers cannot be wrapped).
+class ReflectionGate final : public grpc::experimental::Interceptor {
+ public:
+  ReflectionGate(grpc::experimental::ServerRpcInfo* info, const ServiceContext* sc, bool off)
+      : info_(info), sc_(sc), off_(off) {}
+  void Intercept(grpc::experimental::InterceptorBatchMethods* methods) override {
+    if (methods->QueryInterceptionHookPoint(grpc::experimental::InterceptionHookPoints::POST_RECV_INITIAL_METADATA)) {
+      const grpc::Status s = off_ ? grpc::Status(grpc::StatusCode::UNIMPLEMENTED, "reflection is off")
+                                  : check_token(*methods->GetRecvInitialMetadata(), sc_->expected);
+      if (!s.ok()) {
+        spdlog::warn("{}: refused: {}", info_->method(), s.error_message());
+        info_->server_context()->TryCancel();
+      }
+    }
+    methods->Proceed();
+  }
+
+ private:
+  grpc::experimental::ServerRpcInfo* info_;
+  const ServiceContext* sc_;
+  bool off_;
+};
+
+class ReflectionGateFactory final : public grpc::experimental::ServerInterceptorFactoryInterface {
+ public:
+  ReflectionGateFactory(const ServiceContext* sc, bool off) : sc_(sc), off_(off) {}
+  grpc::experimental::Interceptor* CreateServerInterceptor(grpc::experimental::ServerRpcInfo* info) override {
+    if (std::string_view(info->method()).rfind("/grpc.reflection.", 0) != 0) return nullptr;
+    return new ReflectionGate(info, sc_, off_);
+  }
+
+ private:
+  const ServiceContext* sc_;
+  bool off_;
+};
+
 const char* kServices[] = {"pliant.v1.SceneService", "pliant.v1.FrameService", "pliant.v1.SnapshotService",
                            "pliant.v1.InteractionService"};
 
@@ -367,6 +423,7 @@ const char* kServices[] = {"pliant.v1.SceneService", "pliant.v1.FrameService", "
 struct PliantServer::Impl {
   ServerOptions options;
   std::unique_ptr<SceneRegistry> registry;
+  std::unique_ptr<ServiceContext> context;  // the reflection gate's
   std::unique_ptr<SceneServiceImpl> scenes;
   std::unique_ptr<FrameServiceImpl> frames;
   std::unique_ptr<SnapshotServiceImpl> snapshots;
@@ -388,6 +445,21 @@ PliantServer::PliantServer(ServerOptions options) : impl_(std::make_unique<Impl>
   ro.max_vertices = impl_->options.max_vertices;
   ro.max_threads = impl_->options.threads;
   ro.data_dir = impl_->options.data_dir;
+  ro.max_tick_ms = impl_->options.max_tick_ms;
+  ro.stuck_tick_ms = impl_->options.stuck_tick_ms;
+  ro.checkpoint_ms = impl_->options.checkpoint_ms;
+  ro.max_streams = impl_->options.max_streams;
+  ro.max_streams_per_scene = impl_->options.max_streams_per_scene;
+  ro.max_grabs_per_scene = impl_->options.max_grabs_per_scene;
+  // A stuck tick turns the scene services NOT_SERVING (not during shutdown: that is final).
+  ro.on_health = [impl = impl_.get()](bool serving) {
+    std::lock_guard lk(impl->mu);
+    if (impl->shutting_down || !impl->server) return;
+    if (auto* health = impl->server->GetHealthCheckService()) {
+      health->SetServingStatus(serving);
+      for (const char* s : kServices) health->SetServingStatus(s, serving);
+    }
+  };
   // Without --model-path: $PLIANT_MODEL_PATH, then the source tree's meshes/ (the model set).
   ro.model_path = impl_->options.model_path.empty() ? default_model_path()
                                                      : split_path(impl_->options.model_path);
@@ -423,12 +495,18 @@ Error PliantServer::start() {
   }
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
-  ServiceContext sc{impl_->registry.get(), o.token};
+  ServiceContext sc{impl_->registry.get(), !o.token.empty(), sha256("Bearer " + o.token)};
+  impl_->context = std::make_unique<ServiceContext>(sc);
   impl_->scenes = std::make_unique<SceneServiceImpl>(sc);
   impl_->frames = std::make_unique<FrameServiceImpl>(sc);
   impl_->snapshots = std::make_unique<SnapshotServiceImpl>(sc);
   impl_->interaction = std::make_unique<InteractionServiceImpl>(sc);
   grpc::ServerBuilder builder;
+  if (o.reflection != "open") {
+    std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> gates;
+    gates.push_back(std::make_unique<ReflectionGateFactory>(impl_->context.get(), o.reflection == "off"));
+    builder.experimental().SetInterceptorCreators(std::move(gates));
+  }
   builder.AddListeningPort(o.listen, creds, &impl_->port);
   builder.SetMaxReceiveMessageSize(o.max_message_mb * 1024 * 1024);
   builder.SetMaxSendMessageSize(o.max_message_mb * 1024 * 1024);
@@ -448,10 +526,13 @@ Error PliantServer::start() {
     std::lock_guard lk(impl_->mu);
     impl_->started = true;
   }
-  spdlog::info("pliant-server listening on {} (port {}){}{}", o.listen, impl_->port,
-               o.tls_cert.empty() ? "" : ", TLS", o.token.empty() ? "" : ", token required");
+  impl_->registry->start_background();
+  spdlog::info("pliant-server listening on {} (port {}){}{}, reflection {}", o.listen, impl_->port,
+               o.tls_cert.empty() ? "" : ", TLS", o.token.empty() ? "" : ", token required", o.reflection);
   return {};
 }
+
+bool PliantServer::save_failed() const { return impl_->registry->failed_saves() > 0; }
 
 int PliantServer::shutdown() {
   {
@@ -470,10 +551,11 @@ int PliantServer::shutdown() {
       health->SetServingStatus(false);
       for (const char* s : kServices) health->SetServingStatus(s, false);
     }
+    // Every scene's tick stops at its next sweep; calls waiting for a scene answer UNAVAILABLE.
     impl_->registry->begin_shutdown();
-    // In-flight unary calls get a moment to finish; streams notice begin_shutdown() within
-    // 100 ms and end with UNAVAILABLE.
-    impl_->server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(3));
+    // In-flight calls get kShutdownGrace to finish, then are cancelled; streams notice
+    // begin_shutdown() within 100 ms and end with UNAVAILABLE.
+    impl_->server->Shutdown(std::chrono::system_clock::now() + kShutdownGrace);
     impl_->server->Wait();
   }
   written = impl_->registry->shutdown();

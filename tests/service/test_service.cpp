@@ -928,6 +928,7 @@ TEST(Service, BadInputsGetTheRightStatus) {
   auto st = c.step("ok", 2);
   ASSERT_TRUE(st.ok()) << st.status.to_string();
   EXPECT_EQ(st->tick(), 2u);
+  ts.server->shutdown();  // the server writes checkpoints into data until it stops
   fs::remove_all(models);
   fs::remove_all(data);
 }

@@ -6,6 +6,7 @@
 #include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 
 namespace pliant {
@@ -18,8 +19,9 @@ double distance(const std::vector<Vec3>& a, const std::vector<Vec3>& b) {
   return std::sqrt(d);
 }
 
-// Iterations no budget reaches: the time budget is what stops a candidate.
-constexpr int kUncappedIterations = 100000;
+// Sweeps per tick no budget reaches (and within the server's work limit): the time budget is
+// what stops a candidate.
+constexpr int kUncappedSweeps = 100000;
 
 }  // namespace
 
@@ -46,14 +48,14 @@ MethodChoice choose_method(const BodyModel& model, const SolverSettings& base, d
   SolverSettings c = common;
   c.method = Method::Newton;
   c.substeps = 1;
-  c.iterations = kUncappedIterations;
+  c.iterations = kUncappedSweeps;
   candidates.push_back(c);
   c.method = Method::Vbd;
   candidates.push_back(c);
   c = common;
   if (family_of(base.method) != SolverFamilyKind::ConstraintProjection || base.method == Method::Auto)
     c.method = Method::Xpbd;
-  c.iterations = kUncappedIterations;
+  c.iterations = std::max(1, kUncappedSweeps / std::max(1, c.substeps));
   candidates.push_back(c);
 
   MethodChoice out;

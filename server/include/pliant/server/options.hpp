@@ -24,6 +24,14 @@ struct ServerOptions {
   std::string tls_cert;
   std::string tls_key;
   std::string token;             // required as "authorization: Bearer <token>" when set
+  std::string token_file_token;  // read from --token-file (replaces token)
+  std::string reflection = "open";  // open | token | off
+  int64_t max_tick_ms = 10'000;  // RegistryOptions::max_tick_ms
+  int64_t stuck_tick_ms = 15'000;
+  int64_t checkpoint_ms = 5'000;
+  int max_streams = 256;          // RegistryOptions::max_streams
+  int max_streams_per_scene = 64;
+  int max_grabs_per_scene = 64;
   int threads = 1;               // cap on each scene's solver threads
   bool restore = true;           // --no-restore: do not restore scenes from the data dir
   std::string config;            // the config file read, if any

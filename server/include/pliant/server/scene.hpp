@@ -8,6 +8,7 @@
 #include "pliant/settings.hpp"
 #include "pliant/state.hpp"
 
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -158,8 +159,17 @@ class Scene {
 
   void start();
   // Stops the tick thread (joins it). Pending calls fail with Unavailable; frame waiters wake.
+  // A tick in progress stops at its next sweep and is undone.
   void stop();
+  // Asks the tick thread to stop without waiting for it (stop() still joins it later).
+  void request_stop();
   bool stopped() const;
+
+  // How long the tick in progress has been running (zero when the thread is between ticks).
+  std::chrono::steady_clock::duration tick_running_for() const;
+  // Stops the tick in progress at its next sweep, undoes it and pauses the scene with `reason`
+  // (a lockstep Step fails with it). For the registry's per-tick time limit.
+  void abort_tick(std::string reason);
 
   const std::string& id() const { return id_; }
   std::shared_ptr<const BodyModel> model() const;
@@ -185,8 +195,9 @@ class Scene {
              const std::function<bool()>& cancelled = {});
   // Interaction. Grabs are validated by the caller (validate_interaction) and wait for the
   // tick like the other commands; first_tick is the first tick they act in.
+  // At most max_grabs at once (RESOURCE_EXHAUSTED).
   Error grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
-             std::chrono::milliseconds timeout = std::chrono::seconds(10));
+             std::chrono::milliseconds timeout = std::chrono::seconds(10), size_t max_grabs = SIZE_MAX);
   Error move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tick, Vec3* last_force,
                   std::chrono::milliseconds timeout = std::chrono::seconds(10));
   Error release(uint64_t grab_id, std::chrono::milliseconds timeout = std::chrono::seconds(10));
@@ -207,6 +218,10 @@ class Scene {
   std::shared_ptr<const Frame> wait_frame(uint64_t after_seq,
                                           std::chrono::steady_clock::time_point deadline) const;
 
+  // Bumped whenever the scene's state or settings change (every tick and command that
+  // publishes status): a checkpoint is due when it moved.
+  uint64_t generation() const { return generation_.load(); }
+
   // Serialises live updates (merge + validate + apply) from concurrent callers.
   std::mutex& update_mutex() { return update_mu_; }
 
@@ -219,11 +234,16 @@ class Scene {
     uint32_t remaining;
   };
 
-  Error call(std::function<Error()> fn, std::chrono::steady_clock::time_point deadline);
+  // Runs `fn` on the tick thread at the next tick boundary. `interrupt`: a tick in progress
+  // stops at its next sweep and is undone, so the command takes effect at once.
+  Error call(std::function<Error()> fn, std::chrono::steady_clock::time_point deadline,
+             bool interrupt = false);
   // Queues a command without waiting for it; false when the scene is stopping.
   bool post(Command fn);
   void run();
   void tick_once(bool scheduled, std::chrono::steady_clock::time_point due);
+  // A tick the cancel flag stopped: undone; with a reason from abort_tick, also pauses.
+  void cancelled_tick(const std::string& abort_reason);
   void publish_status();
 
   const std::string id_;
@@ -254,6 +274,14 @@ class Scene {
   mutable std::condition_variable frame_cv_;
   std::shared_ptr<const Frame> latest_;
   uint64_t seq_ = 0;
+
+  // Cancellation of the tick in progress (StepInputs::cancel): set by interrupting commands,
+  // stop and abort_tick, cleared when the tick thread takes the next commands (under mu_).
+  std::atomic<bool> cancel_tick_{false};
+  std::atomic<uint64_t> generation_{0};
+  std::atomic<int64_t> tick_started_ns_{0};  // steady clock of the tick in progress; 0: none
+  std::mutex abort_mu_;
+  std::string abort_reason_;  // why abort_tick stopped the tick (under abort_mu_)
 
   // Tick-thread-only state.
   struct TickState;

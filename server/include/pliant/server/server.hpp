@@ -6,9 +6,13 @@
 #include "pliant/server/options.hpp"
 #include "pliant/server/registry.hpp"
 
+#include <chrono>
 #include <memory>
 
 namespace pliant::server {
+
+// How long in-flight calls may run on after shutdown begins before they are cancelled.
+constexpr std::chrono::seconds kShutdownGrace{2};
 
 class PliantServer {
  public:
@@ -21,7 +25,10 @@ class PliantServer {
   int port() const;
   SceneRegistry& registry();
   // Graceful stop; safe to call twice. Returns the number of scene snapshots written.
+  // Takes at most kShutdownGrace plus the time to write the snapshots.
   int shutdown();
+  // True when shutdown() could not write a scene's snapshot.
+  bool save_failed() const;
   // Blocks until shutdown() has completed.
   void wait();
 
