@@ -158,6 +158,11 @@ Error check_solver(const SolverSettings& s, const std::string& prefix) {
   return invalid(err);
 }
 
+// Whether solver settings name a budget in sweeps (then the server does not choose the method).
+bool pins_budget(const v1::SolverSettings& p) {
+  return p.has_substeps() || p.has_iterations() || p.has_target_wave_courant_number();
+}
+
 // Method auto: measures the candidates on the model (choose_method) and pins the winner in
 // cfg.settings, keeping what was measured for GetScene and the log. The budget is the request's
 // time_budget_ms, or kAutoBudgetFraction of the tick.
@@ -757,8 +762,10 @@ Error SceneRegistry::create(const v1::CreateSceneRequest& req, v1::Scene* out) {
   if (Error e = resolve_source(spec.mesh(), options_, cfg, &mesh); !e.ok()) return e;
   std::shared_ptr<const BodyModel> model;
   if (Error e = build(mesh, material, cfg.fixed, &model); !e.ok()) return e;
-  // A realtime scene whose request names no method gets the most accurate one within half its tick.
-  if (spec.solver().method() == v1::METHOD_UNSPECIFIED && cfg.mode == TickMode::Realtime) cfg.settings.method = Method::Auto;
+  // A realtime scene whose request names neither a method nor a budget in sweeps gets the most
+  // accurate method within its time budget (half the tick unless it names one).
+  if (spec.solver().method() == v1::METHOD_UNSPECIFIED && !pins_budget(spec.solver()) && cfg.mode == TickMode::Realtime)
+    cfg.settings.method = Method::Auto;
   cfg.method_auto = cfg.settings.method == Method::Auto;
   resolve_auto_method(id, *model, cfg);
   if (Error e = check_work(*model, cfg.settings, "spec.solver"); !e.ok()) return e;
@@ -804,10 +811,13 @@ Error SceneRegistry::update(const v1::UpdateSceneRequest& req, v1::Scene* out) {
   if (req.has_gravity())
     if (Error e = merge_gravity(req.gravity(), "gravity", settings); !e.ok()) return e;
   if (Error e = check_solver(settings, "solver"); !e.ok()) return e;
-  // A request that names a method pins it, or asks for auto; one that does not keeps what was.
+  // A request that names a method pins it, or asks for auto; one that names a budget in sweeps
+  // (substeps, iterations, wave Courant number) pins the method in use with that budget; any
+  // other keeps what was (auto chooses again for the new settings).
   bool method_auto = cfg.method_auto;
   if (req.has_solver() && req.solver().method() != v1::METHOD_UNSPECIFIED) method_auto = settings.method == Method::Auto;
-  else if (method_auto) settings.method = Method::Auto;  // choose again for the new settings
+  else if (req.has_solver() && pins_budget(req.solver())) method_auto = false;
+  else if (method_auto) settings.method = Method::Auto;
   if (mode != cfg.mode) up.mode = mode;
   if (req.has_material()) {
     auto model = s->model();

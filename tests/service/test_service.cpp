@@ -1042,6 +1042,8 @@ TEST(MethodAuto, RealtimeScenesWithoutAMethodRunTheMeasuredChoice) {
   TestServer ts;
   Client c = ts.client();
   v1::CreateSceneRequest r = beam_request("auto", v1::TICK_MODE_REALTIME);
+  r.mutable_spec()->mutable_solver()->clear_substeps();  // no budget in sweeps
+  r.mutable_spec()->mutable_solver()->clear_iterations();
   r.mutable_spec()->set_start_paused(true);
   auto created = c.create_scene(r);
   ASSERT_TRUE(created.ok()) << created.status.to_string();
@@ -1054,7 +1056,16 @@ TEST(MethodAuto, RealtimeScenesWithoutAMethodRunTheMeasuredChoice) {
   EXPECT_NE(choice.find("xpbd"), std::string::npos) << choice;
   EXPECT_GT(created->spec().solver().time_budget_ms(), 0);  // half the tick by default
 
-  // Lockstep scenes and scenes that name a method keep what they asked for.
+  // Lockstep scenes, scenes that name a method and scenes that name a budget in sweeps keep
+  // what they asked for.
+  v1::CreateSceneRequest budget = beam_request("budget", v1::TICK_MODE_REALTIME);
+  budget.mutable_spec()->set_start_paused(true);
+  auto b = c.create_scene(budget);
+  ASSERT_TRUE(b.ok());
+  EXPECT_TRUE(b->method_choice().empty());
+  EXPECT_EQ(b->spec().solver().method(), v1::METHOD_XPBD);
+  EXPECT_EQ(b->spec().solver().substeps(), 2);
+  EXPECT_EQ(b->spec().solver().iterations(), 4);
   auto lockstep = c.create_scene(beam_request("lockstep"));
   ASSERT_TRUE(lockstep.ok());
   EXPECT_TRUE(lockstep->method_choice().empty());
@@ -1074,6 +1085,14 @@ TEST(MethodAuto, RealtimeScenesWithoutAMethodRunTheMeasuredChoice) {
   auto u = c.update_scene(up);
   ASSERT_TRUE(u.ok()) << u.status.to_string();
   EXPECT_FALSE(u->method_choice().empty());
+  // A new budget in sweeps pins the method in use with it.
+  up.Clear();
+  up.set_scene_id("auto");
+  up.mutable_solver()->set_iterations(3);
+  u = c.update_scene(up);
+  ASSERT_TRUE(u.ok());
+  EXPECT_TRUE(u->method_choice().empty());
+  EXPECT_EQ(u->spec().solver().iterations(), 3);
   up.Clear();
   up.set_scene_id("auto");
   up.mutable_solver()->set_method(v1::METHOD_XPBD);
