@@ -95,6 +95,11 @@ class NewtonFamily final : public SolverFamily {
   RigidTool tool_now(const StepInputs& in, size_t t) const;
   double attachment_stiffness(const BodyModel& m, const Attachment& a, double h) const;
   double elastic_diagonal(int32_t v) const;
+  double inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const;
+  // Whether no tet of `trial` falls below the inversion floor, or below where it already was.
+  bool keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const;
+  // lagged_ = contacts_ with their normal forces at the current positions.
+  void remember_normal_forces();
 
   uint64_t compiled_model_ = 0;
   std::vector<int> dof_;  // vertex -> first dof, -1 when fixed
@@ -106,12 +111,8 @@ class NewtonFamily final : public SolverFamily {
   Eigen::VectorXd g_, d_;
   std::vector<Vec3> y_, x_start_, trial_, v_before_;
   std::vector<double> volume_ratio_;  // per tet, at the start of the substep (the warm start's floor)
-  double inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const;
-  // Whether no tet of `trial` falls below the inversion floor, or below where it already was.
-  bool keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const;
   std::vector<Contact> contacts_;
   std::vector<Contact> lagged_;  // the contacts at the end of the last iteration, normal force k depth
-  void remember_normal_forces();
   std::vector<double> attachment_k_;
   std::vector<double> contact_k_;  // per vertex: its penalty stiffness in this substep
   bool inputs_have_obstacles_ = false;
