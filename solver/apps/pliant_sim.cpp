@@ -83,6 +83,8 @@ common options:
   --window M          Anderson window (default 5)
   --rho R --gamma G --delay D   Chebyshev parameters
   --tolerance T       stop a substep when ||r||/||r0|| < T
+  --time-budget-ms MS stop a step's iterations once it has used MS of wall time (a realtime
+                      budget: static and run then show what that budget gives on this machine)
   --threads N         worker threads (default 1)
   --inversion-floor F volume floor det F >= F (default 0.2; 0: the thesis's behaviour)
   --no-line-search    take each tet's full projection step, as the thesis (default: halve it
@@ -129,7 +131,7 @@ run:       --steps N  --out DIR  --every K  --tip-csv FILE (last line: JSON with
 
 const std::set<std::string> kValued = {
     "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
-    "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "threads",
+    "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "time-budget-ms", "threads",
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
     "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model",
     "methods", "budget-ms", "start", "csv-dir", "png", "tet-order", "seed"};
@@ -219,6 +221,7 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   s.chebyshev.gamma = a.number("gamma", s.chebyshev.gamma);
   s.chebyshev.delay = int(a.integer("delay", s.chebyshev.delay, 0, 1000000));
   s.tolerance = a.number("tolerance", s.tolerance);
+  s.time_budget_ms = a.number("time-budget-ms", s.time_budget_ms);
   s.threads = int(a.integer("threads", s.threads, 1, 256));
   s.inversion_floor = a.number("inversion-floor", s.inversion_floor);
   if (a.has("no-line-search")) s.line_search = false;
@@ -342,7 +345,7 @@ int cmd_static(const cli::Args& a) {
   const Material mat = material_from(a);
   auto model = load_model(a, mat, a.number("fix-x-max"));
   const bool solver_flags = a.has("method") || a.has("substeps") || a.has("wave-courant") || a.has("iterations") || a.has("dt") ||
-                            a.has("sweep") || a.has("tolerance");
+                            a.has("sweep") || a.has("tolerance") || a.has("time-budget-ms");
   SolverSettings s;
   if (!solver_flags) {
     // Converge to the model's equilibrium. A converged implicit-Euler step has the static
