@@ -604,22 +604,10 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
     finish_substep(m, state, x_start_, s, h);
     rep.times.other_ms += ms_since(t_fin);
 
-    total.iterations += rep.iterations;
-    total.diverged |= rep.diverged;
-    total.stopped_by_tolerance |= rep.stopped_by_tolerance;
-    total.stopped_by_budget |= rep.stopped_by_budget;
-    total.contacts = contacts;
-    total.times.projection_ms += rep.times.projection_ms;
-    total.times.update_ms += rep.times.update_ms;
-    total.times.residual_ms += rep.times.residual_ms;
-    total.times.other_ms += rep.times.other_ms;
-    total.residuals = std::move(rep.residuals);
-    total.residual_initial = rep.residual_initial;
-    total.residual_final = rep.residual_final;
-    if (rep.cancelled) {
-      total.cancelled = true;
-      n = sub + 1;
-    }
+    rep.contacts = contacts;
+    const bool cancelled = rep.cancelled;
+    add_substep(total, std::move(rep));
+    if (cancelled) n = sub + 1;
   }
   // Averages over the substeps run: the impulse delivered during the step divided by its length.
   for (ToolReaction& r : total.tools) {

@@ -50,6 +50,27 @@ int resolve_colliders(const BodyModel& m, std::vector<Vec3>& x, const std::vecto
   return n;
 }
 
+void add_substep(StepReport& total, StepReport&& r) {
+  total.iterations += r.iterations;
+  total.accelerations_tried += r.accelerations_tried;
+  total.accelerations_accepted += r.accelerations_accepted;
+  total.anderson_columns_dropped += r.anderson_columns_dropped;
+  total.diverged |= r.diverged;
+  total.stopped_by_tolerance |= r.stopped_by_tolerance;
+  total.stopped_by_budget |= r.stopped_by_budget;
+  total.cancelled |= r.cancelled;
+  total.contacts = r.contacts;
+  total.volume_corrections = r.volume_corrections;
+  total.times.projection_ms += r.times.projection_ms;
+  total.times.anderson_ms += r.times.anderson_ms;
+  total.times.update_ms += r.times.update_ms;
+  total.times.residual_ms += r.times.residual_ms;
+  total.times.other_ms += r.times.other_ms;
+  total.residuals = std::move(r.residuals);
+  total.residual_initial = r.residual_initial;
+  total.residual_final = r.residual_final;
+}
+
 void finish_substep(const BodyModel& m, BodyState& state, const std::vector<Vec3>& x_start,
                     const SolverSettings& s, double h) {
   for (size_t i = 0; i < m.vertex_count(); ++i) state.v[i] = (state.x[i] - x_start[i]) / h;

@@ -30,6 +30,11 @@ int resolve_colliders(const BodyModel& model, std::vector<Vec3>& x, const std::v
                       const std::vector<Collider>& colliders);
 bool resolve_contact(const Collider& collider, Vec3& x, const Vec3& x_start);
 
+// Adds one substep's report to the step's: counts and times add up, flags accumulate, the
+// residual history, contacts and volume corrections are the last substep's. Tool and grab
+// reactions are the caller's (each family accumulates them its own way).
+void add_substep(StepReport& total, StepReport&& substep);
+
 // v = (x - x_start) / h, then the settings' damping.
 void finish_substep(const BodyModel& model, BodyState& state, const std::vector<Vec3>& x_start,
                     const SolverSettings& settings, double h);

@@ -562,23 +562,6 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     detail::finish_substep(m, state, I.v_prev, s, h);
     total.times.other_ms += ms_since(t_vel);
 
-    total.iterations += r.iterations;
-    total.accelerations_tried += r.accelerations_tried;
-    total.accelerations_accepted += r.accelerations_accepted;
-    total.anderson_columns_dropped += r.anderson_columns_dropped;
-    total.diverged |= r.diverged;
-    total.stopped_by_tolerance |= r.stopped_by_tolerance;
-    total.stopped_by_budget |= r.stopped_by_budget;
-    total.contacts = r.contacts;
-    total.volume_corrections = r.volume_corrections;
-    total.times.projection_ms += r.times.projection_ms;
-    total.times.anderson_ms += r.times.anderson_ms;
-    total.times.update_ms += r.times.update_ms;
-    total.times.residual_ms += r.times.residual_ms;
-    total.times.other_ms += r.times.other_ms;
-    total.residuals = std::move(r.residuals);
-    total.residual_initial = r.residual_initial;
-    total.residual_final = r.residual_final;
     if (interacting) {
       for (size_t t = 0; t < r.tools.size(); ++t) {
         auto& acc = I.tool_accumulators[t];
@@ -592,8 +575,9 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
       }
       for (size_t j = 0; j < r.attachment_forces.size(); ++j) total.attachment_forces[j] += r.attachment_forces[j];
     }
-    if (r.cancelled) {
-      total.cancelled = true;
+    const bool cancelled = r.cancelled;
+    detail::add_substep(total, std::move(r));
+    if (cancelled) {
       n = sub + 1;  // the averages below are over the substeps run
       break;
     }
