@@ -9,7 +9,7 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
       libassimp-dev libgtest-dev libgmock-dev libbenchmark-dev
       tetgen gnuplot-nox python3-yaml
-      libcivetweb-dev nlohmann-json3-dev libjs-three chromium)
+      libcivetweb-dev nlohmann-json3-dev libcli11-dev libjs-three chromium)
 # Needed only by tests, benchmarks and tools, not to build the programs; left out by --no-dev.
 DEV_ONLY=(libgtest-dev libgmock-dev libbenchmark-dev tetgen gnuplot-nox python3-yaml chromium)
 if [ "${1:-}" = --no-dev ]; then
