@@ -122,37 +122,5 @@ for cfg in "256 1 xpbd" "64 4 xpbd" "32 8 xpbd" "32 8 anderson" "32 8 chebyshev"
 done
 fi
 
-# 6. Plots.
-if command -v gnuplot >/dev/null; then
-  gnuplot <<GP
-set datafile separator ","
-set terminal pngcairo size 900,560 font ",10"
-set logscale y
-set key outside right
-set grid
-set title "beam3, E = 1 MPa, nu = 0.4, h = 1/60: one step from a 10 mm bend"
-set xlabel "iteration"; set ylabel "||r|| / ||r0||"
-set output "docs/img/converge_beam3_residual.png"
-plot for [m in "xpbd sor lambda-sor chebyshev anderson anderson-sor extrapolation"] "$D/converge_beam3_".m.".csv" using 1:3 with lines lw 2 title m
-set ylabel "||x - x*|| / ||x0 - x*||  (x*: Newton solution of the step)"
-set output "docs/img/converge_beam3_error.png"
-plot for [m in "xpbd sor lambda-sor chebyshev anderson anderson-sor extrapolation"] "$D/converge_beam3_".m.".csv" using 1:4 with lines lw 2 title m
-set xlabel "solver time (ms, one thread)"; set ylabel "||r|| / ||r0||"
-set output "docs/img/converge_beam3_time.png"
-plot for [m in "xpbd sor lambda-sor chebyshev anderson anderson-sor extrapolation"] "$D/converge_beam3_".m.".csv" using 5:3 with lines lw 2 title m
-# The thesis's sequential sweep beside the coloured one (3b): residual and true error.
-set termoption noenhanced
-set key outside right font ",9"
-set title "beam3, 1 MPa, h = 1/60: sweep order x tet numbering"
-set yrange [0.45:1.4]
-set xlabel "iteration"; set ylabel "||r||/||r0|| (solid: xpbd, dashed: anderson-sor 2) / true error (dotted)"
-set output "docs/img/sweep_order_beam3.png"
-cfgs = "sequential_x-slabs sequential_mesh gauss-seidel_x-slabs gauss-seidel_mesh"
-plot for [i=1:4] "$D/converge_beam3_".word(cfgs,i)."_xpbd.csv" using 1:3 with lines lw 2 lc i title word(cfgs,i)." xpbd ||r||", \
-     for [i=1:4] "$D/converge_beam3_".word(cfgs,i)."_anderson-sor.csv" using 1:3 with lines lw 2 dt 2 lc i title word(cfgs,i)." anderson-sor ||r||", \
-     for [i=1:4] "$D/converge_beam3_".word(cfgs,i)."_anderson-sor.csv" using 1:4 with lines lw 3 dt 3 lc i title word(cfgs,i)." anderson-sor error"
-GP
-  say "plots in docs/img/"
-else
-  say "gnuplot not found: CSVs written, no plots"
-fi
+# 6. Plots (docs/img), from the data above.
+bash scripts/plot-figures.sh
