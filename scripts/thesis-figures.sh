@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerates the solver figures in docs/solver.md and the README from the built tools:
+# Regenerates the solver figures in docs/solver.md and docs/figures.md from the built tools:
 #   bash scripts/thesis-figures.sh [BUILD_DIR]
 # Writes docs/data/*.csv|*.jsonl and docs/img/*.png (gnuplot). Takes a few minutes on 2 cores,
 # plus about 10 for the sequential-sweep runs (armadillo included; SKIP_SEQUENTIAL=1 skips them)
