@@ -184,6 +184,15 @@ class FrameStream(_Stream):
     def __next__(self) -> Frame:
         return Frame.from_message(self._next_message())
 
+    def messages(self) -> Iterator[pb.Frame]:
+        """The raw pliant.v1.Frame messages (no numpy conversion: the cheapest way to keep up
+        with a fast scene; convert later with ``Frame.from_message``)."""
+        while True:
+            try:
+                yield self._next_message()
+            except StopIteration:
+                return
+
 
 class HapticSession(_Stream):
     """A tool in a scene: ``send()`` poses, iterate :class:`ToolFeedback` (one per tick)."""
