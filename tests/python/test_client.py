@@ -88,7 +88,6 @@ class ClientTest(unittest.TestCase):
             self.assertAlmostEqual(last.sim_time, 5 / 60, places=9)
             self.assertGreater(last.iterations, 0)
             self.assertGreater(last.residuals.size, 0)
-            self.assertEqual(last.skipped_frames, 0)
             # Gravity pulls the free end down.
             rest = c.topology("steps").rest_positions
             self.assertLess(float(last.positions[:, 1].min()), float(rest[:, 1].min()))
