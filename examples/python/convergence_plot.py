@@ -22,6 +22,8 @@ import sys
 import pliant
 
 METHODS = ["xpbd", "chebyshev", "anderson", "anderson-sor"]
+# Methods the --omega factor applies to (the others ignore it).
+OMEGA_METHODS = ("sor", "lambda-sor", "anderson-sor", "extrapolation")
 
 
 def main() -> int:
@@ -33,6 +35,8 @@ def main() -> int:
     ap.add_argument("--iterations", type=int, default=200, help="iterations of the one substep (default 200)")
     ap.add_argument("--ticks", type=int, default=10, help="ticks before the measured one (default 10)")
     ap.add_argument("--young", type=float, default=1e6)
+    ap.add_argument("--omega", type=float, default=1.5,
+                    help="over-relaxation of sor, lambda-sor, anderson-sor, extrapolation (default 1.5)")
     ap.add_argument("--out", default="convergence")
     ap.add_argument("--no-plot", action="store_true", help="CSV and gnuplot script only")
     args = ap.parse_args()
@@ -48,6 +52,7 @@ def main() -> int:
             sid = f"convergence-{m}"
             c.create_scene(sid, args.mesh, mode="lockstep", method=m, substeps=1,
                            iterations=args.iterations, tolerance=0.0, young_modulus=args.young,
+                           omega=args.omega if m in OMEGA_METHODS else None,
                            fix_x_below=0.001)
             try:
                 if args.ticks > 1:

@@ -9,10 +9,11 @@
 The gRPC stubs (pliant.v1) are generated at build time into the build tree's python/ folder.
 """
 from .errors import PliantError
-from .placement import owner, owner_index, parse_servers
+from .placement import owner, owner_index, parse_servers, statefulset_servers
 from .client import (Client, Frame, FrameStream, HapticSession, ShardedClient, ToolFeedback,
                      Topology)
 from .v1 import pliant_pb2 as pb
 
 __all__ = ["Client", "ShardedClient", "Frame", "FrameStream", "HapticSession", "ToolFeedback",
-           "Topology", "PliantError", "owner", "owner_index", "parse_servers", "pb"]
+           "Topology", "PliantError", "owner", "owner_index", "parse_servers",
+           "statefulset_servers", "pb"]

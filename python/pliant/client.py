@@ -323,6 +323,7 @@ class Client:
         rate_hz: Optional[float] = None, dt: Optional[float] = None, mode: Optional[str] = None,
         method: Optional[str] = None, sweep: Optional[str] = None,
         substeps: Optional[int] = None, iterations: Optional[int] = None,
+        window: Optional[int] = None, omega: Optional[float] = None,
         time_budget_ms: Optional[float] = None, tolerance: Optional[float] = None,
         threads: Optional[int] = None, start_paused: bool = False,
     ) -> pb.SceneSpec:
@@ -374,10 +375,12 @@ class Client:
             spec.solver.method = _pick(_METHODS, method, "method")
         if sweep is not None:
             spec.solver.sweep = _pick(_SWEEPS, sweep, "sweep")
-        for name, value in (("substeps", substeps), ("iterations", iterations), ("threads", threads)):
+        for name, value in (("substeps", substeps), ("iterations", iterations), ("threads", threads),
+                            ("window", window)):
             if value is not None:
                 setattr(spec.solver, name, int(value))
-        for name, value in (("time_budget_ms", time_budget_ms), ("tolerance", tolerance)):
+        for name, value in (("time_budget_ms", time_budget_ms), ("tolerance", tolerance),
+                            ("omega", omega)):
             if value is not None:
                 setattr(spec.solver, name, float(value))
         spec.start_paused = start_paused

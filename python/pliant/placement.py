@@ -15,7 +15,7 @@ whose new owner is n; removing the last server moves only its scenes.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Optional, Sequence
 
 _MASK = (1 << 64) - 1
 FNV_OFFSET = 0xCBF29CE484222325
@@ -68,6 +68,16 @@ def owner(scene_id: str, servers: Sequence[str]) -> str:
     if not servers:
         raise ValueError("servers must list at least one address")
     return servers[owner_index(scene_id, len(servers))]
+
+
+def statefulset_servers(name: str, replicas: int, *, service: Optional[str] = None,
+                        namespace: str = "default", port: int = 50051) -> list[str]:
+    """The ordered addresses of a StatefulSet's pods behind its headless Service:
+    ``NAME-k.SERVICE.NAMESPACE.svc:PORT`` for k = 0 .. replicas-1 (deploy/k8s/sharded.yaml)."""
+    if replicas < 1:
+        raise ValueError(f"replicas must be >= 1, got {replicas}")
+    svc = service or name
+    return [f"{name}-{k}.{svc}.{namespace}.svc:{port}" for k in range(replicas)]
 
 
 def parse_servers(text: str) -> list[str]:

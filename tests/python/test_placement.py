@@ -46,6 +46,8 @@ class PlacementTest(unittest.TestCase):
         with self.assertRaises(ValueError):
             placement.owner_index("a", 0)
         self.assertEqual(placement.parse_servers("a:1, b:2,c:3"), ["a:1", "b:2", "c:3"])
+        self.assertEqual(placement.statefulset_servers("pliant", 2, namespace="sim"),
+                         ["pliant-0.pliant.sim.svc:50051", "pliant-1.pliant.sim.svc:50051"])
         for bad in ("", "a:1,,b:2", "a:1,a:1"):
             with self.assertRaises(ValueError) as e:
                 placement.parse_servers(bad)
