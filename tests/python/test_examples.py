@@ -16,7 +16,6 @@ import unittest
 
 import numpy as np
 
-import pliant
 from pliant import vtu
 import servers
 
