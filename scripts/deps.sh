@@ -9,9 +9,13 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
       libassimp-dev libgtest-dev libgmock-dev libbenchmark-dev
       tetgen gnuplot-nox python3-yaml
-      libcivetweb-dev nlohmann-json3-dev libcli11-dev libjs-three chromium)
+      libcivetweb-dev nlohmann-json3-dev libcli11-dev libjs-three chromium
+      zlib1g-dev python3-vtk9 xvfb xauth)
 # Needed only by tests, benchmarks and tools, not to build the programs; left out by --no-dev.
-DEV_ONLY=(libgtest-dev libgmock-dev libbenchmark-dev tetgen gnuplot-nox python3-yaml chromium)
+# python3-vtk9: VTK's own reader checks the recordings (tests/files); xvfb, xauth: the offscreen
+# render of a recording for the docs (scripts/render-recording.sh).
+DEV_ONLY=(libgtest-dev libgmock-dev libbenchmark-dev tetgen gnuplot-nox python3-yaml chromium
+          python3-vtk9 xvfb xauth)
 if [ "${1:-}" = --no-dev ]; then
   keep=()
   for p in "${PKGS[@]}"; do [[ " ${DEV_ONLY[*]} " == *" $p "* ]] || keep+=("$p"); done
