@@ -330,7 +330,12 @@ v1::Collider parse_collider(const std::string& text) {
   auto take = [&](const std::string& key, size_t n) -> std::optional<std::vector<double>> {
     auto it = kv.find(key);
     if (it == kv.end()) return std::nullopt;
-    auto v = to_doubles("collider " + shape + " " + key, it->second, n);
+    std::vector<double> v;
+    try {
+      v = to_doubles(key, it->second, n);
+    } catch (const Usage& u) {
+      throw Usage("--collider '" + text + "': " + std::string(u.what()).substr(2));  // "key needs ..."
+    }
     kv.erase(it);
     return v;
   };

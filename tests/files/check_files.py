@@ -255,6 +255,25 @@ def mode_examples(args):
                     check(got["tick"]["mode"] == spec["tick"]["mode"], f"{path}: tick.mode {got['tick']['mode']}")
                 cli(args, server, "scenes", "delete", sid)
                 print(f"ok: {os.path.basename(path)}")
+            # --collider on the command line, beside a spec file's own colliders.
+            r = cli(args, server, "--json", "scenes", "create", "flags", "--spec",
+                    os.path.join(args.examples, "drop_on_floor.json"), "--mode", "lockstep",
+                    "--collider", "box:center=0,-1,0:half=1,0.5,1:friction=0.3",
+                    "--collider", "sphere:center=0.2,0,0:radius=0.05")
+            got = json.loads(r.stdout)["spec"]
+            cols = got.get("colliders", [])
+            check(len(cols) == 3, f"file + 2 flags: {len(cols)} colliders")
+            check(cols[1]["box"]["half_extent"] == {"x": 1, "y": 0.5, "z": 1} and cols[1]["static_friction"] == 0.3
+                  and cols[1]["dynamic_friction"] == 0.3, f"--collider box: {cols[1]}")
+            check(cols[2]["sphere"]["radius"] == 0.05 and cols[2]["static_friction"] == 0.5, f"--collider sphere: {cols[2]}")
+            check(got["tick"]["mode"] == "TICK_MODE_LOCKSTEP", f"--mode over the file: {got['tick']['mode']}")
+            for bad_flag, needle in (("plane:point=0,0,0", "normal="), ("cone:center=0,0,0", "cone"),
+                                     ("sphere:center=0,0:radius=1", "center needs 3")):
+                r = cli(args, server, "scenes", "create", "--collider", bad_flag, ok=False)
+                check(r.returncode == 2 and needle in r.stderr and len(r.stderr.strip().splitlines()) == 1,
+                      f"--collider {bad_flag}: rc {r.returncode}, stderr {r.stderr!r}")
+            r = cli(args, server, "scenes", "create", "--collider", "plane:point=0,0,0:normal=0,0,0", ok=False)
+            check(r.returncode == 1 and "spec.colliders[0].plane.normal" in r.stderr, f"zero normal: {r.stderr!r}")
             bad = os.path.join(d, "bad.json")
             with open(bad, "w") as f:
                 json.dump({"mesh": {"builtin": "beam1"}, "solver": {"iteratons": 4}}, f)
