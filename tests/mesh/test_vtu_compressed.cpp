@@ -160,6 +160,27 @@ TEST(VtuCompressed, CorruptBlockAndOtherCompressorsAreRefusedWithTheReason) {
   } catch (const MeshError& e) {
     EXPECT_NE(std::string(e.what()).find("vtkLZ4DataCompressor is not supported"), std::string::npos) << e.what();
   }
+  // A header claiming 8 GiB from a few bytes: refused before anything is allocated.
+  {
+    std::string blob;
+    put<uint64_t>(blob, 1);
+    put<uint64_t>(blob, uint64_t{1} << 33);
+    put<uint64_t>(blob, 0);
+    put<uint64_t>(blob, 10);
+    blob += std::string(10, 'x');
+    const std::string text =
+        "<VTKFile type=\"UnstructuredGrid\" header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\">"
+        "<UnstructuredGrid><Piece NumberOfPoints=\"8\" NumberOfCells=\"5\"><Points><DataArray type=\"Float64\" "
+        "NumberOfComponents=\"3\" format=\"appended\" offset=\"0\"/></Points></Piece></UnstructuredGrid>"
+        "<AppendedData encoding=\"raw\">_" + blob + "</AppendedData></VTKFile>";
+    try {
+      load_mesh(dir.write("bomb.vtu", text));
+      FAIL() << "accepted a header claiming 8 GiB";
+    } catch (const MeshError& e) {
+      EXPECT_NE(std::string(e.what()).find("points: compressed header claims 8589934592 bytes"), std::string::npos)
+          << e.what();
+    }
+  }
   // A header announcing more data than there is.
   std::string text = compressed_vtu<uint64_t>(c, true, 40);
   text.resize(text.size() - 60);

@@ -410,6 +410,11 @@ class VtuReader {
       const uint64_t total = blocks == 0 ? 0 : (blocks - 1) * block_size + (last_size ? last_size : block_size);
       if (total / static_cast<uint64_t>(bytes) < expected)
         fail_at(tag.begin, std::string(what) + ": " + std::to_string(total / bytes) + " values, expected " + std::to_string(expected));
+      // zlib expands at most ~1032:1; a header claiming more is corrupt (and must not make us
+      // allocate it).
+      if (total > 1100 * static_cast<uint64_t>(payload.size()) + 4096)
+        fail_at(tag.begin, std::string(what) + ": compressed header claims " + std::to_string(total) +
+                               " bytes from " + std::to_string(payload.size()) + " bytes of data (corrupt?)");
       inflated.resize(total);
       uint64_t filled = 0;
       for (uint64_t b = 0; b < blocks; ++b) {
