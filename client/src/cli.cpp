@@ -287,6 +287,24 @@ void print_scene(const v1::Scene& s, bool json) {
               so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
   if (!s.method_choice().empty()) std::printf("auto       chose %s\n", s.method_choice().c_str());
   std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
+  for (int i = 0; i < sp.colliders_size(); ++i) {
+    const v1::Collider& c = sp.colliders(i);
+    const char* label = i == 0 ? "colliders " : "          ";
+    auto v = [](const v1::Vec3& p) {
+      char b[96];
+      std::snprintf(b, sizeof b, "(%g, %g, %g)", p.x(), p.y(), p.z());
+      return std::string(b);
+    };
+    std::string shape;
+    if (c.has_plane()) shape = "plane through " + v(c.plane().point()) + ", normal " + v(c.plane().normal());
+    else if (c.has_sphere()) {
+      char r[48];
+      std::snprintf(r, sizeof r, "%g", c.sphere().radius());
+      shape = "sphere at " + v(c.sphere().center()) + ", radius " + r;
+    }
+    else if (c.has_box()) shape = "box at " + v(c.box().center()) + ", half extent " + v(c.box().half_extent());
+    std::printf("%s %s, friction %g / %g\n", label, shape.c_str(), c.static_friction(), c.dynamic_friction());
+  }
   std::printf("inertia    floor %g of the mean vertex mass, support %g of the mass carried to the fixed vertices: "
               "%u vertices raised, +%.4g%% inertia\n",
               sp.material().inertia_floor(), sp.material().support_inertia(), s.floored_vertices(),
