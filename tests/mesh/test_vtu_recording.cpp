@@ -136,6 +136,9 @@ TEST(VtuRecording, RecorderWritesNumberedFramesAndACollectionWithTheirTimes) {
   EXPECT_NE(pvd.find("timestep=\"0.10000000000000001\" group=\"\" part=\"0\" file=\"frame_000010.vtu\""),
             std::string::npos) << pvd;
   EXPECT_NE(pvd.find("file=\"frame_000020.vtu\""), std::string::npos) << pvd;
+  // Grown entry by entry, it is the same file as the whole collection written at once.
+  write_pvd({{0.0, "frame_000000.vtu"}, {0.1, "frame_000010.vtu"}, {0.2, "frame_000020.vtu"}}, dir.file("whole.pvd"));
+  EXPECT_EQ(pvd, read_all(dir.file("whole.pvd")));
   EXPECT_TRUE(std::filesystem::exists(dir.file("out/nested/frame_000020.vtu")));
   // No velocity given: zeros.
   const auto arrays = appended_arrays(read_all(dir.file("out/nested/frame_000000.vtu")));

@@ -11,6 +11,7 @@
 #include "pliant/mesh.hpp"
 
 #include <cstdint>
+#include <fstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -44,8 +45,9 @@ void write_vtu_frame(const RecordingTopology& topology, const RecordingFrame& fr
 // Written to a temporary file and renamed, so a reader never sees half a collection.
 void write_pvd(const std::vector<std::pair<double, std::string>>& entries, const std::string& path);
 
-// A recording in a directory: <dir>/<stem>_NNNNNN.vtu per frame and <dir>/<stem>s.pvd, rewritten
-// after every frame so that a recording cut short is still a valid collection.
+// A recording in a directory: <dir>/<stem>_NNNNNN.vtu per frame and <dir>/<stem>s.pvd, which
+// grows by one entry per frame and ends with its closing tags after every frame, so that a
+// recording cut short is still a valid collection.
 class VtuRecorder {
  public:
   // Creates the directory if needed (std::runtime_error if it cannot).
@@ -65,6 +67,8 @@ class VtuRecorder {
   std::string dir_, stem_;
   RecordingTopology topology_;
   std::vector<std::pair<double, std::string>> entries_;
+  std::fstream pvd_;
+  long long pvd_tail_ = 0;  // where the closing tags start
 };
 
 }  // namespace pliant

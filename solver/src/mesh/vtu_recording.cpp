@@ -197,7 +197,23 @@ std::string VtuRecorder::write(const RecordingFrame& frame, long index) {
   const std::string path = (std::filesystem::path(dir_) / name).string();
   write_vtu_frame(topology_, frame, path);
   entries_.emplace_back(frame.time, name);
-  write_pvd(entries_, pvd_path());
+  // The .pvd grows by one line per frame: overwrite the closing tags with the new entry and the
+  // closing tags again (a long recording must not rewrite the whole collection every frame).
+  static const std::string kClosing = "  </Collection>\n</VTKFile>\n";
+  if (!pvd_.is_open()) {
+    write_pvd({}, pvd_path());
+    pvd_.open(pvd_path(), std::ios::binary | std::ios::in | std::ios::out);
+    if (!pvd_) throw std::runtime_error("cannot open '" + pvd_path() + "' for writing");
+    pvd_.seekp(0, std::ios::end);
+    pvd_tail_ = static_cast<long long>(pvd_.tellp()) - static_cast<long long>(kClosing.size());
+  }
+  const std::string entry = "    <DataSet timestep=\"" + number(frame.time) + "\" group=\"\" part=\"0\" file=\"" +
+                            xml_escape(name) + "\"/>\n";
+  pvd_.seekp(pvd_tail_);
+  pvd_ << entry << kClosing;
+  pvd_.flush();
+  if (!pvd_) throw std::runtime_error("cannot write '" + pvd_path() + "' (disk full?)");
+  pvd_tail_ += static_cast<long long>(entry.size());
   return path;
 }
 
