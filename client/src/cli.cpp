@@ -6,11 +6,17 @@
 #include "pliant/mesh_io.hpp"
 #include "pliant/proto/enums.hpp"
 #include "pliant/settings.hpp"
+#include "pliant/version.hpp"
+#include "pliant/vtu_recording.hpp"
 
 #include <google/protobuf/util/json_util.h>
+#include <nlohmann/json.hpp>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
+#include <climits>
+#include <cstdint>
 #include <atomic>
 #include <cmath>
 #include <csignal>
@@ -35,7 +41,10 @@ constexpr int kExitOk = 0, kExitRefused = 1, kExitUsage = 2, kExitUnreachable = 
 const char* kUsage = R"(usage: pliant [global flags] COMMAND [args]
 
 Commands:
-  scenes create [ID] [scene flags]   create a scene (ID optional; the server picks one)
+  scenes create [ID] [--spec FILE] [scene flags]
+                                     create a scene (ID optional; the server picks one); --spec
+                                     reads a SceneSpec in protobuf's JSON mapping (examples/scenes/),
+                                     scene flags given beside it override its fields
   scenes list                        list the server's scenes
   scenes get ID                      show one scene
   scenes update ID [scene flags]     change solver settings, material, gravity, dt or mode live
@@ -56,6 +65,13 @@ Commands:
                                      to a local file (--out)
   snapshot restore (--name NAME | --file FILE) [--as ID] [--replace]
   snapshot list                      snapshots in the server's data directory
+  record ID --out DIR [--duration S] [--frames N] [--every N] [--max-rate HZ]
+                                     stream the scene's frames into DIR as binary .vtu files and
+                                     DIR/frames.pvd (simulation time per frame) for ParaView: point
+                                     data displacement, velocity (finite differences of consecutive
+                                     frames; zero in the first), fixed; cell data det_F; field data
+                                     residual. Stops after S seconds, N frames, Ctrl-C or the end
+                                     of the stream
   health [--service NAME]            exit 0 when the server is SERVING
 
 Global flags:
@@ -64,7 +80,7 @@ Global flags:
   --tls                 use TLS with the system roots;  --tls-ca FILE: with these roots
   --timeout S           deadline of each call in seconds (default 30)
   --json                machine-readable output
-  --help                this text
+  --help                this text;   --version   the program's version
 
 Scene flags (create and update):
   --mesh NAME           builtin mesh (beam1 | beam2 | beam3; default beam1) or a file on the
@@ -81,6 +97,15 @@ Scene flags (create and update):
                         corotated resists strong compression, 2-2.2x the cost per iteration)
   --fix I,J,..          fixed vertex indices;   --fix-box X0,Y0,Z0,X1,Y1,Z1   fixed box
   --fix-x-below X       fix every vertex with x <= X (a cantilever's clamped end)
+  --fix-file FILE       fix the vertex indices listed in FILE (whitespace or comma separated,
+                        '#' starts a comment)
+  --collider SPEC       a static obstacle, repeatable (create only). SPEC is a shape and
+                        key=value parts joined by ':' (vectors as X,Y,Z):
+                          plane:point=X,Y,Z:normal=X,Y,Z     solid below the plane
+                          box:center=X,Y,Z:half=HX,HY,HZ      axis-aligned box
+                          sphere:center=X,Y,Z:radius=R
+                        each optionally with :friction=MU (static and dynamic) or
+                        :friction=MU_S,MU_D (default 0.5,0.4)
   --gravity GX,GY,GZ    m/s^2 (default 0,-9.81,0)
   --dt S | --rate HZ    tick length (default 1/60 s)
   --mode realtime|lockstep|as-fast-as-possible
@@ -104,7 +129,19 @@ struct Usage : std::runtime_error {
 struct Args {
   std::vector<std::string> positional;
   std::map<std::string, std::string> flags;
+  std::map<std::string, std::vector<std::string>> repeated;  // flags that may be given several times
   std::vector<std::string> used;
+
+  std::vector<std::string> get_all(const std::string& f) {
+    used.push_back(f);
+    auto it = repeated.find(f);
+    return it == repeated.end() ? std::vector<std::string>{} : it->second;
+  }
+  // Positionals beyond `n` are a usage error (a typo must not be silently ignored).
+  void max_positional(size_t n, const std::string& command) const {
+    if (positional.size() > n)
+      throw Usage(command + ": unexpected argument '" + positional[n] + "'");
+  }
 
   bool has(const std::string& f) {
     used.push_back(f);
@@ -119,11 +156,15 @@ struct Args {
   void check_all_used() const {
     for (auto& [k, v] : flags)
       if (std::find(used.begin(), used.end(), k) == used.end())
-        throw Usage("unknown flag --" + k + " for this command (see pliant --help)");
+        throw Usage("unknown flag --" + k + " for this command");
+    for (auto& [k, v] : repeated)
+      if (std::find(used.begin(), used.end(), k) == used.end())
+        throw Usage("unknown flag --" + k + " for this command");
   }
 };
 
-const std::vector<std::string> kBoolFlags = {"json", "tls", "paused", "replace", "help"};
+const std::vector<std::string> kBoolFlags = {"json", "tls", "paused", "replace", "help", "version"};
+const std::vector<std::string> kRepeatableFlags = {"collider"};
 
 double to_double(const std::string& flag, const std::string& v) {
   try {
@@ -135,14 +176,19 @@ double to_double(const std::string& flag, const std::string& v) {
   throw Usage("--" + flag + " needs a number, got '" + v + "'");
 }
 
-long long to_int(const std::string& flag, const std::string& v) {
+long long to_int(const std::string& flag, const std::string& v, long long lo = INT32_MIN, long long hi = INT32_MAX) {
+  long long d = 0;
+  bool ok = false;
   try {
     size_t pos = 0;
-    long long d = std::stoll(v, &pos);
-    if (pos == v.size()) return d;
+    d = std::stoll(v, &pos);
+    ok = pos == v.size();
   } catch (...) {
   }
-  throw Usage("--" + flag + " needs an integer, got '" + v + "'");
+  if (!ok) throw Usage("--" + flag + " needs an integer, got '" + v + "'");
+  if (d < lo || d > hi)
+    throw Usage("--" + flag + " must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got " + v);
+  return d;
 }
 
 std::vector<double> to_doubles(const std::string& flag, const std::string& v, size_t n) {
@@ -158,7 +204,7 @@ std::vector<int32_t> to_ints(const std::string& flag, const std::string& v) {
   std::vector<int32_t> out;
   std::stringstream ss(v);
   for (std::string item; std::getline(ss, item, ',');)
-    out.push_back(static_cast<int32_t>(to_int(flag, item)));
+    out.push_back(static_cast<int32_t>(to_int(flag, item, 0, INT32_MAX)));
   if (out.empty()) throw Usage("--" + flag + " needs comma-separated integers");
   return out;
 }
@@ -241,6 +287,24 @@ void print_scene(const v1::Scene& s, bool json) {
               so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
   if (!s.method_choice().empty()) std::printf("auto       chose %s\n", s.method_choice().c_str());
   std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
+  for (int i = 0; i < sp.colliders_size(); ++i) {
+    const v1::Collider& c = sp.colliders(i);
+    const char* label = i == 0 ? "colliders " : "          ";
+    auto v = [](const v1::Vec3& p) {
+      char b[96];
+      std::snprintf(b, sizeof b, "(%g, %g, %g)", p.x(), p.y(), p.z());
+      return std::string(b);
+    };
+    std::string shape;
+    if (c.has_plane()) shape = "plane through " + v(c.plane().point()) + ", normal " + v(c.plane().normal());
+    else if (c.has_sphere()) {
+      char r[48];
+      std::snprintf(r, sizeof r, "%g", c.sphere().radius());
+      shape = "sphere at " + v(c.sphere().center()) + ", radius " + r;
+    }
+    else if (c.has_box()) shape = "box at " + v(c.box().center()) + ", half extent " + v(c.box().half_extent());
+    std::printf("%s %s, friction %g / %g\n", label, shape.c_str(), c.static_friction(), c.dynamic_friction());
+  }
   std::printf("inertia    floor %g of the mean vertex mass, support %g of the mass carried to the fixed vertices: "
               "%u vertices raised, +%.4g%% inertia\n",
               sp.material().inertia_floor(), sp.material().support_inertia(), s.floored_vertices(),
@@ -263,6 +327,114 @@ void print_scene(const v1::Scene& s, bool json) {
               static_cast<unsigned long long>(s.late_ticks()), static_cast<unsigned long long>(s.skipped_ticks()),
               static_cast<unsigned long long>(s.rollbacks()));
   if (!s.pause_reason().empty()) std::printf("paused     %s\n", s.pause_reason().c_str());
+}
+
+// --collider SPEC: "shape:key=value:key=value", vectors as X,Y,Z (see the usage text).
+v1::Collider parse_collider(const std::string& text) {
+  std::vector<std::string> parts;
+  std::stringstream ss(text);
+  for (std::string part; std::getline(ss, part, ':');) parts.push_back(part);
+  if (parts.empty()) throw Usage("--collider needs a shape (plane, box, sphere), got ''");
+  const std::string shape = parts[0];
+  std::map<std::string, std::string> kv;
+  for (size_t i = 1; i < parts.size(); ++i) {
+    const size_t eq = parts[i].find('=');
+    if (eq == std::string::npos || eq == 0)
+      throw Usage("--collider '" + text + "': '" + parts[i] + "' is not key=value");
+    const std::string key = parts[i].substr(0, eq);
+    if (kv.count(key)) throw Usage("--collider '" + text + "': " + key + " given twice");
+    kv[key] = parts[i].substr(eq + 1);
+  }
+  auto take = [&](const std::string& key, size_t n) -> std::optional<std::vector<double>> {
+    auto it = kv.find(key);
+    if (it == kv.end()) return std::nullopt;
+    std::vector<double> v;
+    try {
+      v = to_doubles(key, it->second, n);
+    } catch (const Usage& u) {
+      throw Usage("--collider '" + text + "': " + std::string(u.what()).substr(2));  // "key needs ..."
+    }
+    kv.erase(it);
+    return v;
+  };
+  auto need = [&](const std::string& key, size_t n) {
+    auto v = take(key, n);
+    if (!v) throw Usage("--collider '" + text + "': " + shape + " needs " + key + "=");
+    return *v;
+  };
+  v1::Collider c;
+  if (shape == "plane") {
+    set_vec(c.mutable_plane()->mutable_point(), need("point", 3));
+    set_vec(c.mutable_plane()->mutable_normal(), need("normal", 3));
+  } else if (shape == "box") {
+    set_vec(c.mutable_box()->mutable_center(), need("center", 3));
+    set_vec(c.mutable_box()->mutable_half_extent(), need("half", 3));
+  } else if (shape == "sphere") {
+    set_vec(c.mutable_sphere()->mutable_center(), need("center", 3));
+    c.mutable_sphere()->set_radius(need("radius", 1)[0]);
+  } else {
+    throw Usage("--collider '" + text + "': shape '" + shape + "' is not one of plane, box, sphere");
+  }
+  if (auto mu = take("friction", 0)) {
+    if (mu->size() == 1) {
+      c.set_static_friction((*mu)[0]);
+      c.set_dynamic_friction((*mu)[0]);
+    } else if (mu->size() == 2) {
+      c.set_static_friction((*mu)[0]);
+      c.set_dynamic_friction((*mu)[1]);
+    } else {
+      throw Usage("--collider '" + text + "': friction needs MU or MU_STATIC,MU_DYNAMIC");
+    }
+  }
+  if (!kv.empty()) throw Usage("--collider '" + text + "': unknown key '" + kv.begin()->first + "' for a " + shape);
+  return c;
+}
+
+// --fix-file FILE: vertex indices separated by whitespace or commas; '#' to the end of a line
+// is a comment.
+std::vector<int32_t> read_node_set(const std::string& path) {
+  std::ifstream f(path);
+  if (!f) throw Usage("--fix-file '" + path + "' cannot be read");
+  std::vector<int32_t> out;
+  std::string line;
+  for (int lineno = 1; std::getline(f, line); ++lineno) {
+    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    std::replace(line.begin(), line.end(), ',', ' ');
+    std::stringstream ls(line);
+    for (std::string item; ls >> item;) {
+      long long v = -1;
+      try {
+        size_t pos = 0;
+        v = std::stoll(item, &pos);
+        if (pos != item.size()) v = -1;
+      } catch (...) {
+        v = -1;
+      }
+      if (v < 0 || v > INT32_MAX)
+        throw Usage("--fix-file '" + path + "' line " + std::to_string(lineno) + ": '" + item +
+                    "' is not a vertex index (an integer >= 0)");
+      out.push_back(static_cast<int32_t>(v));
+    }
+  }
+  if (out.empty()) throw Usage("--fix-file '" + path + "' lists no vertex index");
+  return out;
+}
+
+// --spec FILE: a SceneSpec in protobuf's JSON mapping (field names as in the .proto or in
+// lowerCamelCase). Unknown fields are errors, named with their path.
+void read_spec_file(const std::string& path, v1::SceneSpec* spec) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) throw Usage("--spec '" + path + "' cannot be read");
+  std::stringstream text;
+  text << f.rdbuf();
+  google::protobuf::util::JsonParseOptions o;
+  o.ignore_unknown_fields = false;
+  auto st = google::protobuf::util::JsonStringToMessage(text.str(), spec, o);
+  if (!st.ok()) {
+    std::string msg(st.message());
+    std::replace(msg.begin(), msg.end(), '\n', ' ');
+    throw Usage("--spec '" + path + "': not a pliant.v1.SceneSpec: " + msg);
+  }
 }
 
 // Scene flags shared by create and update. Returns whether any was given.
@@ -337,19 +509,24 @@ int cmd_scenes(Client& c, Args& a, bool json) {
   const std::string sub = a.positional[0];
   auto need_id = [&]() -> std::string {
     if (a.positional.size() < 2) throw Usage("scenes " + sub + " needs a scene ID");
+    a.max_positional(2, "scenes " + sub);
     return a.positional[1];
   };
   if (sub == "create") {
+    a.max_positional(2, "scenes create");
     v1::CreateSceneRequest req;
     if (a.positional.size() >= 2) req.set_scene_id(a.positional[1]);
     auto* spec = req.mutable_spec();
+    if (auto file = a.get("spec")) read_spec_file(*file, spec);
+    const bool spec_has_gravity = spec->has_gravity();
     bool gravity_set = false;
     read_settings(a, spec->mutable_solver(), spec->mutable_tick(), spec->mutable_material(),
                   spec->mutable_gravity(), &gravity_set);
-    if (!gravity_set) spec->clear_gravity();
+    if (!gravity_set && !spec_has_gravity) spec->clear_gravity();
     auto mesh = a.get("mesh");
     auto upload = a.get("upload");
     if (mesh && upload) throw Usage("give --mesh or --upload, not both");
+    const bool keep_spec_mesh = !mesh && !upload && spec->mesh().source_case() != v1::MeshSource::SOURCE_NOT_SET;
     if (upload) {
       TetMesh m;
       try {
@@ -364,7 +541,7 @@ int cmd_scenes(Client& c, Args& a, bool json) {
         for (int k = 0; k < 3; ++k) d->add_positions(p[k]);
       for (const auto& t : m.tets)
         for (int k = 0; k < 4; ++k) d->add_tets(t[k]);
-    } else {
+    } else if (!keep_spec_mesh) {
       std::string name = mesh.value_or("beam1");
       if (name == "beam1" || name == "beam2" || name == "beam3") spec->mutable_mesh()->set_builtin(name);
       else spec->mutable_mesh()->set_model_path(name);
@@ -380,7 +557,9 @@ int cmd_scenes(Client& c, Args& a, bool json) {
     if (auto v = a.get("fix-x-below")) {
       client::clamp_below_x(*spec, to_double("fix-x-below", *v));
     }
-    spec->set_start_paused(a.has("paused"));
+    if (auto v = a.get("fix-file")) for (int32_t i : read_node_set(*v)) spec->mutable_fixed()->add_indices(i);
+    for (const std::string& c : a.get_all("collider")) *spec->add_colliders() = parse_collider(c);
+    if (a.has("paused")) spec->set_start_paused(true);
     a.check_all_used();
     auto r = c.create_scene(req);
     if (!r.ok()) return fail(r.status, c.options());
@@ -389,6 +568,7 @@ int cmd_scenes(Client& c, Args& a, bool json) {
     return kExitOk;
   }
   if (sub == "list") {
+    a.max_positional(1, "scenes list");
     a.check_all_used();
     auto r = c.list_scenes();
     if (!r.ok()) return fail(r.status, c.options());
@@ -431,7 +611,7 @@ int cmd_scenes(Client& c, Args& a, bool json) {
     a.check_all_used();
     Status s = c.delete_scene(id);
     if (!s.ok()) return fail(s, c.options());
-    if (json) std::printf("{\"deleted\":\"%s\"}\n", id.c_str());
+    if (json) std::printf("%s\n", nlohmann::json{{"deleted", id}}.dump().c_str());
     else std::printf("deleted scene %s\n", id.c_str());
     return kExitOk;
   }
@@ -440,6 +620,7 @@ int cmd_scenes(Client& c, Args& a, bool json) {
 
 int cmd_pause_resume(Client& c, Args& a, bool json, bool pause) {
   if (a.positional.empty()) throw Usage(std::string(pause ? "pause" : "resume") + " needs a scene ID");
+  a.max_positional(1, pause ? "pause" : "resume");
   a.check_all_used();
   auto r = pause ? c.pause_scene(a.positional[0]) : c.resume_scene(a.positional[0]);
   if (!r.ok()) return fail(r.status, c.options());
@@ -452,8 +633,9 @@ int cmd_pause_resume(Client& c, Args& a, bool json, bool pause) {
 int cmd_step(Client& c, Args& a, bool json) {
   if (a.positional.empty()) throw Usage("step needs a scene ID");
   long long n = 1;
-  if (a.positional.size() >= 2) n = to_int("ticks", a.positional[1]);
-  if (auto v = a.get("ticks")) n = to_int("ticks", *v);
+  a.max_positional(2, "step");
+  if (a.positional.size() >= 2) n = to_int("ticks", a.positional[1], 1, UINT32_MAX);
+  if (auto v = a.get("ticks")) n = to_int("ticks", *v, 1, UINT32_MAX);
   a.check_all_used();
   if (n < 1) throw Usage("step: the number of ticks must be >= 1");
   auto r = c.step(a.positional[0], static_cast<uint32_t>(n));
@@ -467,6 +649,7 @@ int cmd_step(Client& c, Args& a, bool json) {
 
 int cmd_force(Client& c, Args& a, bool json) {
   if (a.positional.empty()) throw Usage("force needs a scene ID");
+  a.max_positional(1, "force");
   v1::ApplyForceRequest req;
   req.set_scene_id(a.positional[0]);
   auto v = a.get("vertices");
@@ -474,7 +657,7 @@ int cmd_force(Client& c, Args& a, bool json) {
   if (!v || !f) throw Usage("force needs --vertices I,J,.. and --force FX,FY,FZ");
   for (int32_t i : to_ints("vertices", *v)) req.add_vertices(i);
   set_vec(req.mutable_force(), to_doubles("force", *f, 3));
-  if (auto t = a.get("ticks")) req.set_ticks(static_cast<uint32_t>(to_int("ticks", *t)));
+  if (auto t = a.get("ticks")) req.set_ticks(static_cast<uint32_t>(to_int("ticks", *t, 1, UINT32_MAX)));
   a.check_all_used();
   auto r = c.apply_force(req);
   if (!r.ok()) return fail(r.status, c.options());
@@ -485,6 +668,7 @@ int cmd_force(Client& c, Args& a, bool json) {
 
 int cmd_grab(Client& c, Args& a, bool json) {
   if (a.positional.empty()) throw Usage("grab needs a scene ID");
+  a.max_positional(1, "grab");
   v1::GrabRequest req;
   req.set_scene_id(a.positional[0]);
   auto v = a.get("vertex");
@@ -510,9 +694,10 @@ int cmd_grab(Client& c, Args& a, bool json) {
 
 int cmd_move_grab(Client& c, Args& a, bool json) {
   if (a.positional.size() < 2) throw Usage("move-grab needs a scene ID and a grab id");
+  a.max_positional(2, "move-grab");
   v1::MoveGrabRequest req;
   req.set_scene_id(a.positional[0]);
-  req.set_grab_id(static_cast<uint64_t>(to_int("grab id", a.positional[1])));
+  req.set_grab_id(static_cast<uint64_t>(to_int("grab id", a.positional[1], 0, LLONG_MAX)));
   auto g = a.get("target");
   if (!g) throw Usage("move-grab needs --target X,Y,Z");
   set_vec(req.mutable_target(), to_doubles("target", *g, 3));
@@ -527,8 +712,9 @@ int cmd_move_grab(Client& c, Args& a, bool json) {
 
 int cmd_release(Client& c, Args& a, bool json) {
   if (a.positional.size() < 2) throw Usage("release needs a scene ID and a grab id");
+  a.max_positional(2, "release");
   a.check_all_used();
-  auto st = c.release(a.positional[0], static_cast<uint64_t>(to_int("grab id", a.positional[1])));
+  auto st = c.release(a.positional[0], static_cast<uint64_t>(to_int("grab id", a.positional[1], 0, LLONG_MAX)));
   if (!st.ok()) return fail(st, c.options());
   if (json) std::printf("{}\n");
   else std::printf("released\n");
@@ -545,8 +731,9 @@ int cmd_watch(Client& c, Args& a, bool json) {
   v1::StreamFramesRequest req;
   req.set_scene_id(a.positional[0]);
   req.add_fields(v1::FRAME_FIELD_SOLVER_STATS);  // no positions: a status line needs none
-  if (auto v = a.get("every")) req.set_every_nth_tick(static_cast<uint32_t>(to_int("every", *v)));
+  if (auto v = a.get("every")) req.set_every_nth_tick(static_cast<uint32_t>(to_int("every", *v, 0, UINT32_MAX)));
   if (auto v = a.get("max-rate")) req.set_max_rate_hz(to_double("max-rate", *v));
+  a.max_positional(1, "watch");
   a.check_all_used();
 
   std::signal(SIGINT, on_sigint);
@@ -613,12 +800,18 @@ int cmd_watch(Client& c, Args& a, bool json) {
   const double mean_it = frames ? iterations_sum / frames : 0;
   const double tps = elapsed > 0 ? ticks / elapsed : 0;
   if (json) {
-    std::printf("{\"scene_id\":\"%s\",\"seconds\":%.3f,\"ticks\":%llu,\"ticks_per_s\":%.3f,\"late_ticks\":%llu,"
-                "\"frames\":%llu,\"skipped_frames\":%llu,\"mean_residual\":%.6g,\"p99_residual\":%.6g,"
-                "\"mean_iterations\":%.3f}\n",
-                a.positional[0].c_str(), elapsed, static_cast<unsigned long long>(ticks), tps,
-                static_cast<unsigned long long>(late), static_cast<unsigned long long>(frames),
-                static_cast<unsigned long long>(skipped), mean_r, p99_r, mean_it);
+    // nlohmann writes NaN/inf as null: the line stays valid JSON whatever the residuals were.
+    nlohmann::json j = {{"scene_id", a.positional[0]},
+                        {"seconds", std::round(elapsed * 1000) / 1000},
+                        {"ticks", ticks},
+                        {"ticks_per_s", std::round(tps * 1000) / 1000},
+                        {"late_ticks", late},
+                        {"frames", frames},
+                        {"skipped_frames", skipped},
+                        {"mean_residual", mean_r},
+                        {"p99_residual", p99_r},
+                        {"mean_iterations", std::round(mean_it * 1000) / 1000}};
+    std::printf("%s\n", j.dump().c_str());
   } else {
     std::printf("%llu ticks in %.1f s (%.1f ticks/s), %llu late, %llu frames, %llu skipped, residual mean %.3e p99 %.3e, "
                 "%.1f iterations/tick\n",
@@ -631,11 +824,142 @@ int cmd_watch(Client& c, Args& a, bool json) {
   return fail(s, c.options());
 }
 
+// record: frames with positions into binary .vtu files and a .pvd collection. Frames carry no
+// velocity: it is the finite difference of consecutive frames received (over the simulated time
+// between them; zero in the first frame and after a rollback).
+int cmd_record(Client& c, Args& a, bool json) {
+  if (a.positional.empty()) throw Usage("record needs a scene ID");
+  a.max_positional(1, "record");
+  const std::string id = a.positional[0];
+  auto out = a.get("out");
+  if (!out || out->empty()) throw Usage("record needs --out DIR");
+  double duration = 0;
+  if (auto v = a.get("duration")) {
+    duration = to_double("duration", *v);
+    if (duration <= 0) throw Usage("--duration must be > 0 s, got " + *v);
+  }
+  long long max_frames = 0;
+  if (auto v = a.get("frames")) max_frames = to_int("frames", *v, 1, INT32_MAX);
+  v1::StreamFramesRequest req;
+  req.set_scene_id(id);
+  req.add_fields(v1::FRAME_FIELD_POSITIONS);
+  req.add_fields(v1::FRAME_FIELD_SOLVER_STATS);
+  if (auto v = a.get("every")) req.set_every_nth_tick(static_cast<uint32_t>(to_int("every", *v, 0, UINT32_MAX)));
+  if (auto v = a.get("max-rate")) {
+    const double hz = to_double("max-rate", *v);
+    if (hz < 0) throw Usage("--max-rate must be >= 0 Hz, got " + *v);
+    req.set_max_rate_hz(hz);
+  }
+  a.check_all_used();
+
+  auto topo = c.topology(id);
+  if (!topo.ok()) return fail(topo.status, c.options());
+  RecordingTopology rt;
+  const size_t n = topo->vertex_count();
+  if (static_cast<size_t>(topo->rest_positions_size()) != 3 * n || topo->tets_size() % 4 != 0) {
+    std::fprintf(stderr, "pliant: the server's topology of '%s' is inconsistent (%d rest coordinates for %zu vertices)\n",
+                 id.c_str(), topo->rest_positions_size(), n);
+    return kExitRefused;
+  }
+  rt.rest_positions.resize(n);
+  for (size_t i = 0; i < n; ++i)
+    for (int k = 0; k < 3; ++k) rt.rest_positions[i][k] = topo->rest_positions(static_cast<int>(3 * i + k));
+  for (int t = 0; t + 3 < topo->tets_size(); t += 4)
+    rt.tets.push_back({topo->tets(t), topo->tets(t + 1), topo->tets(t + 2), topo->tets(t + 3)});
+  rt.fixed.assign(n, 0);
+  for (int32_t v : topo->fixed_vertices())
+    if (v >= 0 && static_cast<size_t>(v) < n) rt.fixed[v] = 1;
+  std::optional<VtuRecorder> recorder;
+  try {
+    recorder.emplace(*out, std::move(rt));
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "pliant: --out: %s\n", e.what());
+    return kExitRefused;
+  }
+
+  std::signal(SIGINT, on_sigint);
+  std::signal(SIGTERM, on_sigint);
+  auto stream = c.stream_frames(req);
+  const auto start = std::chrono::steady_clock::now();
+  std::atomic<bool> done{false};
+  std::thread stopper([&] {
+    while (!done) {
+      if (g_interrupted ||
+          (duration > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(duration))) {
+        stream->cancel();
+        return;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  });
+  v1::Frame f;
+  RecordingFrame frame, previous;
+  bool have_previous = false;
+  uint64_t frames = 0, first_tick = 0, last_tick = 0, skipped = 0;
+  double first_time = 0, last_time = 0;
+  std::string write_error;
+  bool stopped_by_count = false;
+  while (stream->next(&f)) {
+    if (f.surface_only() || static_cast<size_t>(f.positions_size()) != 3 * n) continue;  // not ours to record
+    frame.time = f.sim_time();
+    frame.residual = f.solver().residual_final();
+    frame.positions.resize(n);
+    for (size_t i = 0; i < n; ++i)
+      for (int k = 0; k < 3; ++k) frame.positions[i][k] = f.positions(static_cast<int>(3 * i + k));
+    frame.velocity.assign(n, Vec3::Zero());
+    const double dt = frame.time - previous.time;
+    if (have_previous && !f.rolled_back() && dt > 0)
+      for (size_t i = 0; i < n; ++i) frame.velocity[i] = (frame.positions[i] - previous.positions[i]) / dt;
+    try {
+      recorder->write(frame, static_cast<long>(f.tick()));
+    } catch (const std::exception& e) {
+      write_error = e.what();
+      stream->cancel();
+      break;
+    }
+    if (frames == 0) first_tick = f.tick(), first_time = f.sim_time();
+    last_tick = f.tick(), last_time = f.sim_time();
+    skipped += f.skipped_frames();
+    ++frames;
+    std::swap(previous, frame);
+    have_previous = true;
+    if (max_frames && frames >= static_cast<uint64_t>(max_frames)) {
+      stopped_by_count = true;
+      stream->cancel();
+      break;
+    }
+  }
+  done = true;
+  stopper.join();
+  Status s = stream->finish();
+  if (!write_error.empty()) {
+    std::fprintf(stderr, "pliant: record: %s\n", write_error.c_str());
+    return kExitRefused;
+  }
+  const bool cancelled_by_us = s.code == 1 && (g_interrupted || duration > 0 || stopped_by_count);
+  if (!s.ok() && !cancelled_by_us && frames == 0) return fail(s, c.options());
+  if (json) {
+    nlohmann::json j = {{"scene_id", id},          {"frames", frames},         {"first_tick", first_tick},
+                        {"last_tick", last_tick},  {"first_time", first_time}, {"last_time", last_time},
+                        {"skipped_frames", skipped}, {"pvd", recorder->pvd_path()}};
+    std::printf("%s\n", j.dump().c_str());
+  } else {
+    std::printf("recorded %llu frames (ticks %llu-%llu, t %.4f-%.4f s, %llu skipped) to %s\n",
+                static_cast<unsigned long long>(frames), static_cast<unsigned long long>(first_tick),
+                static_cast<unsigned long long>(last_tick), first_time, last_time,
+                static_cast<unsigned long long>(skipped), recorder->pvd_path().c_str());
+  }
+  std::fflush(stdout);
+  if (s.ok() || cancelled_by_us) return kExitOk;
+  return fail(s, c.options());
+}
+
 int cmd_snapshot(Client& c, Args& a, bool json) {
   if (a.positional.empty()) throw Usage("snapshot needs a subcommand: save | restore | list");
   const std::string sub = a.positional[0];
   if (sub == "save") {
     if (a.positional.size() < 2) throw Usage("snapshot save needs a scene ID");
+    a.max_positional(2, "snapshot save");
     v1::SaveSnapshotRequest req;
     req.set_scene_id(a.positional[1]);
     auto name = a.get("name");
@@ -654,9 +978,11 @@ int cmd_snapshot(Client& c, Args& a, bool json) {
       }
     }
     if (json) {
-      std::printf("{\"scene_id\":\"%s\",\"tick\":%llu,\"server_path\":\"%s\",\"file\":\"%s\"}\n",
-                  a.positional[1].c_str(), static_cast<unsigned long long>(r->snapshot().tick()),
-                  r->path().c_str(), out.value_or("").c_str());
+      nlohmann::json j = {{"scene_id", a.positional[1]},
+                          {"tick", r->snapshot().tick()},
+                          {"server_path", r->path()},
+                          {"file", out.value_or("")}};
+      std::printf("%s\n", j.dump().c_str());
     } else {
       if (!r->path().empty()) std::printf("saved on the server: %s\n", r->path().c_str());
       if (out) std::printf("saved to %s (tick %llu)\n", out->c_str(), static_cast<unsigned long long>(r->snapshot().tick()));
@@ -664,6 +990,7 @@ int cmd_snapshot(Client& c, Args& a, bool json) {
     return kExitOk;
   }
   if (sub == "restore") {
+    a.max_positional(1, "snapshot restore");
     v1::RestoreSnapshotRequest req;
     auto name = a.get("name");
     auto file = a.get("file");
@@ -686,6 +1013,7 @@ int cmd_snapshot(Client& c, Args& a, bool json) {
     return kExitOk;
   }
   if (sub == "list") {
+    a.max_positional(1, "snapshot list");
     a.check_all_used();
     auto r = c.list_snapshots();
     if (!r.ok()) return fail(r.status, c.options());
@@ -702,14 +1030,16 @@ int cmd_snapshot(Client& c, Args& a, bool json) {
 }
 
 int cmd_health(Client& c, Args& a, bool json) {
+  a.max_positional(0, "health");
   std::string service = a.get("service").value_or("");
   a.check_all_used();
   auto r = c.health(service);
   if (!r.ok()) {
-    if (json) std::printf("{\"status\":\"UNREACHABLE\",\"error\":\"%s\"}\n", r.status.code_name().c_str());
+    if (json)
+      std::printf("%s\n", nlohmann::json{{"status", "UNREACHABLE"}, {"error", r.status.code_name()}}.dump().c_str());
     return fail(r.status, c.options());
   }
-  if (json) std::printf("{\"status\":\"%s\"}\n", std::string(client::to_string(*r)).c_str());
+  if (json) std::printf("%s\n", nlohmann::json{{"status", std::string(client::to_string(*r))}}.dump().c_str());
   else std::printf("%s\n", std::string(client::to_string(*r)).c_str());
   return *r == client::Health::Serving ? kExitOk : kExitRefused;
 }
@@ -739,8 +1069,12 @@ int main(int argc, char** argv) {
           if (i + 1 >= argc) throw Usage("--" + name + " needs a value");
           value = argv[++i];
         }
+        if (name.empty()) throw Usage("'" + s + "' is not a flag");
         if (name == "help") {
           std::fputs(kUsage, stdout);
+          return kExitOk;
+        } else if (name == "version") {
+          std::printf("pliant %s\n", pliant::kVersion);
           return kExitOk;
         } else if (name == "address") opt.address = value;
         else if (name == "token") opt.token = value;
@@ -758,7 +1092,15 @@ int main(int argc, char** argv) {
           double t = to_double("timeout", value);
           if (t <= 0) throw Usage("--timeout must be > 0 s");
           opt.timeout = std::chrono::milliseconds(static_cast<long long>(t * 1000));
-        } else args.flags[name] = boolean ? "true" : value;
+        } else if (std::find(kRepeatableFlags.begin(), kRepeatableFlags.end(), name) != kRepeatableFlags.end()) {
+          args.repeated[name].push_back(value);
+        } else {
+          if (args.flags.count(name)) throw Usage("--" + name + " given twice");
+          args.flags[name] = boolean ? "true" : value;
+        }
+      } else if (s.size() > 1 && s[0] == '-' && s != "-h" &&
+                 !(std::isdigit(static_cast<unsigned char>(s[1])) || s[1] == '.')) {
+        throw Usage("unknown option '" + s + "'");
       } else if (s == "-h") {
         std::fputs(kUsage, stdout);
         return kExitOk;
@@ -768,7 +1110,10 @@ int main(int argc, char** argv) {
         args.positional.push_back(s);
       }
     }
-    if (command.empty()) throw Usage("no command given");
+    if (command.empty()) {
+      if (!args.flags.empty()) throw Usage("unknown flag --" + args.flags.begin()->first + " (and no command given)");
+      throw Usage("no command given");
+    }
     Client c(opt);
     if (command == "scenes") return cmd_scenes(c, args, json);
     if (command == "pause") return cmd_pause_resume(c, args, json, true);
@@ -779,11 +1124,12 @@ int main(int argc, char** argv) {
     if (command == "move-grab") return cmd_move_grab(c, args, json);
     if (command == "release") return cmd_release(c, args, json);
     if (command == "watch") return cmd_watch(c, args, json);
+    if (command == "record") return cmd_record(c, args, json);
     if (command == "snapshot") return cmd_snapshot(c, args, json);
     if (command == "health") return cmd_health(c, args, json);
     throw Usage("unknown command '" + command + "'");
   } catch (const Usage& u) {
-    std::fprintf(stderr, "pliant: %s\n(run 'pliant --help' for usage)\n", u.what());
+    std::fprintf(stderr, "pliant: %s (see pliant --help)\n", u.what());
     return kExitUsage;
   }
 }

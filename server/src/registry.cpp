@@ -318,6 +318,99 @@ Error fixed_from(const v1::FixedSelection& p, const std::string& prefix, FixedSe
   return {};
 }
 
+// Static colliders: every value range-checked, errors name the field and the value.
+constexpr double kMaxColliderExtent = 1e6;  // metres: far beyond any scene, finite in float32
+constexpr double kMaxFriction = 10.0;
+
+Error colliders_from(const google::protobuf::RepeatedPtrField<v1::Collider>& p, const std::string& prefix,
+                     std::vector<Collider>* out) {
+  out->clear();
+  auto vec = [](const Vec3& v) { return fmt::format("({}, {}, {})", v.x(), v.y(), v.z()); };
+  for (int i = 0; i < p.size(); ++i) {
+    const v1::Collider& c = p.Get(i);
+    const std::string f = fmt::format("{}[{}]", prefix, i);
+    auto point_in_range = [&](const v1::Vec3& pv, const std::string& name, Vec3* v) -> Error {
+      *v = to_vec(pv);
+      if (!v->allFinite() || v->cwiseAbs().maxCoeff() > kMaxColliderExtent)
+        return invalid(fmt::format("{}.{} must be finite and within {} m of the origin, got {}", f, name,
+                                   kMaxColliderExtent, vec(*v)));
+      return {};
+    };
+    Collider col;
+    switch (c.shape_case()) {
+      case v1::Collider::kPlane: {
+        Vec3 point, normal;
+        if (Error e = point_in_range(c.plane().point(), "plane.point", &point); !e.ok()) return e;
+        normal = to_vec(c.plane().normal());
+        if (!normal.allFinite() || !(normal.norm() > 1e-12))
+          return invalid(fmt::format("{}.plane.normal must be a finite non-zero vector, got {}", f, vec(normal)));
+        col = Collider::plane(point, normal);
+        break;
+      }
+      case v1::Collider::kSphere: {
+        Vec3 centre;
+        if (Error e = point_in_range(c.sphere().center(), "sphere.center", &centre); !e.ok()) return e;
+        const double r = c.sphere().radius();
+        if (!std::isfinite(r) || r <= 0 || r > kMaxColliderExtent)
+          return invalid(fmt::format("{}.sphere.radius must be in (0, {}] m, got {}", f, kMaxColliderExtent, r));
+        col = Collider::sphere(centre, r);
+        break;
+      }
+      case v1::Collider::kBox: {
+        Vec3 centre, half;
+        if (Error e = point_in_range(c.box().center(), "box.center", &centre); !e.ok()) return e;
+        half = to_vec(c.box().half_extent());
+        if (!half.allFinite() || (half.array() <= 0).any() || half.maxCoeff() > kMaxColliderExtent)
+          return invalid(fmt::format("{}.box.half_extent must have each component in (0, {}] m, got {}", f,
+                                     kMaxColliderExtent, vec(half)));
+        col = Collider::box(centre, half);
+        break;
+      }
+      default:
+        return invalid(fmt::format("{}: no shape set; set one of plane, sphere, box", f));
+    }
+    if (c.has_static_friction()) {
+      const double mu = c.static_friction();
+      if (!std::isfinite(mu) || mu < 0 || mu > kMaxFriction)
+        return invalid(fmt::format("{}.static_friction must be in [0, {}], got {}", f, kMaxFriction, mu));
+      col.static_friction = mu;
+    }
+    if (c.has_dynamic_friction()) {
+      const double mu = c.dynamic_friction();
+      if (!std::isfinite(mu) || mu < 0 || mu > col.static_friction)
+        return invalid(fmt::format("{}.dynamic_friction must be in [0, static_friction = {}], got {}", f,
+                                   col.static_friction, mu));
+      col.dynamic_friction = mu;
+    } else {
+      col.dynamic_friction = std::min(col.dynamic_friction, col.static_friction);
+    }
+    out->push_back(col);
+  }
+  return {};
+}
+
+void colliders_to(const std::vector<Collider>& cs, v1::SceneSpec* spec) {
+  for (const Collider& c : cs) {
+    auto* pc = spec->add_colliders();
+    switch (c.shape) {
+      case Collider::Shape::Plane:
+        to_proto(c.point, pc->mutable_plane()->mutable_point());
+        to_proto(c.normal, pc->mutable_plane()->mutable_normal());
+        break;
+      case Collider::Shape::Sphere:
+        to_proto(c.point, pc->mutable_sphere()->mutable_center());
+        pc->mutable_sphere()->set_radius(c.radius);
+        break;
+      case Collider::Shape::Box:
+        to_proto(c.point, pc->mutable_box()->mutable_center());
+        to_proto(c.half_extent, pc->mutable_box()->mutable_half_extent());
+        break;
+    }
+    pc->set_static_friction(c.static_friction);
+    pc->set_dynamic_friction(c.dynamic_friction);
+  }
+}
+
 // Builds the model; std::invalid_argument from the solver becomes INVALID_ARGUMENT.
 Error build(const TetMesh& mesh, const Material& material, const FixedSelection& fixed,
             std::shared_ptr<const BodyModel>* out) {
@@ -369,6 +462,7 @@ void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* sp
   ps->set_inversion_floor(s.inversion_floor);
   spec->mutable_tick()->set_dt(s.dt);
   spec->mutable_tick()->set_mode(mode_to(cfg.mode));
+  colliders_to(cfg.colliders, spec);
 }
 
 v1::SceneState state_of(const SceneStatus& st) {
@@ -527,6 +621,7 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
     if (Error e = merge_gravity(spec.gravity(), "snapshot.spec.gravity", cfg.settings); !e.ok()) return e;
   if (Error e = check_solver(cfg.settings, "snapshot.spec.solver"); !e.ok()) return e;
   if (Error e = fixed_from(spec.fixed(), "snapshot.spec.fixed", &cfg.fixed); !e.ok()) return e;
+  if (Error e = colliders_from(spec.colliders(), "snapshot.spec.colliders", &cfg.colliders); !e.ok()) return e;
   FixedSelection fixed;
   fixed.indices.assign(p.fixed_vertices().begin(), p.fixed_vertices().end());
   std::shared_ptr<const BodyModel> model;
@@ -759,6 +854,7 @@ Error SceneRegistry::create(const v1::CreateSceneRequest& req, v1::Scene* out) {
     if (Error e = merge_gravity(spec.gravity(), "spec.gravity", cfg.settings); !e.ok()) return e;
   if (Error e = check_solver(cfg.settings, "spec.solver"); !e.ok()) return e;
   if (Error e = fixed_from(spec.fixed(), "spec.fixed", &cfg.fixed); !e.ok()) return e;
+  if (Error e = colliders_from(spec.colliders(), "spec.colliders", &cfg.colliders); !e.ok()) return e;
   if (Error e = resolve_source(spec.mesh(), options_, cfg, &mesh); !e.ok()) return e;
   std::shared_ptr<const BodyModel> model;
   if (Error e = build(mesh, material, cfg.fixed, &model); !e.ok()) return e;

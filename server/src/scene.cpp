@@ -64,6 +64,7 @@ struct Scene::TickState {
     bool used = false;
   };
   std::map<uint64_t, PosedTool> tools;
+  std::vector<Collider> colliders;  // static, from the scene's config
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
   Clock::time_point anchor;
@@ -110,6 +111,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
   ts_->model = model;
   ts_->settings = config.settings;
   ts_->mode = config.mode;
+  ts_->colliders = config.colliders;
   ts_->running = !paused;
   ts_->state = std::move(state);
   ts_->last_good = ts_->state;
@@ -593,6 +595,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
       scheduled ? std::chrono::duration<double, std::milli>(start - due).count() : 0.0;
 
   StepInputs inputs;
+  inputs.colliders = t.colliders;
   if (!t.forces.empty()) {
     inputs.external_forces.assign(t.model->vertex_count(), Vec3::Zero());
     for (auto& f : t.forces)

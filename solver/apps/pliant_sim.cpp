@@ -11,6 +11,7 @@
 #include "pliant/reference_solver.hpp"
 #include "pliant/stepper.hpp"
 #include "pliant/strain_constraint.hpp"
+#include "pliant/vtu_recording.hpp"
 
 #include <Eigen/SVD>
 #include <spdlog/spdlog.h>
@@ -421,9 +422,13 @@ int cmd_run(const cli::Args& a) {
   if (ec) throw cli::UsageError("--out: cannot create '" + out + "': " + ec.message());
   BodyState state = rest_state(*model);
   Stepper stepper;
-  TetMesh frame;
-  frame.name = model->name;
-  for (const TetRest& t : model->tets) frame.tets.push_back(t.v);
+  // Binary .vtu frames and frames.pvd (simulation time per frame) for ParaView.
+  RecordingTopology topology;
+  topology.rest_positions = model->rest_positions;
+  for (const TetRest& t : model->tets) topology.tets.push_back(t.v);
+  topology.fixed = model->fixed;
+  VtuRecorder recorder(out, std::move(topology));
+  double last_residual = 0;
   int written = 0, diverged = 0;
   double wall = 0;
   // Health over the run, checked after every step: the most tets found inverted at a step's
@@ -432,10 +437,12 @@ int cmd_run(const cli::Args& a) {
   int steps_with_inverted = 0;
   double speed = 0, peak_speed = 0;
   auto write = [&](int k) {
-    frame.vertices = state.x;
-    char name[64];
-    std::snprintf(name, sizeof name, "frame_%06d.vtk", k);
-    write_vtk_legacy(frame, (std::filesystem::path(out) / name).string(), true);
+    RecordingFrame frame;
+    frame.time = state.time;
+    frame.positions = state.x;
+    frame.velocity = state.v;
+    frame.residual = last_residual;
+    recorder.write(frame, k);
     ++written;
   };
   std::ofstream tip_csv;
@@ -453,6 +460,7 @@ int cmd_run(const cli::Args& a) {
     turn.add(k, tip.y());
     wall += r.wall_ms;
     diverged += r.diverged;
+    last_residual = r.residual_final;
     const size_t inverted = count_inverted(*model, state.x);
     worst_inverted = std::max(worst_inverted, inverted);
     steps_with_inverted += inverted > 0;

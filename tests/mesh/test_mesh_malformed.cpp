@@ -97,8 +97,8 @@ std::vector<BadCase> bad_cases() {
        "CELLS 1 5\n4 0 1 2 4\nCELL_TYPES 1\n10\n",
        nullptr, "cell 0: point index 4 out of range [0, 3]"},
       {"VtuCompressed", "t.vtu",
-       "<VTKFile type=\"UnstructuredGrid\" compressor=\"vtkZLibDataCompressor\"><UnstructuredGrid></UnstructuredGrid></VTKFile>",
-       nullptr, "compressed VTU (vtkZLibDataCompressor) is not supported"},
+       "<VTKFile type=\"UnstructuredGrid\" compressor=\"vtkLZMADataCompressor\"><UnstructuredGrid></UnstructuredGrid></VTKFile>",
+       nullptr, "compressor vtkLZMADataCompressor is not supported (vtkZLibDataCompressor is; or save uncompressed)"},
       {"VtuTruncated", "t.vtu",
        "<VTKFile type=\"UnstructuredGrid\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"4\" NumberOfCells=\"1\">\n"
        "<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n0 0 0 1 0",

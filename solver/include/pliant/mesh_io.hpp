@@ -5,7 +5,7 @@
 //
 // Formats read: TetGen .node/.ele (0- or 1-based, detected from the first node index), Gmsh .msh
 // v1, v2.2 and v4.1 (ASCII and binary), VTK legacy UNSTRUCTURED_GRID (.vtk, ASCII and binary)
-// and VTK XML .vtu (ASCII and inline base64 binary). Written: TetGen, VTK legacy, VTU, Gmsh.
+// and VTK XML .vtu (ASCII, inline base64 binary and raw appended, uncompressed or zlib). Written: TetGen, VTK legacy, VTU, Gmsh.
 #pragma once
 
 #include "pliant/mesh.hpp"

@@ -1,10 +1,12 @@
 // VTK readers: legacy UNSTRUCTURED_GRID (.vtk; ASCII and big-endian BINARY; the classic
 // CELLS layout and the 5.1 OFFSETS/CONNECTIVITY layout) and XML UnstructuredGrid (.vtu; ascii,
-// inline base64 binary and raw appended data, uncompressed). Cells of type 10 (VTK_TETRA) and the
+// inline base64 binary and raw appended data, uncompressed or zlib-compressed as VTK and meshio
+// write by default: compressor="vtkZLibDataCompressor"). Cells of type 10 (VTK_TETRA) and the
 // corners of type 24 (VTK_QUADRATIC_TETRA) become tets; other cells are skipped with a log line.
 #include "mesh/mesh_parse.hpp"
 
 #include <spdlog/spdlog.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <charconv>
@@ -313,6 +315,13 @@ class VtuReader {
     return at;
   }
 
+  // Where a DataArray's inline values end: its closing tag, or the first child element before it
+  // (VTK writes <InformationKey> elements after the values of some arrays).
+  size_t values_end(const XmlTag& open) const {
+    const size_t close = closing("DataArray", open);
+    return std::min(close, text_.find('<', open.end));
+  }
+
   static int64_t attr_int(const XmlTag& t, const std::string& key, const VtuReader& r) {
     auto it = t.attrs.find(key);
     if (it == t.attrs.end()) r.fail_at(t.begin, "<" + t.name + "> has no " + key + " attribute");
@@ -342,7 +351,7 @@ class VtuReader {
     else fail_at(tag.begin, std::string(what) + ": unsupported DataArray type '" + type + "'");
     std::vector<double> out;
     if (format == "ascii") {
-      const size_t end = closing("DataArray", tag);
+      const size_t end = values_end(tag);
       Cursor ac(text_.substr(0, end), c_.file());
       ac.set_pos(tag.end);
       // Line numbers: count once up to the array's start.
@@ -363,7 +372,7 @@ class VtuReader {
     std::string decoded;
     std::string_view payload;
     if (format == "binary") {
-      const size_t end = closing("DataArray", tag);
+      const size_t end = values_end(tag);
       Cursor bc(text_, c_.file());
       bc.set_pos(tag.end);
       decoded = base64_decode(text_.substr(tag.end, end - tag.end), bc);
@@ -376,16 +385,63 @@ class VtuReader {
     } else {
       fail_at(tag.begin, "unsupported DataArray format '" + format + "'");
     }
-    // Uncompressed: a header (UInt32 or UInt64 byte count) then the data.
     const size_t hbytes = header64_ ? 8 : 4;
     if (payload.size() < hbytes) fail_at(tag.begin, std::string(what) + ": binary data shorter than its header");
+    auto header_at = [&](size_t i) -> uint64_t {
+      return header64_ ? load<uint64_t>(payload.data() + i * hbytes) : load<uint32_t>(payload.data() + i * hbytes);
+    };
     uint64_t nbytes = 0;
-    if (header64_) nbytes = load<uint64_t>(payload.data());
-    else nbytes = load<uint32_t>(payload.data());
-    if (nbytes > payload.size() - hbytes) fail_at(tag.begin, std::string(what) + ": header says " + std::to_string(nbytes) + " bytes, only " + std::to_string(payload.size() - hbytes) + " present (truncated?)");
-    if (nbytes / static_cast<uint64_t>(bytes) < expected)
-      fail_at(tag.begin, std::string(what) + ": " + std::to_string(nbytes / bytes) + " values, expected " + std::to_string(expected));
-    const char* d = payload.data() + hbytes;
+    const char* d = nullptr;
+    std::string inflated;
+    if (zlib_) {
+      // zlib (vtkZLibDataCompressor): header [blocks, block size, last block's size (0: full),
+      // compressed size of each block], then the compressed blocks back to back.
+      const uint64_t blocks = header_at(0);
+      if (blocks > payload.size() / hbytes || payload.size() < (3 + blocks) * hbytes)
+        fail_at(tag.begin, std::string(what) + ": compressed header announces " + std::to_string(blocks) +
+                               " blocks, the data is too short for them (truncated?)");
+      const uint64_t block_size = header_at(1), last_size = header_at(2);
+      constexpr uint64_t kMaxInflated = uint64_t{1} << 34;  // 16 GiB: a corrupt header, not a mesh
+      if (block_size > kMaxInflated || last_size > kMaxInflated || last_size > block_size ||
+          (blocks > 1 && block_size > 0 && blocks - 1 > kMaxInflated / block_size))
+        fail_at(tag.begin, std::string(what) + ": implausible compressed header (blocks " + std::to_string(blocks) +
+                               ", block size " + std::to_string(block_size) + ", last " + std::to_string(last_size) + ")");
+      uint64_t at = (3 + blocks) * hbytes;
+      const uint64_t total = blocks == 0 ? 0 : (blocks - 1) * block_size + (last_size ? last_size : block_size);
+      if (total / static_cast<uint64_t>(bytes) < expected)
+        fail_at(tag.begin, std::string(what) + ": " + std::to_string(total / bytes) + " values, expected " + std::to_string(expected));
+      // zlib expands at most ~1032:1; a header claiming more is corrupt (and must not make us
+      // allocate it).
+      if (total > 1100 * static_cast<uint64_t>(payload.size()) + 4096)
+        fail_at(tag.begin, std::string(what) + ": compressed header claims " + std::to_string(total) +
+                               " bytes from " + std::to_string(payload.size()) + " bytes of data (corrupt?)");
+      inflated.resize(total);
+      uint64_t filled = 0;
+      for (uint64_t b = 0; b < blocks; ++b) {
+        const uint64_t csize = header_at(3 + b);
+        const uint64_t usize = (b + 1 == blocks && last_size) ? last_size : block_size;
+        if (csize > payload.size() - at)
+          fail_at(tag.begin, std::string(what) + ": compressed block " + std::to_string(b) + " of " +
+                                 std::to_string(csize) + " bytes runs past the end of the data (truncated?)");
+        uLongf out_len = static_cast<uLongf>(usize);
+        const int rc = uncompress(reinterpret_cast<Bytef*>(inflated.data() + filled), &out_len,
+                                  reinterpret_cast<const Bytef*>(payload.data() + at), static_cast<uLong>(csize));
+        if (rc != Z_OK || out_len != usize)
+          fail_at(tag.begin, std::string(what) + ": compressed block " + std::to_string(b) + " does not inflate to " +
+                                 std::to_string(usize) + " bytes (zlib error " + std::to_string(rc) + ")");
+        filled += usize;
+        at += csize;
+      }
+      nbytes = total;
+      d = inflated.data();
+    } else {
+      // Uncompressed: a header (UInt32 or UInt64 byte count) then the data.
+      nbytes = header_at(0);
+      if (nbytes > payload.size() - hbytes) fail_at(tag.begin, std::string(what) + ": header says " + std::to_string(nbytes) + " bytes, only " + std::to_string(payload.size() - hbytes) + " present (truncated?)");
+      if (nbytes / static_cast<uint64_t>(bytes) < expected)
+        fail_at(tag.begin, std::string(what) + ": " + std::to_string(nbytes / bytes) + " values, expected " + std::to_string(expected));
+      d = payload.data() + hbytes;
+    }
     out.resize(expected);
     for (size_t i = 0; i < expected; ++i, d += bytes) {
       switch (bytes) {
@@ -420,8 +476,12 @@ class VtuReader {
     if (!file) c_.fail("not a VTK XML file: no <VTKFile> element");
     if (file->attrs["type"] != "UnstructuredGrid")
       fail_at(file->begin, "only type=\"UnstructuredGrid\" holds tets, got \"" + file->attrs["type"] + "\"");
-    if (file->attrs.count("compressor") && !file->attrs["compressor"].empty())
-      fail_at(file->begin, "compressed VTU (" + file->attrs["compressor"] + ") is not supported; save uncompressed");
+    if (file->attrs.count("compressor") && !file->attrs["compressor"].empty()) {
+      if (file->attrs["compressor"] != "vtkZLibDataCompressor")
+        fail_at(file->begin, "compressor " + file->attrs["compressor"] +
+                                 " is not supported (vtkZLibDataCompressor is; or save uncompressed)");
+      zlib_ = true;
+    }
     big_endian_ = file->attrs["byte_order"] == "BigEndian";
     header64_ = file->attrs["header_type"] == "UInt64";
     if (auto app = find_tag("AppendedData", file->end, text_.size())) {
@@ -509,6 +569,7 @@ class VtuReader {
   Cursor c_;
   bool big_endian_ = false;
   bool header64_ = false;
+  bool zlib_ = false;
   size_t appended_start_ = std::string_view::npos;
 };
 

@@ -3,6 +3,7 @@
 // latest immutable Frame, published atomically after every tick. No gRPC in here.
 #pragma once
 
+#include "pliant/colliders.hpp"
 #include "pliant/interaction.hpp"
 #include "pliant/model.hpp"
 #include "pliant/settings.hpp"
@@ -57,6 +58,7 @@ struct SceneConfig {
   std::string mesh_name;
   double mesh_scale = 1.0;
   FixedSelection fixed;               // as requested
+  std::vector<Collider> colliders;     // static obstacles, validated
   SolverSettings settings;            // dt is the tick length; gravity lives here too
   TickMode mode = TickMode::Realtime;
   // Method auto: settings.method is the chosen one; method_choice says what was measured.
