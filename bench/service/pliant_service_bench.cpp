@@ -11,6 +11,7 @@
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
 
+#include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -235,19 +236,33 @@ int main(int argc, char** argv) {
   srv.shutdown();
 
   if (json) {
-    for (auto& t : ticks)
-      std::printf("{\"bench\":\"tick\",\"scene\":\"%s\",\"target_hz\":%.1f,\"achieved_hz\":%.2f,\"ticks\":%llu,"
-                  "\"lateness_p50_ms\":%.4f,\"lateness_p99_ms\":%.4f,\"lateness_max_ms\":%.4f,\"late_ticks\":%llu,"
-                  "\"skipped_ticks\":%llu,\"step_ms_p50\":%.4f,\"settings\":\"%s\"}\n",
-                  t.name.c_str(), t.target_hz, t.achieved_hz, static_cast<unsigned long long>(t.ticks),
-                  t.lateness_p50_ms, t.lateness_p99_ms, t.lateness_max_ms,
-                  static_cast<unsigned long long>(t.late_ticks), static_cast<unsigned long long>(t.skipped_ticks),
-                  t.step_ms_p50, t.settings.c_str());
-    for (auto& l : latency)
-      std::printf("{\"bench\":\"stream_latency\",\"fields\":\"%s\",\"frames\":%llu,\"skipped\":%llu,"
-                  "\"p50_us\":%.1f,\"p99_us\":%.1f}\n",
-                  l.name.c_str(), static_cast<unsigned long long>(l.frames),
-                  static_cast<unsigned long long>(l.skipped), l.p50_us, l.p99_us);
+    // One JSON line per figure (nlohmann-json: strict JSON, NaN as null).
+    for (auto& t : ticks) {
+      nlohmann::ordered_json j;
+      j["bench"] = "tick";
+      j["scene"] = t.name;
+      j["target_hz"] = t.target_hz;
+      j["achieved_hz"] = t.achieved_hz;
+      j["ticks"] = t.ticks;
+      j["lateness_p50_ms"] = t.lateness_p50_ms;
+      j["lateness_p99_ms"] = t.lateness_p99_ms;
+      j["lateness_max_ms"] = t.lateness_max_ms;
+      j["late_ticks"] = t.late_ticks;
+      j["skipped_ticks"] = t.skipped_ticks;
+      j["step_ms_p50"] = t.step_ms_p50;
+      j["settings"] = t.settings;
+      std::printf("%s\n", j.dump().c_str());
+    }
+    for (auto& l : latency) {
+      nlohmann::ordered_json j;
+      j["bench"] = "stream_latency";
+      j["fields"] = l.name;
+      j["frames"] = l.frames;
+      j["skipped"] = l.skipped;
+      j["p50_us"] = l.p50_us;
+      j["p99_us"] = l.p99_us;
+      std::printf("%s\n", j.dump().c_str());
+    }
     return 0;
   }
   std::printf("Tick rate and jitter (%.0f s each, realtime mode, lateness = tick start - deadline)\n", seconds);
