@@ -756,8 +756,8 @@ int main(int argc, char** argv) {
     std::cout << kUsage;
     return 2;
   }
-  if (const std::string first = argv[1];
-      !first.empty() && first[0] != '-' && std::find(kCommands.begin(), kCommands.end(), first) == kCommands.end()) {
+  if (const std::string first = argv[1]; first != "--help" && first != "-h" && first != "--version" &&
+                                         std::find(kCommands.begin(), kCommands.end(), first) == kCommands.end()) {
     std::cerr << "pliant-sim: unknown command '" << first << "' (converge, static, reference, run, accuracy)\n";
     return 2;
   }

@@ -166,7 +166,7 @@ TEST(Metrics, ScrapeHasTheSeriesPerSceneAndCountersGrow) {
   srv.shutdown();
 }
 
-TEST(Metrics, LabelValuesAreEscapedAndListenIsChecked) {
+TEST(Metrics, ListenIsCheckedAndReadFromTheEnvironment) {
   server::ServerOptions o;
   bool help = false;
   server::Error e = server::parse_server_options({"--metrics-listen", "nowhere"},
