@@ -11,6 +11,9 @@
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
 
+#include "cli.hpp"
+#include "pliant/version.hpp"
+
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
@@ -155,17 +158,18 @@ int main(int argc, char** argv) {
   int threads = 1;
   bool json = false;
   int small_sub = 1, small_it = 4, big_sub = 1, big_it = 4;
-  for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc) seconds = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--small") && i + 1 < argc) std::sscanf(argv[++i], "%d,%d", &small_sub, &small_it);
-    else if (!std::strcmp(argv[i], "--big") && i + 1 < argc) std::sscanf(argv[++i], "%d,%d", &big_sub, &big_it);
-    else if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) threads = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--json")) json = true;
-    else {
-      std::fprintf(stderr, "usage: pliant_service_bench [--seconds S] [--threads N] [--small S,I] [--big S,I] [--json]\n");
-      return 2;
-    }
-  }
+  CLI::App app{"pliant_service_bench: tick rate, lateness and stream latency of an in-process server"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.add_option("--seconds", seconds, "seconds per measurement (default 5)")->check(CLI::Range(0.1, 3600.0));
+  app.add_option("--threads", threads, "solver threads per scene (default 1)")->check(CLI::Range(1, 256));
+  app.add_option_function<std::string>(
+      "--small", [&](const std::string& v) { cli::parse_int_pair("--small", v, 1, &small_sub, &small_it); },
+      "SUBSTEPS,ITERATIONS of the small scene (default 1,4)");
+  app.add_option_function<std::string>(
+      "--big", [&](const std::string& v) { cli::parse_int_pair("--big", v, 1, &big_sub, &big_it); },
+      "SUBSTEPS,ITERATIONS of the big scene (default 1,4)");
+  app.add_flag("--json", json, "one JSON line per figure");
+  if (auto rc = cli::parse_or_exit(app, argc, argv, "pliant_service_bench")) return *rc;
   spdlog::set_level(spdlog::level::warn);
 
   server::ServerOptions so;

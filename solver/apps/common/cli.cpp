@@ -71,6 +71,23 @@ void add_options(CLI::App& app, const std::set<std::string>& valued, const std::
     app.add_flag_callback("--" + name, [into, name] { (*into)[name] = "1"; });
 }
 
+void parse_int_pair(const std::string& flag, const std::string& text, int min, int* a, int* b) {
+  const size_t comma = text.find(',');
+  auto one = [&](const std::string& s, int* out) {
+    char* end = nullptr;
+    const long v = std::strtol(s.c_str(), &end, 10);
+    if (s.empty() || *end != '\0' || v < min || v > 1'000'000) return false;
+    *out = static_cast<int>(v);
+    return true;
+  };
+  int x = 0, y = 0;
+  if (comma == std::string::npos || !one(text.substr(0, comma), &x) || !one(text.substr(comma + 1), &y))
+    throw CLI::ValidationError(flag + " must be two integers A,B, each at least " + std::to_string(min) + ", got '" +
+                               text + "'");
+  *a = x;
+  *b = y;
+}
+
 double parse_number(const std::string& name, const std::string& text) {
   auto parse = [&](const std::string& s) {
     char* end = nullptr;

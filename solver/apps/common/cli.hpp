@@ -66,6 +66,10 @@ class Args {
 void add_options(CLI::App& app, const std::set<std::string>& valued, const std::set<std::string>& flags,
                  std::map<std::string, std::string>* into);
 
+// Parses "A,B" (two integers, each at least `min`) for a flag such as --big SUBSTEPS,ITERATIONS;
+// throws CLI::ValidationError naming the flag and the value.
+void parse_int_pair(const std::string& flag, const std::string& text, int min, int* a, int* b);
+
 // Parses a number that may be a fraction like "1/60".
 double parse_number(const std::string& name, const std::string& text);
 
