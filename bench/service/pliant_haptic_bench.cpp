@@ -10,6 +10,10 @@
 #include "pliant/client/haptic.hpp"
 #include "pliant/server/server.hpp"
 
+#include "cli.hpp"
+#include "pliant/version.hpp"
+
+#include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
 #include <cstdio>
@@ -90,17 +94,16 @@ int main(int argc, char** argv) {
   double seconds = 10;
   bool json = false, verbose = false;
   int big_sub = 1, big_it = 1;
-  for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc) seconds = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--big") && i + 1 < argc) std::sscanf(argv[++i], "%d,%d", &big_sub, &big_it);
-    else if (!std::strcmp(argv[i], "--json")) json = true;
-    else if (!std::strcmp(argv[i], "--no-realtime")) g_realtime = false;
-    else if (!std::strcmp(argv[i], "--verbose")) verbose = true;
-    else {
-      std::fprintf(stderr, "usage: pliant_haptic_bench [--seconds S] [--big SUBSTEPS,ITERATIONS] [--no-realtime] [--json] [--verbose]\n");
-      return 2;
-    }
-  }
+  CLI::App app{"pliant_haptic_bench: the haptic stream's round trip and the bridge's loop rate"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.add_option("--seconds", seconds, "seconds per scene (default 10)")->check(CLI::Range(0.1, 3600.0));
+  app.add_option_function<std::string>(
+      "--big", [&](const std::string& v) { pliant::cli::parse_int_pair("--big", v, 1, &big_sub, &big_it); },
+      "SUBSTEPS,ITERATIONS of the 50k-tet scene (default 1,1)");
+  app.add_flag("--json", json, "one JSON line per scene");
+  app.add_flag_callback("--no-realtime", [] { g_realtime = false; }, "no SCHED_FIFO for the device loop");
+  app.add_flag("--verbose", verbose, "the server's debug log");
+  if (auto rc = pliant::cli::parse_or_exit(app, argc, argv, "pliant_haptic_bench")) return *rc;
   // --verbose: the server's debug log, with each scene's tick profile every 10 s.
   spdlog::set_level(verbose ? spdlog::level::debug : spdlog::level::warn);
   server::ServerOptions so;
@@ -163,10 +166,12 @@ int main(int argc, char** argv) {
   for (const Figures& f : all) {
     const BridgeStats& s = f.stats;
     if (json) {
-      std::string j = s.to_json();
-      j.pop_back();
-      std::printf("%s,\"scene\":\"%s\",\"server_ticks_per_second\":%.1f,\"server_late_ticks\":%llu}\n", j.c_str(),
-                  f.name.c_str(), f.ticks_per_second, static_cast<unsigned long long>(f.late_ticks));
+      // The bridge's figures and the server's, one strict JSON line (nlohmann-json).
+      nlohmann::ordered_json j = nlohmann::ordered_json::parse(s.to_json());
+      j["scene"] = f.name;
+      j["server_ticks_per_second"] = f.ticks_per_second;
+      j["server_late_ticks"] = f.late_ticks;
+      std::printf("%s\n", j.dump().c_str());
     } else {
       std::printf("%s\n  device loop %.1f Hz, period p50 %.0f us / p99 %.0f us / max %.0f us (|error| p99 %.0f us)\n"
                   "  round trip pose -> force: p50 %.3f ms  p99 %.3f ms  max %.3f ms  (%llu feedback messages)\n"

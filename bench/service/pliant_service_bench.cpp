@@ -11,6 +11,10 @@
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
 
+#include "cli.hpp"
+#include "pliant/version.hpp"
+
+#include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -154,17 +158,18 @@ int main(int argc, char** argv) {
   int threads = 1;
   bool json = false;
   int small_sub = 1, small_it = 4, big_sub = 1, big_it = 4;
-  for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc) seconds = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--small") && i + 1 < argc) std::sscanf(argv[++i], "%d,%d", &small_sub, &small_it);
-    else if (!std::strcmp(argv[i], "--big") && i + 1 < argc) std::sscanf(argv[++i], "%d,%d", &big_sub, &big_it);
-    else if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) threads = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--json")) json = true;
-    else {
-      std::fprintf(stderr, "usage: pliant_service_bench [--seconds S] [--threads N] [--small S,I] [--big S,I] [--json]\n");
-      return 2;
-    }
-  }
+  CLI::App app{"pliant_service_bench: tick rate, lateness and stream latency of an in-process server"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.add_option("--seconds", seconds, "seconds per measurement (default 5)")->check(CLI::Range(0.1, 3600.0));
+  app.add_option("--threads", threads, "solver threads per scene (default 1)")->check(CLI::Range(1, 256));
+  app.add_option_function<std::string>(
+      "--small", [&](const std::string& v) { cli::parse_int_pair("--small", v, 1, &small_sub, &small_it); },
+      "SUBSTEPS,ITERATIONS of the small scene (default 1,4)");
+  app.add_option_function<std::string>(
+      "--big", [&](const std::string& v) { cli::parse_int_pair("--big", v, 1, &big_sub, &big_it); },
+      "SUBSTEPS,ITERATIONS of the big scene (default 1,4)");
+  app.add_flag("--json", json, "one JSON line per figure");
+  if (auto rc = cli::parse_or_exit(app, argc, argv, "pliant_service_bench")) return *rc;
   spdlog::set_level(spdlog::level::warn);
 
   server::ServerOptions so;
@@ -235,19 +240,33 @@ int main(int argc, char** argv) {
   srv.shutdown();
 
   if (json) {
-    for (auto& t : ticks)
-      std::printf("{\"bench\":\"tick\",\"scene\":\"%s\",\"target_hz\":%.1f,\"achieved_hz\":%.2f,\"ticks\":%llu,"
-                  "\"lateness_p50_ms\":%.4f,\"lateness_p99_ms\":%.4f,\"lateness_max_ms\":%.4f,\"late_ticks\":%llu,"
-                  "\"skipped_ticks\":%llu,\"step_ms_p50\":%.4f,\"settings\":\"%s\"}\n",
-                  t.name.c_str(), t.target_hz, t.achieved_hz, static_cast<unsigned long long>(t.ticks),
-                  t.lateness_p50_ms, t.lateness_p99_ms, t.lateness_max_ms,
-                  static_cast<unsigned long long>(t.late_ticks), static_cast<unsigned long long>(t.skipped_ticks),
-                  t.step_ms_p50, t.settings.c_str());
-    for (auto& l : latency)
-      std::printf("{\"bench\":\"stream_latency\",\"fields\":\"%s\",\"frames\":%llu,\"skipped\":%llu,"
-                  "\"p50_us\":%.1f,\"p99_us\":%.1f}\n",
-                  l.name.c_str(), static_cast<unsigned long long>(l.frames),
-                  static_cast<unsigned long long>(l.skipped), l.p50_us, l.p99_us);
+    // One JSON line per figure (nlohmann-json: strict JSON, NaN as null).
+    for (auto& t : ticks) {
+      nlohmann::ordered_json j;
+      j["bench"] = "tick";
+      j["scene"] = t.name;
+      j["target_hz"] = t.target_hz;
+      j["achieved_hz"] = t.achieved_hz;
+      j["ticks"] = t.ticks;
+      j["lateness_p50_ms"] = t.lateness_p50_ms;
+      j["lateness_p99_ms"] = t.lateness_p99_ms;
+      j["lateness_max_ms"] = t.lateness_max_ms;
+      j["late_ticks"] = t.late_ticks;
+      j["skipped_ticks"] = t.skipped_ticks;
+      j["step_ms_p50"] = t.step_ms_p50;
+      j["settings"] = t.settings;
+      std::printf("%s\n", j.dump().c_str());
+    }
+    for (auto& l : latency) {
+      nlohmann::ordered_json j;
+      j["bench"] = "stream_latency";
+      j["fields"] = l.name;
+      j["frames"] = l.frames;
+      j["skipped"] = l.skipped;
+      j["p50_us"] = l.p50_us;
+      j["p99_us"] = l.p99_us;
+      std::printf("%s\n", j.dump().c_str());
+    }
     return 0;
   }
   std::printf("Tick rate and jitter (%.0f s each, realtime mode, lateness = tick start - deadline)\n", seconds);

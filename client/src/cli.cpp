@@ -1074,7 +1074,7 @@ int main(int argc, char** argv) {
           std::fputs(kUsage, stdout);
           return kExitOk;
         } else if (name == "version") {
-          std::printf("pliant %s\n", pliant::kVersion);
+          std::printf("%s\n", pliant::kVersion);
           return kExitOk;
         } else if (name == "address") opt.address = value;
         else if (name == "token") opt.token = value;
@@ -1090,7 +1090,7 @@ int main(int argc, char** argv) {
         }
         else if (name == "timeout") {
           double t = to_double("timeout", value);
-          if (t <= 0) throw Usage("--timeout must be > 0 s");
+          if (!(t > 0)) throw Usage("--timeout must be > 0 s, got " + value);
           opt.timeout = std::chrono::milliseconds(static_cast<long long>(t * 1000));
         } else if (std::find(kRepeatableFlags.begin(), kRepeatableFlags.end(), name) != kRepeatableFlags.end()) {
           args.repeated[name].push_back(value);

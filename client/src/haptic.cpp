@@ -2,6 +2,7 @@
 
 #include <pthread.h>
 #include <sched.h>
+#include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -106,15 +107,23 @@ double percentile(std::vector<double> v, double p) {
 }
 
 std::string BridgeStats::to_json() const {
-  std::ostringstream os;
-  os.precision(6);
-  os << "{\"loop_hz\":" << loop_hz << ",\"period_p50_us\":" << period_p50_us << ",\"period_p99_us\":" << period_p99_us
-     << ",\"period_max_us\":" << period_max_us << ",\"period_error_p99_us\":" << period_error_p99_us
-     << ",\"rtt_p50_ms\":" << rtt_p50_ms << ",\"rtt_p99_ms\":" << rtt_p99_ms << ",\"rtt_max_ms\":" << rtt_max_ms
-     << ",\"max_force_n\":" << max_force_n << ",\"loops\":" << loops << ",\"feedback\":" << feedback
-     << ",\"reconnects\":" << reconnects << ",\"stream_losses\":" << stream_losses
-     << ",\"connected\":" << (connected ? "true" : "false") << "}";
-  return os.str();
+  // nlohmann-json: strict JSON (a figure that is NaN or infinite, e.g. before any feedback, is null).
+  nlohmann::ordered_json j;
+  j["loop_hz"] = loop_hz;
+  j["period_p50_us"] = period_p50_us;
+  j["period_p99_us"] = period_p99_us;
+  j["period_max_us"] = period_max_us;
+  j["period_error_p99_us"] = period_error_p99_us;
+  j["rtt_p50_ms"] = rtt_p50_ms;
+  j["rtt_p99_ms"] = rtt_p99_ms;
+  j["rtt_max_ms"] = rtt_max_ms;
+  j["max_force_n"] = max_force_n;
+  j["loops"] = loops;
+  j["feedback"] = feedback;
+  j["reconnects"] = reconnects;
+  j["stream_losses"] = stream_losses;
+  j["connected"] = connected;
+  return j.dump();
 }
 
 // ---------------------------------------------------------------------------------------

@@ -6,14 +6,18 @@
 // Exit codes: 0 ok; 2 usage error; 3 never connected to the server.
 #include "pliant/client/haptic.hpp"
 #include "pliant/proto/enums.hpp"
+#include "pliant/version.hpp"
+#include "cli.hpp"
 
 #include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
 #include <atomic>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <iostream>
 #include <string>
 #include <thread>
@@ -50,6 +54,7 @@ const char* kUsage = R"(usage: pliant-haptic [flags]
   --json                 end with one JSON line of statistics on stdout
   --quiet                no live statistics line
   --no-realtime          do not ask for SCHED_FIFO for the device loop
+  --version              print the version and exit
 )";
 
 std::atomic<bool> g_stop{false};
@@ -73,84 +78,61 @@ int main(int argc, char** argv) {
   SimulatedDevice::Params dev;
   double duration = 0;
   bool json = false, quiet = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::cerr << "pliant-haptic: " << a << " needs a value\n" << kUsage;
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    auto number = [&](double lo, double hi) {
-      const std::string v = value();
+  CLI::App app{"pliant-haptic"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.formatter_fn([](const CLI::App*, std::string, CLI::AppFormatMode) { return std::string(kUsage); });
+  // Every valued flag: the last one given wins; its check fails the parse with one line.
+  auto text = [&app](const std::string& name, std::function<void(const std::string&)> set) {
+    app.add_option_function<std::string>(name, std::move(set))->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  };
+  auto number = [&text](const std::string& name, double lo, double hi, std::function<void(double)> set) {
+    text(name, [name, lo, hi, set](const std::string& v) {
       char* end = nullptr;
       const double d = std::strtod(v.c_str(), &end);
-      if (end == v.c_str() || *end != '\0' || !(d >= lo && d <= hi)) {
-        std::cerr << "pliant-haptic: " << a << " must be a number in [" << lo << ", " << hi << "], got '" << v << "'\n";
-        std::exit(2);
-      }
-      return d;
-    };
-    if (a == "--help" || a == "-h") {
-      std::cout << kUsage;
-      return 0;
-    } else if (a == "--address") opt.connect.address = value();
-    else if (a == "--token") opt.connect.token = value();
-    else if (a == "--scene") opt.scene_id = value();
-    else if (a == "--create") opt.create_builtin = value();
-    else if (a == "--tick-hz") opt.create_tick_hz = number(1, 10000);
-    else if (a == "--young") opt.create_young = number(1, 1e12);
-    else if (a == "--poisson") opt.create_poisson = number(-0.99, 0.499);
-    else if (a == "--clamp") {
-      const std::string s = value();
-      if (s == "bottom") opt.create_clamp = BridgeOptions::Clamp::Bottom;
-      else if (s == "end") opt.create_clamp = BridgeOptions::Clamp::End;
-      else {
-        std::cerr << "pliant-haptic: --clamp must be bottom or end, got '" << s << "'\n";
-        return 2;
-      }
-    }
-    else if (a == "--method") {
-      const std::string v = value();
-      const auto m = pliant::parse_method(v);
-      if (!m) {
-        std::cerr << "pliant-haptic: --method must be one of " << pliant::method_names() << ", got '" << v << "'\n";
-        std::exit(2);
-      }
-      opt.create_method = pliant::proto::method_to(*m);
-    } else if (a == "--substeps") opt.create_substeps = static_cast<int>(number(1, 10000));
-    else if (a == "--iterations") opt.create_iterations = static_cast<int>(number(1, 10000));
-    else if (a == "--rate") opt.loop_hz = number(10, 10000);
-    else if (a == "--script") {
-      const std::string s = value();
-      if (s == "press") dev.script = SimulatedDevice::Script::Press;
-      else if (s == "stroke") dev.script = SimulatedDevice::Script::Stroke;
-      else {
-        std::cerr << "pliant-haptic: --script must be press or stroke, got '" << s << "'\n";
-        return 2;
-      }
-    } else if (a == "--start") {
-      const std::string s = value();
-      if (!parse_vec(s, &dev.start)) {
-        std::cerr << "pliant-haptic: --start must be X,Y,Z, got '" << s << "'\n";
-        return 2;
-      }
-    } else if (a == "--surface-y") dev.surface_y = number(-1e3, 1e3);
-    else if (a == "--depth") dev.depth = number(0, 1);
-    else if (a == "--radius") dev.radius = opt.tool_radius = number(1e-5, 1);
-    else if (a == "--max-force") opt.limits.max_force = number(0, 1e4);
-    else if (a == "--max-force-rate") opt.limits.max_force_rate = number(0, 1e7);
-    else if (a == "--stale-ms") opt.limits.stale_ms = number(1, 1e5);
-    else if (a == "--duration") duration = number(0, 1e7);
-    else if (a == "--json") json = true;
-    else if (a == "--quiet") quiet = true;
-    else if (a == "--no-realtime") opt.realtime_priority = false;
-    else {
-      std::cerr << "pliant-haptic: unknown flag '" << a << "'\n" << kUsage;
-      return 2;
-    }
-  }
+      if (end == v.c_str() || *end != '\0' || !(d >= lo && d <= hi))
+        throw CLI::ValidationError(fmt::format("{} must be a number in [{}, {}], got '{}'", name, lo, hi, v));
+      set(d);
+    });
+  };
+  text("--address", [&](const std::string& v) { opt.connect.address = v; });
+  text("--token", [&](const std::string& v) { opt.connect.token = v; });
+  text("--scene", [&](const std::string& v) { opt.scene_id = v; });
+  text("--create", [&](const std::string& v) { opt.create_builtin = v; });
+  number("--tick-hz", 1, 10000, [&](double d) { opt.create_tick_hz = d; });
+  number("--young", 1, 1e12, [&](double d) { opt.create_young = d; });
+  number("--poisson", -0.99, 0.499, [&](double d) { opt.create_poisson = d; });
+  text("--clamp", [&](const std::string& s) {
+    if (s == "bottom") opt.create_clamp = BridgeOptions::Clamp::Bottom;
+    else if (s == "end") opt.create_clamp = BridgeOptions::Clamp::End;
+    else throw CLI::ValidationError("--clamp must be bottom or end, got '" + s + "'");
+  });
+  text("--method", [&](const std::string& v) {
+    const auto m = pliant::parse_method(v);
+    if (!m) throw CLI::ValidationError(fmt::format("--method must be one of {}, got '{}'", pliant::method_names(), v));
+    opt.create_method = pliant::proto::method_to(*m);
+  });
+  number("--substeps", 1, 10000, [&](double d) { opt.create_substeps = static_cast<int>(d); });
+  number("--iterations", 1, 10000, [&](double d) { opt.create_iterations = static_cast<int>(d); });
+  number("--rate", 10, 10000, [&](double d) { opt.loop_hz = d; });
+  text("--script", [&](const std::string& s) {
+    if (s == "press") dev.script = SimulatedDevice::Script::Press;
+    else if (s == "stroke") dev.script = SimulatedDevice::Script::Stroke;
+    else throw CLI::ValidationError("--script must be press or stroke, got '" + s + "'");
+  });
+  text("--start", [&](const std::string& s) {
+    if (!parse_vec(s, &dev.start)) throw CLI::ValidationError("--start must be X,Y,Z, got '" + s + "'");
+  });
+  number("--surface-y", -1e3, 1e3, [&](double d) { dev.surface_y = d; });
+  number("--depth", 0, 1, [&](double d) { dev.depth = d; });
+  number("--radius", 1e-5, 1, [&](double d) { dev.radius = opt.tool_radius = d; });
+  number("--max-force", 0, 1e4, [&](double d) { opt.limits.max_force = d; });
+  number("--max-force-rate", 0, 1e7, [&](double d) { opt.limits.max_force_rate = d; });
+  number("--stale-ms", 1, 1e5, [&](double d) { opt.limits.stale_ms = d; });
+  number("--duration", 0, 1e7, [&](double d) { duration = d; });
+  app.add_flag("--json", json);
+  app.add_flag("--quiet", quiet);
+  app.add_flag_callback("--no-realtime", [&] { opt.realtime_priority = false; });
+  if (auto rc = pliant::cli::parse_or_exit(app, argc, argv, "pliant-haptic")) return *rc;
   // Logs go to stderr so that stdout holds only the JSON line.
   spdlog::set_default_logger(spdlog::stderr_color_mt("pliant-haptic"));
   std::signal(SIGINT, on_signal);

@@ -1,5 +1,6 @@
 // pliant-server: hosts soft-body scenes over gRPC until SIGTERM/SIGINT, then saves them.
 #include "pliant/server/server.hpp"
+#include "pliant/version.hpp"
 
 #include <spdlog/spdlog.h>
 
@@ -19,11 +20,15 @@ int main(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
 
   ServerOptions options;
-  bool help = false;
+  bool help = false, version = false;
   std::vector<std::string> args(argv + 1, argv + argc);
-  if (Error e = parse_server_options(args, process_env(), &options, &help); !e.ok()) {
+  if (Error e = parse_server_options(args, process_env(), &options, &help, &version); !e.ok()) {
     std::fprintf(stderr, "pliant-server: %s\n", e.message.c_str());
     return 2;
+  }
+  if (version) {
+    std::printf("%s\n", pliant::kVersion);
+    return 0;
   }
   if (help) {
     std::fputs(server_usage().c_str(), stdout);

@@ -3,6 +3,9 @@
 
 #include "pliant/server/edge.hpp"
 
+#include "cli.hpp"
+#include "pliant/version.hpp"
+
 #include <spdlog/fmt/fmt.h>
 
 #include <cstdlib>
@@ -35,19 +38,19 @@ Error parse_int(const std::string& flag, const std::string& v, int64_t lo, int64
   }
 }
 
-// HOST:PORT with a port in [0, 65535] ("[v6]:PORT" and "unix:PATH" too).
-Error check_listen(const std::string& v) {
-  if (v.rfind("unix:", 0) == 0) {
-    if (v.size() == 5) return bad("listen", v, "needs a socket path after unix:");
+// HOST:PORT with a port in [0, 65535] ("[v6]:PORT" too, and "unix:PATH" where allowed).
+Error check_listen(const std::string& flag, const std::string& v, bool unix_allowed = true) {
+  if (unix_allowed && v.rfind("unix:", 0) == 0) {
+    if (v.size() == 5) return bad(flag, v, "needs a socket path after unix:");
     return {};
   }
   const size_t colon = v.rfind(':');
-  if (colon == std::string::npos || colon == 0) return bad("listen", v, "must be HOST:PORT");
+  if (colon == std::string::npos || colon == 0) return bad(flag, v, "must be HOST:PORT");
   const std::string port = v.substr(colon + 1);
   int64_t p = 0;
   if (port.empty() || port.find_first_not_of("0123456789") != std::string::npos ||
-      !parse_int("listen", port, 0, 65535, &p).ok())
-    return bad("listen", v, "must be HOST:PORT with a port in [0, 65535]");
+      !parse_int(flag, port, 0, 65535, &p).ok())
+    return bad(flag, v, "must be HOST:PORT with a port in [0, 65535]");
   return {};
 }
 
@@ -67,7 +70,7 @@ const std::vector<Flag>& flags() {
   static const std::vector<Flag> f = {
       {"listen", "HOST:PORT to listen on (default 0.0.0.0:50051; port 0 picks a free port)",
        [](const std::string& v, ServerOptions& o) {
-         if (Error e = check_listen(v); !e.ok()) return e;
+         if (Error e = check_listen("listen", v); !e.ok()) return e;
          o.listen = v;
          return Error{};
        }},
@@ -183,6 +186,13 @@ const std::vector<Flag>& flags() {
          else return bad("restore", v, "must be true or false");
          return Error{};
        }},
+      {"metrics-listen", "HOST:PORT of a Prometheus /metrics endpoint over HTTP (default: none; e.g. "
+                         "127.0.0.1:9464; numeric address or localhost; port 0 picks a free port)",
+       [](const std::string& v, ServerOptions& o) {
+         if (Error e = check_listen("metrics-listen", v, false); !e.ok()) return e;
+         o.metrics_listen = v;
+         return Error{};
+       }},
   };
   return f;
 }
@@ -221,6 +231,7 @@ std::string server_usage() {
   s += fmt::format("  --{:<16} {}\n", "no-restore", "same as --restore=false");
   s += fmt::format("  --{:<16} {}\n", "config FILE", "read 'name = value' lines (flag names without --)");
   s += fmt::format("  --{:<16} {}\n", "help", "this text");
+  s += fmt::format("  --{:<16} {}\n", "version", "print the version and exit");
   s += "\nEvery flag can also be set as PLIANT_<NAME> in the environment (e.g. PLIANT_LISTEN,\n"
        "PLIANT_DATA_DIR, PLIANT_TOKEN); flags win over the environment, the environment over\n"
        "the config file (PLIANT_CONFIG).\n";
@@ -228,36 +239,44 @@ std::string server_usage() {
 }
 
 Error parse_server_options(const std::vector<std::string>& args, const EnvLookup& env,
-                           ServerOptions* out, bool* help) {
+                           ServerOptions* out, bool* help, bool* version) {
   *help = false;
-  // Collect flags first: the config file (named by a flag or the environment) is read
-  // before anything else, then the environment, then the flags themselves.
+  if (version) *version = false;
+  // CLI11 splits the arguments ("--flag value", "--flag=value"); the flags are collected first
+  // and applied after the config file (named by a flag or the environment) and the
+  // environment, each through its own check.
   std::vector<std::pair<std::string, std::string>> given;
-  for (size_t i = 0; i < args.size(); ++i) {
-    const std::string& a = args[i];
-    if (a == "--help" || a == "-h") {
-      *help = true;
-      return {};
-    }
-    if (a.rfind("--", 0) != 0)
-      return Error::make(Code::InvalidArgument, fmt::format("unexpected argument '{}' (flags start with --)", a));
-    std::string name = a.substr(2), value;
-    if (auto eq = name.find('='); eq != std::string::npos) {
-      value = name.substr(eq + 1);
-      name = name.substr(0, eq);
-    } else if (name == "no-restore") {
-      given.emplace_back("restore", "false");
-      continue;
-    } else {
-      if (name != "config" && !find_flag(name))
-        return Error::make(Code::InvalidArgument, fmt::format("unknown flag --{} (see --help)", name));
-      if (i + 1 >= args.size())
-        return Error::make(Code::InvalidArgument, fmt::format("--{} needs a value", name));
-      value = args[++i];
-    }
-    if (name != "config" && !find_flag(name))
-      return Error::make(Code::InvalidArgument, fmt::format("unknown flag --{} (see --help)", name));
-    given.emplace_back(name, value);
+  CLI::App app{"pliant-server"};
+  app.set_help_flag("-h,--help");
+  app.set_version_flag("--version", std::string(kVersion));
+  app.allow_extras(true);
+  auto collect = [&given](const std::string& name) {
+    return [&given, name](const std::string& v) { given.emplace_back(name, v); };
+  };
+  for (const auto& f : flags())
+    app.add_option_function<std::string>(std::string("--") + f.name, collect(f.name), f.help)
+        ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  app.add_option_function<std::string>("--config", collect("config"), "read 'name = value' lines")
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  app.add_flag_callback("--no-restore", [&given] { given.emplace_back("restore", "false"); });
+  std::vector<std::string> reversed(args.rbegin(), args.rend());  // CLI11 takes a vector in reverse
+  try {
+    app.parse(reversed);
+  } catch (const CLI::CallForHelp&) {
+    *help = true;
+    return {};
+  } catch (const CLI::CallForVersion&) {
+    if (version) *version = true;
+    else *help = true;
+    return {};
+  } catch (const CLI::ParseError& e) {
+    return Error::make(Code::InvalidArgument, fmt::format("{} (see --help)", pliant::cli::one_line(e.what())));
+  }
+  for (const std::string& a : app.remaining()) {
+    if (a.rfind("--", 0) == 0)
+      return Error::make(Code::InvalidArgument,
+                         fmt::format("unknown flag --{} (see --help)", a.substr(2, a.find('=') - 2)));
+    return Error::make(Code::InvalidArgument, fmt::format("unexpected argument '{}' (flags start with --)", a));
   }
 
   ServerOptions o;

@@ -779,6 +779,20 @@ Error SceneRegistry::open_stream(const std::string& scene_id, std::shared_ptr<vo
   return {};
 }
 
+std::vector<std::shared_ptr<Scene>> SceneRegistry::scenes() const {
+  std::lock_guard lk(mu_);
+  std::vector<std::shared_ptr<Scene>> out;
+  out.reserve(scenes_.size());
+  for (const auto& [id, scene] : scenes_) out.push_back(scene);
+  return out;
+}
+
+std::map<std::string, int> SceneRegistry::stream_counts(int* total) const {
+  std::lock_guard lk(mu_);
+  *total = open_streams_;
+  return scene_streams_;
+}
+
 Error SceneRegistry::describe(const Scene& scene, v1::Scene* out) const {
   out->Clear();
   auto model = scene.model();

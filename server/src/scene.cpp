@@ -73,6 +73,9 @@ struct Scene::TickState {
   uint64_t skipped_ticks = 0;
   uint64_t rollbacks = 0;
   int consecutive_rollbacks = 0;
+  // Solver wall time summed over the ticks run in this process (the metrics' mean step time).
+  double step_wall_ms_sum = 0;
+  uint64_t stepped_ticks = 0;
   // Tick rate over the last second.
   Clock::time_point rate_window_start = Clock::now();
   uint64_t rate_window_ticks = 0;
@@ -707,6 +710,10 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   frame->accelerations_tried = report.accelerations_tried;
   frame->accelerations_accepted = report.accelerations_accepted;
   frame->step_wall_ms = report.wall_ms;
+  t.step_wall_ms_sum += report.wall_ms;
+  ++t.stepped_ticks;
+  frame->step_wall_ms_sum = t.step_wall_ms_sum;
+  frame->stepped_ticks = t.stepped_ticks;
   frame->stopped_by_tolerance = report.stopped_by_tolerance;
   frame->stopped_by_budget = report.stopped_by_budget;
   frame->volume_corrections = report.volume_corrections;

@@ -3,6 +3,7 @@
 #include "pliant/server/server.hpp"
 
 #include "pliant/server/edge.hpp"
+#include "pliant/server/metrics.hpp"
 
 #include "pliant/mesh_io.hpp"
 #include "pliant/v1/pliant.grpc.pb.h"
@@ -429,6 +430,7 @@ struct PliantServer::Impl {
   std::unique_ptr<SnapshotServiceImpl> snapshots;
   std::unique_ptr<InteractionServiceImpl> interaction;
   std::unique_ptr<grpc::Server> server;
+  std::unique_ptr<MetricsEndpoint> metrics;  // --metrics-listen
   int port = 0;
   std::mutex mu;
   std::condition_variable cv;
@@ -470,6 +472,7 @@ PliantServer::~PliantServer() { shutdown(); }
 
 SceneRegistry& PliantServer::registry() { return *impl_->registry; }
 int PliantServer::port() const { return impl_->port; }
+int PliantServer::metrics_port() const { return impl_->metrics ? impl_->metrics->port() : 0; }
 
 Error PliantServer::start() {
   auto& o = impl_->options;
@@ -483,6 +486,10 @@ Error PliantServer::start() {
       int n = impl_->registry->restore_from_data_dir();
       if (n > 0) spdlog::info("restored {} scene(s) from {}", n, o.data_dir);
     }
+  }
+  if (!o.metrics_listen.empty()) {
+    if (Error e = MetricsEndpoint::start(o.metrics_listen, impl_->registry.get(), &impl_->metrics); !e.ok()) return e;
+    spdlog::info("metrics on http://{}/metrics (port {})", o.metrics_listen, impl_->metrics->port());
   }
   std::shared_ptr<grpc::ServerCredentials> creds = grpc::InsecureServerCredentials();
   if (!o.tls_cert.empty()) {
@@ -558,6 +565,7 @@ int PliantServer::shutdown() {
     impl_->server->Shutdown(std::chrono::system_clock::now() + kShutdownGrace);
     impl_->server->Wait();
   }
+  impl_->metrics.reset();
   written = impl_->registry->shutdown();
   {
     std::lock_guard lk(impl_->mu);

@@ -5,6 +5,8 @@
 #include "pliant/mesh_io.hpp"
 #include "pliant/mesh_validate.hpp"
 #include "pliant/render_mesh.hpp"
+#include "pliant/version.hpp"
+#include "cli.hpp"
 
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -55,6 +57,7 @@ options:
   --surface-scale <s>    embed: scale of the surface file (default 1, or the model's scale)
   --model-path <dir>     search this directory for model names first (repeatable)
   -q, --quiet            only errors on stderr
+  --version              print the version and exit
 )";
 
 struct Args {
@@ -70,47 +73,31 @@ struct Args {
   std::exit(2);
 }
 
-Args parse_args(int argc, char** argv) {
-  static const std::set<std::string> kValued = {"--scale", "--unit", "--fit-size", "--density", "--gmsh-version", "--index-base",
-                                                "--ratio", "--switches", "--keep", "--surface-scale", "--model-path"};
-  static const std::set<std::string> kFlags = {"--json", "--drop-degenerate", "--no-reorient", "--strict", "--binary",
-                                               "--quiet", "-q"};
-  Args a;
-  for (int i = 1; i < argc; ++i) {
-    std::string arg = argv[i];
-    if (arg == "-h" || arg == "--help") {
-      std::fputs(kUsage, stdout);
-      std::exit(0);
-    }
-    if (arg.size() > 1 && arg[0] == '-' && !(arg.size() > 1 && (std::isdigit(static_cast<unsigned char>(arg[1])) || arg[1] == '.'))) {
-      std::string value;
-      const size_t eq = arg.find('=');
-      bool has_value = false;
-      if (eq != std::string::npos) {
-        value = arg.substr(eq + 1);
-        arg = arg.substr(0, eq);
-        has_value = true;
-      }
-      if (kValued.count(arg)) {
-        if (!has_value) {
-          if (i + 1 >= argc) bad_argument(arg + " needs a value");
-          value = argv[++i];
-        }
-        if (arg == "--model-path") a.model_path.push_back(value);
-        else a.values[arg] = value;
-      } else if (kFlags.count(arg)) {
-        if (has_value) bad_argument(arg + " takes no value");
-        a.flags.insert(arg == "-q" ? "--quiet" : arg);
-      } else {
-        bad_argument("unknown option '" + arg + "'");
-      }
-    } else if (a.command.empty()) {
-      a.command = arg;
-    } else {
-      a.positional.push_back(arg);
-    }
+// Options may stand anywhere (before or after the command); the first word is the command,
+// the words after it its arguments.
+std::optional<int> parse_args(int argc, char** argv, Args* a) {
+  static const std::set<std::string> kValued = {"scale", "unit", "fit-size", "density", "gmsh-version", "index-base",
+                                                "ratio", "switches", "keep", "surface-scale"};
+  static const std::set<std::string> kFlags = {"json", "drop-degenerate", "no-reorient", "strict", "binary"};
+  CLI::App app{"pliant-mesh"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.formatter_fn([](const CLI::App*, std::string, CLI::AppFormatMode) { return std::string(kUsage); });
+  std::map<std::string, std::string> values;
+  cli::add_options(app, kValued, kFlags, &values);
+  app.add_flag_callback("-q,--quiet", [a] { a->flags.insert("--quiet"); });
+  app.add_option("--model-path", a->model_path)->allow_extra_args(false);
+  std::vector<std::string> words;
+  app.add_option("words", words);
+  if (auto rc = cli::parse_or_exit(app, argc, argv, "pliant-mesh")) return rc;
+  for (const auto& [name, value] : values) {
+    if (kFlags.count(name)) a->flags.insert("--" + name);
+    else a->values["--" + name] = value;
   }
-  return a;
+  if (!words.empty()) {
+    a->command = words[0];
+    a->positional.assign(words.begin() + 1, words.end());
+  }
+  return std::nullopt;
 }
 
 double number_arg(const Args& a, const std::string& name, double fallback, double min_exclusive) {
@@ -163,76 +150,62 @@ MeshLoadOptions load_options(const Args& a) {
   return o;
 }
 
-// ---- JSON by hand
-std::string jnum(double v) {
-  if (!std::isfinite(v)) return "null";
-  char buf[40];
-  std::snprintf(buf, sizeof buf, "%.10g", v);
-  return buf;
-}
-std::string jstr(const std::string& s) {
-  std::string out = "\"";
-  for (unsigned char c : s) {
-    if (c == '"' || c == '\\') out += '\\', out += static_cast<char>(c);
-    else if (c == '\n') out += "\\n";
-    else if (c < 0x20) {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\u%04x", c);
-      out += buf;
-    } else out += static_cast<char>(c);
-  }
-  return out + "\"";
-}
-std::string jvec(const Vec3& v) { return "[" + jnum(v.x()) + ", " + jnum(v.y()) + ", " + jnum(v.z()) + "]"; }
+using Json = nlohmann::ordered_json;
+Json jvec(const Vec3& v) { return Json::array({v.x(), v.y(), v.z()}); }
 
+// The report as one line of strict JSON (nlohmann-json: escaped strings, NaN as null).
 std::string report_json(const MeshLoadResult& r, const std::optional<double>& density, double seconds) {
   const MeshReport& m = r.report;
-  std::string o = "{";
-  o += "\"name\": " + jstr(r.mesh.name);
-  o += ", \"vertices\": " + std::to_string(m.vertices);
-  o += ", \"tets\": " + std::to_string(m.tets);
-  o += ", \"volume\": " + jnum(m.volume);
-  o += ", \"bbox\": {\"min\": " + jvec(m.bbox.min) + ", \"max\": " + jvec(m.bbox.max) + ", \"extent\": " + jvec(m.bbox.extent()) + "}";
-  if (density) o += ", \"density\": " + jnum(*density) + ", \"mass\": " + jnum(*density * m.volume);
-  o += ", \"scale\": " + jnum(r.applied_scale);
-  o += ", \"min_dihedral_deg\": " + jnum(m.min_dihedral_deg);
-  o += ", \"max_aspect_ratio\": " + jnum(m.max_aspect_ratio);
-  o += ", \"mean_aspect_ratio\": " + jnum(m.mean_aspect_ratio);
-  o += ", \"min_tet_volume\": " + jnum(m.min_volume);
-  o += ", \"mean_tet_volume\": " + jnum(m.mean_volume);
-  o += ", \"min_vertex_mass_ratio\": " + jnum(m.min_vertex_mass_ratio);
-  o += ", \"light_vertices\": " + std::to_string(m.light_vertices);
-  o += ", \"max_tet_volume\": " + jnum(m.max_volume);
-  o += ", \"dihedral_histogram\": [";
+  Json o;
+  o["name"] = r.mesh.name;
+  o["vertices"] = m.vertices;
+  o["tets"] = m.tets;
+  o["volume"] = m.volume;
+  o["bbox"] = {{"min", jvec(m.bbox.min)}, {"max", jvec(m.bbox.max)}, {"extent", jvec(m.bbox.extent())}};
+  if (density) {
+    o["density"] = *density;
+    o["mass"] = *density * m.volume;
+  }
+  o["scale"] = r.applied_scale;
+  o["min_dihedral_deg"] = m.min_dihedral_deg;
+  o["max_aspect_ratio"] = m.max_aspect_ratio;
+  o["mean_aspect_ratio"] = m.mean_aspect_ratio;
+  o["min_tet_volume"] = m.min_volume;
+  o["mean_tet_volume"] = m.mean_volume;
+  o["min_vertex_mass_ratio"] = m.min_vertex_mass_ratio;
+  o["light_vertices"] = m.light_vertices;
+  o["max_tet_volume"] = m.max_volume;
+  Json histogram = Json::array();
   const auto& edges = QualityHistogram::kEdgesDeg;
-  for (size_t i = 0; i < edges.size(); ++i) {
-    if (i) o += ", ";
-    o += "{\"from_deg\": " + jnum(edges[i]) + ", \"to_deg\": " + (i + 1 < edges.size() ? jnum(edges[i + 1]) : std::string("null")) +
-         ", \"count\": " + std::to_string(m.dihedral_histogram.counts[i]) + "}";
-  }
-  o += "], \"worst_tets\": [";
-  for (size_t i = 0; i < m.worst.size(); ++i) {
-    const WorstTet& w = m.worst[i];
-    if (i) o += ", ";
-    o += "{\"tet\": " + std::to_string(w.tet) + ", \"origin\": " + std::to_string(w.origin) + ", \"origin_kind\": " +
-         jstr(m.origin_kind) + ", \"min_dihedral_deg\": " +
-         jnum(w.min_dihedral_deg) + ", \"aspect_ratio\": " + jnum(w.aspect_ratio) + ", \"volume\": " + jnum(w.volume) + "}";
-  }
-  o += "], \"surface_triangles\": " + std::to_string(m.surface.triangles);
-  o += ", \"surface\": {\"vertices\": " + std::to_string(m.surface.vertices) + ", \"edges\": " + std::to_string(m.surface.edges) +
-       ", \"area\": " + jnum(m.surface.area) + ", \"euler_characteristic\": " + std::to_string(m.surface.euler_characteristic) +
-       ", \"components\": " + std::to_string(m.surface.components) + ", \"open_edges\": " + std::to_string(m.surface.boundary_edges) +
-       ", \"nonmanifold_edges\": " + std::to_string(m.surface.nonmanifold_edges) +
-       ", \"nonmanifold_vertices\": " + std::to_string(m.surface.nonmanifold_vertices) +
-       ", \"closed_manifold\": " + (m.surface.closed_manifold ? "true" : "false") + "}";
-  o += ", \"repairs\": {\"reoriented\": " + std::to_string(m.reoriented) + ", \"dropped_degenerate\": " +
-       std::to_string(m.dropped_degenerate) + ", \"dropped_duplicates\": " + std::to_string(m.dropped_duplicates) +
-       ", \"dropped_vertices\": " + std::to_string(m.dropped_vertices) + "}";
-  o += ", \"tiny_tets\": " + std::to_string(m.tiny_tets) + ", \"poor_tets\": " + std::to_string(m.poor_tets);
-  o += ", \"warnings\": [";
-  for (size_t i = 0; i < m.warnings.size(); ++i) o += (i ? ", " : "") + jstr(m.warnings[i]);
-  o += "], \"load_seconds\": " + jnum(seconds) + "}";
-  return o;
+  for (size_t i = 0; i < edges.size(); ++i)
+    histogram.push_back({{"from_deg", edges[i]},
+                         {"to_deg", i + 1 < edges.size() ? Json(edges[i + 1]) : Json(nullptr)},
+                         {"count", m.dihedral_histogram.counts[i]}});
+  o["dihedral_histogram"] = histogram;
+  Json worst = Json::array();
+  for (const WorstTet& w : m.worst)
+    worst.push_back({{"tet", w.tet}, {"origin", w.origin}, {"origin_kind", m.origin_kind},
+                     {"min_dihedral_deg", w.min_dihedral_deg}, {"aspect_ratio", w.aspect_ratio}, {"volume", w.volume}});
+  o["worst_tets"] = worst;
+  o["surface_triangles"] = m.surface.triangles;
+  o["surface"] = {{"vertices", m.surface.vertices},
+                  {"edges", m.surface.edges},
+                  {"area", m.surface.area},
+                  {"euler_characteristic", m.surface.euler_characteristic},
+                  {"components", m.surface.components},
+                  {"open_edges", m.surface.boundary_edges},
+                  {"nonmanifold_edges", m.surface.nonmanifold_edges},
+                  {"nonmanifold_vertices", m.surface.nonmanifold_vertices},
+                  {"closed_manifold", m.surface.closed_manifold}};
+  o["repairs"] = {{"reoriented", m.reoriented},
+                  {"dropped_degenerate", m.dropped_degenerate},
+                  {"dropped_duplicates", m.dropped_duplicates},
+                  {"dropped_vertices", m.dropped_vertices}};
+  o["tiny_tets"] = m.tiny_tets;
+  o["poor_tets"] = m.poor_tets;
+  o["warnings"] = m.warnings;
+  o["load_seconds"] = seconds;
+  return cli::json_line(o);
 }
 
 void print_text(const MeshLoadResult& r, const std::optional<double>& density, double seconds) {
@@ -387,7 +360,8 @@ int main(int argc, char** argv) {
   auto logger = spdlog::stderr_color_mt("pliant-mesh");
   spdlog::set_default_logger(logger);
   spdlog::set_pattern("[%l] %v");
-  const Args a = parse_args(argc, argv);
+  Args a;
+  if (auto rc = parse_args(argc, argv, &a)) return *rc;
   if (a.flags.count("--quiet")) spdlog::set_level(spdlog::level::err);
   if (a.command.empty()) {
     std::fputs(kUsage, stderr);

@@ -11,9 +11,11 @@
 #include "pliant/reference_solver.hpp"
 #include "pliant/stepper.hpp"
 #include "pliant/strain_constraint.hpp"
+#include "pliant/version.hpp"
 #include "pliant/vtu_recording.hpp"
 
 #include <Eigen/SVD>
+#include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -26,8 +28,8 @@
 #include <fstream>
 #include <iostream>
 #include <map>
+#include <memory>
 #include <optional>
-#include <sstream>
 
 #include <unistd.h>
 
@@ -91,7 +93,11 @@ common options:
   --no-line-search    take each tet's full projection step, as the thesis (default: halve it
                       until that tet's residual does not grow)
   --damping K         velocity damping v *= exp(-K h), 1/s (default 0.5; static: 50)
-  --log-level L       trace | debug | info | warn | error (default warn)
+  --log-level L       trace | debug | info | warn | error | critical | off (default warn)
+  --quiet             no progress lines (by default converge, static, reference, run and
+                      accuracy print one to stderr every 2 s while they run, on a terminal only;
+                      stdout carries only the data)
+  --version           print the version and exit
 
 converge:  --csv FILE  --match xpbd  --bend-mm D (default 10)
 accuracy:  --methods LIST  --budget-ms T (default 100)  --start bend|sag (default bend)
@@ -136,45 +142,40 @@ const std::set<std::string> kValued = {
     "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
     "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model",
     "methods", "budget-ms", "start", "csv-dir", "png", "tet-order", "seed"};
-const std::set<std::string> kFlags = {"help", "progress", "no-line-search", "dynamic", "substep-floor"};
+const std::set<std::string> kFlags = {"progress", "quiet", "no-line-search", "dynamic", "substep-floor"};
 
-// A JSON object written field by field, numbers in full precision, nan/inf as null.
+const std::vector<std::string> kCommands = {"converge", "static", "reference", "run", "accuracy"};
+
+// Progress on stderr while a command runs (cli::Progress: a line every 2 s on a terminal).
+std::unique_ptr<cli::Progress> g_progress;
+template <class... T>
+void progress(fmt::format_string<T...> f, T&&... args) {
+  if (g_progress && g_progress->enabled()) g_progress->set(fmt::format(f, std::forward<T>(args)...));
+}
+
+// A JSON object written field by field (nlohmann-json, field order kept): strings escaped,
+// numbers round-trip, NaN and infinities as null.
 class JsonLine {
  public:
-  JsonLine& add(const std::string& k, double v) {
-    sep();
-    os_ << '"' << k << "\":";
-    if (std::isfinite(v)) {
-      char buf[64];
-      std::snprintf(buf, sizeof buf, "%.10g", v);
-      os_ << buf;
-    } else {
-      os_ << "null";
-    }
+  template <class T>
+  JsonLine& add(const std::string& k, const T& v) {
+    j_[k] = v;
     return *this;
   }
-  JsonLine& add(const std::string& k, long v) { sep(); os_ << '"' << k << "\":" << v; return *this; }
-  JsonLine& add(const std::string& k, int v) { return add(k, long(v)); }
-  JsonLine& add(const std::string& k, bool v) { sep(); os_ << '"' << k << "\":" << (v ? "true" : "false"); return *this; }
-  JsonLine& add(const std::string& k, const std::string& v) { sep(); os_ << '"' << k << "\":\"" << v << '"'; return *this; }
-  JsonLine& add(const std::string& k, const char* v) { return add(k, std::string(v)); }
-  JsonLine& null(const std::string& k) { sep(); os_ << '"' << k << "\":null"; return *this; }
   JsonLine& add(const std::string& k, const Vec3& v) {
-    sep();
-    char buf[128];
-    std::snprintf(buf, sizeof buf, "[%.10g,%.10g,%.10g]", v.x(), v.y(), v.z());
-    os_ << '"' << k << "\":" << buf;
+    j_[k] = nlohmann::ordered_json::array({v.x(), v.y(), v.z()});
     return *this;
   }
-  // A value that is already JSON (a nested object or array).
-  JsonLine& raw(const std::string& k, const std::string& json) { sep(); os_ << '"' << k << "\":" << json; return *this; }
   JsonLine& add(const std::string& k, std::optional<double> v) { return v ? add(k, *v) : null(k); }
-  std::string str() const { return os_.str() + "}"; }
+  JsonLine& null(const std::string& k) {
+    j_[k] = nullptr;
+    return *this;
+  }
+  const nlohmann::ordered_json& json() const { return j_; }
+  std::string str() const { return cli::json_line(j_); }
 
  private:
-  void sep() { os_ << (first_ ? "{" : ","); first_ = false; }
-  std::ostringstream os_;
-  bool first_ = true;
+  nlohmann::ordered_json j_ = nlohmann::ordered_json::object();
 };
 
 Material material_from(const cli::Args& a) {
@@ -266,11 +267,13 @@ int cmd_converge(const cli::Args& a) {
   const auto x0 = cantilever_bend(*model, default_clamp_x(model->rest_positions), bend);
 
   spdlog::info("reference solution of the step (Newton, sparse LDLT)...");
+  progress("converge: reference solution of the step (Newton) on {} ({} tets)", model->name, model->tet_count());
   NewtonOptions nopt;
   nopt.tolerance = 1e-10;
   const NewtonResult ref = solve_implicit_step(*model, x0, x0, h, nopt);
   if (!ref.converged) spdlog::warn("reference solver did not converge (|g| = {:.3e})", ref.gradient_norm);
 
+  progress("converge: {} iterations of {} on {}", s.iterations, to_string(s.method), model->name);
   const ConvergenceRun run = run_convergence(*model, x0, ref.x, h, s);
   const double r0 = run.residual0;
   auto iters_to = [&](double rel) -> long {
@@ -327,6 +330,7 @@ int cmd_converge(const cli::Args& a) {
     SolverSettings base = s;
     base.method = *mm;
     base.omega = recommended_omega(*mm);
+    progress("converge: {} iterations of {} to match", base.iterations, *match);
     const ConvergenceRun b = run_convergence(*model, x0, ref.x, h, base);
     const double target = b.report.residual_final;
     long it_match = -1;
@@ -371,6 +375,7 @@ int cmd_static(const cli::Args& a) {
   const bool progress = a.has("progress");
   const RestResult r = run_to_rest(*model, s, max_steps, speed_tol, 5, [&](int k, double v) {
     if (progress && k % 10 == 0) spdlog::info("step {}: max speed {:.3e} m/s", k, v);
+    ::progress("static: step {} of at most {}, max speed {:.3e} m/s (at rest below {:.3g})", k, max_steps, v, speed_tol);
   });
   JsonLine j;
   j.add("mesh", model->name).add("young", mat.young).add("poisson", mat.poisson).add("density", mat.density)
@@ -395,6 +400,7 @@ int cmd_reference(const cli::Args& a) {
   opt.load_steps = int(a.integer("steps", 10, 1, 10000));
   opt.max_iterations = 200;
   const auto t0 = std::chrono::steady_clock::now();
+  progress("reference: Newton static solve of {} ({} tets, {} load steps)", model->name, model->tet_count(), opt.load_steps);
   const NewtonResult r = solve_static(*model, model->rest_positions, Vec3(0, -9.81, 0), {}, opt);
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   JsonLine j;
@@ -486,6 +492,7 @@ int cmd_run(const cli::Args& a) {
                     "{} vertices above 1 m/s, kinetic energy {:.3g} J", k, inverted, speed, fastest,
                     model->mass[fastest], model->inertia[fastest], fast, kinetic);
     }
+    progress("run: step {}/{}, {:.2f} ms/step", k, steps, wall / k);
     if (k % 60 == 0) spdlog::info("step {}/{}: {:.2f} ms/step, {} inverted, max speed {:.3g} m/s", k, steps, wall / k, inverted, speed);
   }
   if (spdlog::should_log(spdlog::level::debug)) {
@@ -624,6 +631,7 @@ int cmd_accuracy(const cli::Args& a) {
   }
 
   spdlog::info("accuracy: reference step (Newton, sparse LDLT)...");
+  progress("accuracy: reference step (Newton) on {} ({} tets)", model->name, model->tet_count());
   NewtonOptions nopt;
   nopt.tolerance = 1e-10;
   const NewtonResult ref = solve_implicit_step(*model, start.state.x, start.predicted, base.dt, nopt);
@@ -638,6 +646,7 @@ int cmd_accuracy(const cli::Args& a) {
   const int swing_steps = std::max(3, int(std::ceil(2.0 / base.dt)));
   if (dynamic) {
     spdlog::info("accuracy: static equilibrium (Newton) and the converged swing (wave Courant 0.3 x 1)...");
+    progress("accuracy: static equilibrium (Newton) and the converged swing");
     NewtonOptions sopt;
     sopt.load_steps = 10;
     sopt.max_iterations = 200;
@@ -666,10 +675,11 @@ int cmd_accuracy(const cli::Args& a) {
   std::vector<PlottedCurve> plotted;
   std::map<int, std::vector<Vec3>> floors;  // converged substeps by count
   constexpr int kMaxFloorSubsteps = 256;    // Newton solves per floor: bounded
-  std::string methods_json = "[";
+  nlohmann::ordered_json methods_json = nlohmann::ordered_json::array();
   for (size_t i = 0; i < specs.size(); ++i) {
     const MethodSpec& spec = specs[i];
     spdlog::info("accuracy: {} ...", spec.text);
+    progress("accuracy: spec {}/{}: {} (budget {} ms per point)", i + 1, specs.size(), spec.text, budget);
     AccuracyCurve c;
     try {
       c = measure_accuracy(*model, start, ref.x, spec, budget);
@@ -690,7 +700,7 @@ int cmd_accuracy(const cli::Args& a) {
     m.add("error_final", last.error).add("ms_final", last.ms).add("residual_final", last.residual);
     JsonLine to;
     to.add("1e-1", ms_to_error(c, 1e-1)).add("1e-2", ms_to_error(c, 1e-2)).add("1e-3", ms_to_error(c, 1e-3));
-    m.raw("ms_to_error", to.str());
+    m.add("ms_to_error", to.json());
     if (!plot_dir.empty() && !c.points.empty()) {
       const auto path = plot_dir / spec_file_name(spec.text);
       write_accuracy_csv(path, c);
@@ -708,6 +718,7 @@ int cmd_accuracy(const cli::Args& a) {
     }
     if (dynamic && !spec.grows() && c.refused.empty()) {
       spdlog::info("accuracy: {} dynamic run...", spec.text);
+      progress("accuracy: spec {}/{}: {}, dynamic run", i + 1, specs.size(), spec.text);
       SolverSettings ds = s;
       ds.gravity = Vec3(0, -9.81, 0);
       const DynamicMeasures d = measure_dynamics(*model, ds, swing_steps, rest_steps);
@@ -719,10 +730,8 @@ int cmd_accuracy(const cli::Args& a) {
                                                                      : std::nullopt)
           .add("dynamic_diverged", d.diverged);
     }
-    if (i) methods_json += ',';
-    methods_json += m.str();
+    methods_json.push_back(m.json());
   }
-  methods_json += "]";
 
   if (!png.empty() && !plotted.empty()) {
     char title[256];
@@ -743,7 +752,7 @@ int cmd_accuracy(const cli::Args& a) {
         .add("reference_swing", "xpbd, wave Courant 0.3 x 1 iteration");
   }
   if (!png.empty() && !plotted.empty()) j.add("png", png);
-  j.raw("methods", methods_json);
+  j.add("methods", methods_json);
   std::cout << j.str() << std::endl;
   return 0;
 }
@@ -751,31 +760,43 @@ int cmd_accuracy(const cli::Args& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
+  if (argc < 2) {
     std::cout << kUsage;
-    return argc < 2 ? 2 : 0;
+    return 2;
   }
-  const std::string cmd = argv[1];
+  if (const std::string first = argv[1]; first != "--help" && first != "-h" && first != "--version" &&
+                                         std::find(kCommands.begin(), kCommands.end(), first) == kCommands.end()) {
+    std::cerr << "pliant-sim: unknown command '" << first << "' (converge, static, reference, run, accuracy)\n";
+    return 2;
+  }
+  CLI::App app{"pliant-sim"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.formatter_fn([](const CLI::App*, std::string, CLI::AppFormatMode) { return std::string(kUsage); });
+  app.require_subcommand(1, 1);
+  std::map<std::string, std::string> values;
+  for (const std::string& c : kCommands) {
+    CLI::App* sub = app.add_subcommand(c);
+    sub->set_version_flag("--version", std::string(pliant::kVersion));
+    cli::add_options(*sub, kValued, kFlags, &values);
+    sub->get_option("--log-level")->check(cli::one_of(cli::log_levels()));
+  }
+  if (auto rc = cli::parse_or_exit(app, argc, argv, "pliant-sim")) return *rc;
+  const std::string cmd = app.get_subcommands().at(0)->get_name();
   try {
-    cli::Args a(argc, argv, 2, kValued, kFlags);
-    if (a.has("help")) {
-      std::cout << kUsage;
-      return 0;
-    }
-    auto level = spdlog::level::from_str(a.str("log-level", "warn"));
-    spdlog::set_level(level);
-    spdlog::set_default_logger(spdlog::default_logger());
-    if (!a.positional().empty()) throw cli::UsageError("unexpected argument '" + a.positional()[0] + "'");
+    const cli::Args a(values);
+    spdlog::set_level(spdlog::level::from_str(a.str("log-level", "warn")));
+    g_progress = std::make_unique<cli::Progress>("pliant-sim", !a.has("quiet") && cli::Progress::stderr_is_terminal());
     if (cmd == "converge") return cmd_converge(a);
     if (cmd == "static") return cmd_static(a);
     if (cmd == "reference") return cmd_reference(a);
     if (cmd == "run") return cmd_run(a);
-    if (cmd == "accuracy") return cmd_accuracy(a);
-    throw cli::UsageError("unknown command '" + cmd + "' (converge, static, reference, run, accuracy)");
+    return cmd_accuracy(a);
   } catch (const cli::UsageError& e) {
+    g_progress.reset();
     std::cerr << "pliant-sim: " << e.what() << "\n";
     return 2;
   } catch (const std::exception& e) {
+    g_progress.reset();
     std::cerr << "pliant-sim: " << e.what() << "\n";
     return 1;
   }

@@ -5,6 +5,7 @@
 #include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include <cstdio>
 #include <sys/wait.h>
@@ -37,33 +38,11 @@ ToolRun run_tool(const std::string& args, const ScratchDir& dir) {
   return r;
 }
 
-// Enough JSON checking for one flat-ish object: balanced braces, starts/ends as one object.
-bool one_json_object(const std::string& s) {
-  std::string t = s;
-  while (!t.empty() && (t.back() == '\n' || t.back() == ' ')) t.pop_back();
-  if (t.empty() || t.front() != '{' || t.back() != '}') return false;
-  int depth = 0;
-  bool in_string = false;
-  for (size_t i = 0; i < t.size(); ++i) {
-    const char c = t[i];
-    if (in_string) {
-      if (c == '\\') ++i;
-      else if (c == '"') in_string = false;
-      continue;
-    }
-    if (c == '"') in_string = true;
-    else if (c == '{' || c == '[') ++depth;
-    else if (c == '}' || c == ']') {
-      if (--depth == 0 && i + 1 != t.size()) return false;
-    }
-  }
-  return depth == 0 && !in_string;
-}
-
-double json_number(const std::string& s, const std::string& key) {
-  const size_t at = s.find("\"" + key + "\": ");
-  if (at == std::string::npos) return NAN;
-  return std::strtod(s.c_str() + at + key.size() + 4, nullptr);
+// The output as one JSON object, parsed strictly (nlohmann-json; throws on anything else).
+nlohmann::json one_json_object(const std::string& s) {
+  nlohmann::json j = nlohmann::json::parse(s);
+  if (!j.is_object()) throw std::runtime_error("not a JSON object: " + s);
+  return j;
 }
 
 }  // namespace
@@ -72,12 +51,13 @@ TEST(MeshCli, InfoJsonIsOneObjectWithTheKeys) {
   ScratchDir dir;
   const ToolRun r = run_tool("info --json --density 1227 hippo", dir);
   ASSERT_EQ(r.status, 0) << r.err;
-  EXPECT_TRUE(one_json_object(r.out)) << r.out;
+  nlohmann::json j;
+  ASSERT_NO_THROW(j = one_json_object(r.out)) << r.out;
   for (const char* key : {"vertices", "tets", "volume", "bbox", "min_dihedral_deg", "surface_triangles", "mass", "dihedral_histogram"})
-    EXPECT_NE(r.out.find(std::string("\"") + key + "\":"), std::string::npos) << key;
-  EXPECT_EQ(json_number(r.out, "vertices"), 2885);
-  EXPECT_EQ(json_number(r.out, "tets"), 10361);
-  EXPECT_NEAR(json_number(r.out, "mass"), 0.350, 0.001);  // the thesis hippo's 350 g
+    EXPECT_TRUE(j.contains(key)) << key;
+  EXPECT_EQ(j["vertices"].get<int>(), 2885);
+  EXPECT_EQ(j["tets"].get<int>(), 10361);
+  EXPECT_NEAR(j["mass"].get<double>(), 0.350, 0.001);  // the thesis hippo's 350 g
   EXPECT_NE(r.err.find("tiny tets"), std::string::npos);   // warnings on stderr, not in the JSON stream
 }
 

@@ -1,7 +1,9 @@
 // pliant-web: the browser front end's gateway. A gRPC client of pliant-server that serves the
 // page (web/) and a WebSocket per browser: live surface frames, solver plots, pick-and-drag.
 // Exit codes: 0 stopped by a signal; 1 could not start; 2 usage error.
+#include "cli.hpp"
 #include "gateway.hpp"
+#include "pliant/version.hpp"
 
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -36,7 +38,8 @@ its WebSocket, as a client of pliant-server. Open http://HOST:PORT/ in a browser
                        source web/ directory)
   --three-dir DIR      three.js (default /usr/share/javascript/three, Debian libjs-three)
   --threads N          web worker threads; each open browser holds one (default 64)
-  --log-level L        trace|debug|info|warn|error (default info)
+  --log-level L        trace|debug|info|warn|error|critical|off (default info)
+  --version            print the version and exit
 )";
 
 std::atomic<bool> g_stop{false};
@@ -70,49 +73,35 @@ int main(int argc, char** argv) {
   o.tls_cert = env_or("PLIANT_WEB_TLS_CERT", "");
   o.web_root = env_or("PLIANT_WEB_ROOT", "");
   std::string log_level = "info";
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::cerr << "pliant-web: " << a << " needs a value\n" << kUsage;
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") {
-      std::cout << kUsage;
-      return 0;
-    } else if (a == "--listen") o.listen = value();
-    else if (a == "--address") o.server.address = value();
-    else if (a == "--token") o.server.token = value();
-    else if (a == "--tls") o.server.tls = true;
-    else if (a == "--tls-ca") {
-      o.server.tls_ca_file = value();
-      o.server.tls = true;
-    } else if (a == "--web-token") o.web_token = value();
-    else if (a == "--tls-cert") o.tls_cert = value();
-    else if (a == "--web-root") o.web_root = value();
-    else if (a == "--three-dir") o.three_dir = value();
-    else if (a == "--threads") {
-      const std::string v = value();
-      char* end = nullptr;
-      const long n = std::strtol(v.c_str(), &end, 10);
-      if (end == v.c_str() || *end != '\0' || n < 2 || n > 1024) {
-        std::cerr << "pliant-web: --threads must be an integer in [2, 1024], got '" << v << "'\n";
-        return 2;
-      }
-      o.threads = static_cast<int>(n);
-    } else if (a == "--log-level") {
-      log_level = value();
-      if (spdlog::level::from_str(log_level) == spdlog::level::off && log_level != "off") {
-        std::cerr << "pliant-web: --log-level must be trace, debug, info, warn or error, got '" << log_level << "'\n";
-        return 2;
-      }
-    } else {
-      std::cerr << "pliant-web: unknown flag '" << a << "'\n" << kUsage;
-      return 2;
-    }
-  }
+  CLI::App app{"pliant-web"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.formatter_fn([](const CLI::App*, std::string, CLI::AppFormatMode) { return std::string(kUsage); });
+  auto text = [&app](const std::string& name, std::string* into) {
+    app.add_option(name, *into)->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  };
+  text("--listen", &o.listen);
+  text("--address", &o.server.address);
+  text("--token", &o.server.token);
+  app.add_flag("--tls", o.server.tls);
+  app.add_option_function<std::string>("--tls-ca", [&o](const std::string& v) {
+       o.server.tls_ca_file = v;
+       o.server.tls = true;
+     })->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  text("--web-token", &o.web_token);
+  text("--tls-cert", &o.tls_cert);
+  text("--web-root", &o.web_root);
+  text("--three-dir", &o.three_dir);
+  app.add_option_function<std::string>("--threads", [&o](const std::string& v) {
+       char* end = nullptr;
+       const long n = std::strtol(v.c_str(), &end, 10);
+       if (end == v.c_str() || *end != '\0' || n < 2 || n > 1024)
+         throw CLI::ValidationError("--threads must be an integer in [2, 1024], got '" + v + "'");
+       o.threads = static_cast<int>(n);
+     })->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  app.add_option("--log-level", log_level)
+      ->check(pliant::cli::one_of(pliant::cli::log_levels()))
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  if (auto rc = pliant::cli::parse_or_exit(app, argc, argv, "pliant-web")) return *rc;
   if (o.web_root.empty()) o.web_root = default_web_root(argv[0]);
   spdlog::set_default_logger(spdlog::stderr_color_mt("pliant-web"));
   spdlog::set_level(spdlog::level::from_str(log_level));

@@ -34,6 +34,7 @@ struct ServerOptions {
   int max_grabs_per_scene = 64;
   int threads = 1;               // cap on each scene's solver threads
   bool restore = true;           // --no-restore: do not restore scenes from the data dir
+  std::string metrics_listen;    // HOST:PORT of the Prometheus /metrics endpoint; empty: off
   std::string config;            // the config file read, if any
 };
 
@@ -42,9 +43,10 @@ using EnvLookup = std::function<std::optional<std::string>(const std::string& na
 // The process environment.
 EnvLookup process_env();
 
-// Parses argv (without argv[0]). On --help sets *help and returns Ok.
+// Parses argv (without argv[0]) with CLI11. On --help sets *help, on --version *version (or
+// *help when version is null), and returns Ok.
 Error parse_server_options(const std::vector<std::string>& args, const EnvLookup& env,
-                           ServerOptions* out, bool* help);
+                           ServerOptions* out, bool* help, bool* version = nullptr);
 
 std::string server_usage();
 

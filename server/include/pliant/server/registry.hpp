@@ -90,6 +90,11 @@ class SceneRegistry {
   // (RESOURCE_EXHAUSTED naming the limit); releasing *slot ends the count.
   Error open_stream(const std::string& scene_id, std::shared_ptr<void>* slot);
 
+  // Every hosted scene (a copy of the list, taken under a short lock).
+  std::vector<std::shared_ptr<Scene>> scenes() const;
+  // Open streams per scene id, and in *total all of them (for the metrics endpoint).
+  std::map<std::string, int> stream_counts(int* total) const;
+
   // The scene with this id, or NotFound.
   Error find(const std::string& id, std::shared_ptr<Scene>* out) const;
   // Checks a StreamFramesRequest and fills the selection.

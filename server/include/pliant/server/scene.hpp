@@ -88,6 +88,8 @@ struct Frame {
   int accelerations_tried = 0;
   int accelerations_accepted = 0;
   double step_wall_ms = 0;
+  double step_wall_ms_sum = 0;  // over the ticks this scene ran in this process
+  uint64_t stepped_ticks = 0;   // how many ticks that sum holds
   bool stopped_by_tolerance = false;
   bool stopped_by_budget = false;
   int volume_corrections = 0;  // inversion-floor projections in the last substep

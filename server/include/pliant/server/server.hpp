@@ -23,6 +23,8 @@ class PliantServer {
   Error start();
   // The bound port (useful with --listen HOST:0).
   int port() const;
+  // The bound port of the /metrics endpoint (0: --metrics-listen not given).
+  int metrics_port() const;
   SceneRegistry& registry();
   // Graceful stop; safe to call twice. Returns the number of scene snapshots written.
   // Takes at most kShutdownGrace plus the time to write the snapshots.
