@@ -17,8 +17,8 @@ while IFS= read -r f; do
     meshes/*|proto/grpc/*|fuzz/corpus/*|*/node_modules/*|*/golden/*|*/data/*) continue ;;
   esac
   case "$f" in
-    *.cpp|*.hpp|*.proto|*.js|*.mjs|*.in) line="// $tag" ;;
-    *.sh|*.py|*.cmake|*CMakeLists.txt) line="# $tag" ;;
+    *.sh|*.py|*.cmake|*.cmake.in|*CMakeLists.txt) line="# $tag" ;;
+    *.cpp|*.hpp|*.hpp.in|*.proto|*.js|*.mjs) line="// $tag" ;;
     *) continue ;;
   esac
   head -n 3 "$f" | grep -q "SPDX-License-Identifier" && continue
