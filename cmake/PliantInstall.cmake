@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 # Install rules and the CMake package: find_package(Pliant) gives
 #   Pliant::client   the gRPC client library (typed calls over the generated stubs; Pliant::proto)
 #   Pliant::solver   the solver library (with Pliant::mesh, Pliant::settings), when it was built

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: Apache-2.0
 # Build stage of docker/Dockerfile: a Release build (ninja, ccache) of the programs the image ships,
 # installed with `cmake --install` (component runtime, stripped) under $OUT as they will lie in the
 # image: /usr/local/bin, /usr/local/share/pliant/{meshes,web}, /usr/local/share/doc/pliant.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A Pliant client built against the installed package (find_package(Pliant), Pliant::client):
 // connects to a server, creates a lockstep scene of the builtin beam, lists the scenes, streams
 // one frame while stepping the scene, prints it and deletes the scene.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gRPC glue: the pliant.v1 services over the SceneRegistry, token check, health, reflection,
 // TLS and graceful shutdown.
 #include "pliant/server/server.hpp"

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # The CMake package, as a user gets it: `cmake --install` of this build tree into a scratch
 # prefix, the prefix moved elsewhere (an install must not depend on where it was made), the
 # consumer example (examples/consumer: find_package(Pliant), Pliant::client) configured and

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-web: the browser front end's gateway. A gRPC client of pliant-server that serves the
 // page (web/) and a WebSocket per browser: live surface frames, solver plots, pick-and-drag.
 // Exit codes: 0 stopped by a signal; 1 could not start; 2 usage error.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Minimal command-line parsing shared by Pliant's offline tools: "--name value" and
 // "--flag" options after a subcommand, with typed getters that fail with a one-line message
 // naming the argument. (The gRPC tools have their own richer front end.)

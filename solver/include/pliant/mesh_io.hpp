@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Reading meshes: one entry point for every format, plus the resolver that turns what a user
 // types (a builtin name like "beam3", a short model name like "armadillo", or a path) into a
 // validated TetMesh. Errors are MeshError exceptions whose message names the file, the
