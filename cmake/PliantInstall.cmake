@@ -29,12 +29,18 @@ install(FILES ${PROJECT_SOURCE_DIR}/LICENSE ${PROJECT_SOURCE_DIR}/NOTICE
 set(pliant_export_targets pliant_version pliant_mesh pliant_settings)
 install(FILES ${PROJECT_BINARY_DIR}/generated/pliant/version.hpp
         DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}/pliant COMPONENT development)
-# The solver's public headers (solver/include/pliant/*.hpp): mesh, settings and solver alike.
-install(DIRECTORY ${PROJECT_SOURCE_DIR}/solver/include/pliant/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}/pliant
-        COMPONENT development FILES_MATCHING PATTERN "*.hpp")
 if(TARGET pliant_solver)
+  # The solver's public headers (solver/include/pliant/*.hpp): mesh, settings and solver alike.
+  install(DIRECTORY ${PROJECT_SOURCE_DIR}/solver/include/pliant/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}/pliant
+          COMPONENT development FILES_MATCHING PATTERN "*.hpp")
   list(APPEND pliant_export_targets pliant_solver)
   list(APPEND PLIANT_COMPONENTS solver)
+else()
+  # Client only: the headers of the two solver libraries that were built.
+  set(pliant_mesh_headers mesh mesh_io mesh_validate builtin_meshes render_mesh settings)
+  list(TRANSFORM pliant_mesh_headers PREPEND ${PROJECT_SOURCE_DIR}/solver/include/pliant/)
+  list(TRANSFORM pliant_mesh_headers APPEND .hpp)
+  install(FILES ${pliant_mesh_headers} DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}/pliant COMPONENT development)
 endif()
 if(TARGET pliant_client)
   list(APPEND pliant_export_targets pliant_proto pliant_client)
