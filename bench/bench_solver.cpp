@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Google Benchmark: cost of the solver's iterations in ns per tet-iteration, on the thesis
 // beam3 and armadillo, per sweep, accelerator, strain model (StVK / corotated) and thread count.
 //   build/bench/bench_solver --benchmark_counters_tabular=true

@@ -1,48 +1,50 @@
 #!/bin/sh
+# SPDX-License-Identifier: Apache-2.0
 # Build stage of docker/Dockerfile: a Release build (ninja, ccache) of the programs the image ships,
-# staged under $OUT as they will lie in the image (/usr/local/bin, /usr/share/pliant/{meshes,web}).
+# installed with `cmake --install` (component runtime, stripped) under $OUT as they will lie in the
+# image: /usr/local/bin, /usr/local/share/pliant/{meshes,web}, /usr/local/share/doc/pliant.
 #   build-programs.sh [OUT=/out]
 # Env: PLIANT_REQUIRED  programs the image cannot do without (default "pliant-server pliant pliant-haptic pliant-web");
+#      PLIANT_ARCH      -march of the image's programs (default x86-64-v2: runs on any x86-64 CPU
+#                       since 2009; docs/deploy.md gives the speed it costs); ignored off x86-64;
 #      JOBS             parallel jobs (default: nproc).
-# Only the targets pliant-server, pliant, pliant-haptic and pliant-web are built (no tests, benchmarks, tools);
-# those the tree does not have yet are skipped, the required ones must exist.
+# Only the programs are built (no tests, benchmarks); those the tree does not have yet are
+# skipped, the required ones must exist.
 set -eu
 OUT=${1:-/out}
 BUILD=/tmp/pliant-build     # not in the image layer: only $OUT is kept
 REQUIRED=${PLIANT_REQUIRED-pliant-server pliant pliant-haptic pliant-web}
+ARCH=${PLIANT_ARCH-x86-64-v2}
+case "$(uname -m)" in
+  x86_64|amd64) ;;
+  *) [ -z "$ARCH" ] || echo "image: PLIANT_ARCH=$ARCH ignored on $(uname -m)"; ARCH="" ;;
+esac
+echo "image: -march=${ARCH:-<compiler default>}"
 
 cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release \
-  -DCMAKE_CXX_COMPILER_LAUNCHER=ccache \
-  -DPLIANT_BUILD_TESTS=OFF -DPLIANT_BUILD_BENCH=OFF \
-  -DPLIANT_MESH_DIR=/usr/share/pliant/meshes >/dev/null
+  -DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_INSTALL_PREFIX=/usr/local \
+  -DPLIANT_ARCH="$ARCH" -DPLIANT_NATIVE=OFF \
+  -DPLIANT_BUILD_TESTS=OFF -DPLIANT_BUILD_BENCH=OFF >/dev/null
 targets=""
-for t in pliant-server pliant pliant-haptic pliant-web; do
+for t in pliant-server pliant pliant-haptic pliant-web pliant-mesh pliant-sim; do
   if ninja -C "$BUILD" -t query "$t" >/dev/null 2>&1; then targets="$targets $t"; fi
 done
 echo "image: building${targets:- nothing}"
 [ -z "$targets" ] || cmake --build "$BUILD" -j "${JOBS:-$(nproc)}" --target $targets
 
-mkdir -p "$OUT/usr/local/bin" "$OUT/usr/share/pliant/meshes"
-for exe in pliant-server pliant pliant-haptic pliant-web; do
-  f=$(find "$BUILD" -type f -name "$exe" -perm -u+x | head -n 1)
-  if [ -n "$f" ]; then
-    install -m 0755 -s "$f" "$OUT/usr/local/bin/$exe"
-    echo "image: $exe ($(du -k "$OUT/usr/local/bin/$exe" | cut -f1) KiB stripped)"
-  else
-    echo "image: $exe not in this tree, left out"
-  fi
+# The runtime component: programs, the model set, the viewer's page, LICENSE and NOTICE (not the
+# libraries, headers and CMake package: those are the development component).
+DESTDIR="$OUT" cmake --install "$BUILD" --component runtime --strip >/dev/null
+for exe in pliant-server pliant pliant-haptic pliant-web pliant-mesh pliant-sim; do
+  f="$OUT/usr/local/bin/$exe"
+  if [ -x "$f" ]; then echo "image: $exe ($(du -k "$f" | cut -f1) KiB stripped)"
+  else echo "image: $exe not in this tree, left out"; fi
 done
 for exe in $REQUIRED; do
   [ -x "$OUT/usr/local/bin/$exe" ] || { echo "image: required program $exe was not built" >&2; exit 1; }
 done
-if [ -x "$OUT/usr/local/bin/pliant-web" ]; then
-  mkdir -p "$OUT/usr/share/pliant/web"
-  cp -a web/. "$OUT/usr/share/pliant/web/"
-  echo "image: web/ (the viewer's page)"
-fi
-if [ -d meshes ]; then
-  cp -a meshes/. "$OUT/usr/share/pliant/meshes/"
-  echo "image: meshes/ ($(du -sk meshes | cut -f1) KiB)"
-fi
+for d in meshes web; do
+  [ ! -d "$OUT/usr/local/share/pliant/$d" ] || echo "image: share/pliant/$d ($(du -sk "$OUT/usr/local/share/pliant/$d" | cut -f1) KiB)"
+done
 ccache --show-stats 2>/dev/null | grep -E 'Hits|Misses' || true
 rm -rf "$BUILD"

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # docker/smoke-test.sh - build the Pliant server image from this checkout with podman and use it:
 # check the image (non-root user, port, volume, HEALTHCHECK, every library found, no compilers),
 # start the container, wait for its HEALTHCHECK, create scenes (one from the image's meshes/) and

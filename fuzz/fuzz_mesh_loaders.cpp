@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libFuzzer harness for the tet-mesh loaders (TetGen .node/.ele, Gmsh .msh, VTK legacy .vtk,
 // VTK XML .vtu). The first byte picks the format; the rest is the file (TetGen: the .node
 // file, a NUL byte, then the .ele file). A loader may refuse its input with MeshError; any

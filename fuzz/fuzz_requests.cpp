@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libFuzzer harness for request validation at the service's edge. The first byte picks the
 // request; the rest is its serialized protobuf (the seed corpus holds valid ones):
 //   0 CreateSceneRequest (the scene, if created, is deleted at once)

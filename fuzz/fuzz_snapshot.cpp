@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libFuzzer harness for snapshot parsing: the bytes as a serialized pliant.v1.Snapshot (the seed
 // corpus holds real ones, so mutations reach the field checks), through the server's
 // snapshot_from_proto. What it accepts must serialise again and be accepted again.

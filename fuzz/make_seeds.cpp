@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Writes the fuzzers' seed corpus (fuzz/corpus/<harness>/): small valid inputs of every kind,
 // so that mutations start deep inside the parsers. Run by scripts/fuzz.sh --seeds; the output
 // is committed.

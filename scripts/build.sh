@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Configures and builds Pliant (Release) into ${BUILD_DIR:-build}. Extra args go to cmake.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # The README's main command: installs what is missing, builds pliant-server, pliant and
 # pliant-web, starts the server in the background with a demo scene (a cantilever beam clamped
 # at x = 0 sagging under gravity, realtime 60 Hz) and the viewer pliant-web, prints the URL to

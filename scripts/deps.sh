@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Installs the Debian 12 packages Pliant needs to build, test and run (root, or sudo).
 # Skips apt entirely when everything is already there.
 #   deps.sh            everything: build, tests, benchmarks, tools

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Builds the libFuzzer harnesses (fuzz/) with clang-14, ASan and UBSan in their own build
 # directory and runs each for a bounded time on a copy of its seed corpus (fuzz/corpus/).
 #   scripts/fuzz.sh [SECONDS]   seconds per harness (default 30)

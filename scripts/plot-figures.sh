@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Draws the convergence figures of docs/solver.md (docs/img/*.png) from the data that
 # scripts/thesis-figures.sh wrote to docs/data/ (gnuplot; no solver run):
 #   bash scripts/plot-figures.sh

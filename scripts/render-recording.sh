@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Regenerates docs/img/recording_armadillo.png: `pliant-sim run` records the armadillo clamped at
 # its low-x end sagging under gravity (binary .vtu frames + frames.pvd), and VTK renders the last
 # frame offscreen (scripts/render_recording.py; xvfb-run supplies an X server when there is no

@@ -1,4 +1,5 @@
 #!/usr/bin/python3
+# SPDX-License-Identifier: Apache-2.0
 """Renders one frame of a recording (.pvd or .vtu) offscreen with VTK: the body's surface
 coloured by the magnitude of its displacement, the rest shape as a grey wireframe. Run it through
 scripts/render-recording.sh (which supplies an X server with xvfb-run when there is no display).

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # The real-time robustness case brought to rest: the thesis hippo and armadillo hanging from their first 10%
 # of x under gravity, 60 Hz ticks of the default 64 substeps x 1 iteration, E 10 kPa - 10 MPa,
 # nu 0.4, damping 5/s so that they settle in seconds. One JSON line per run (pliant-sim

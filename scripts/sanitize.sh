@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Builds the test programs with AddressSanitizer + UndefinedBehaviorSanitizer in their own
 # build directory (SAN_BUILD_DIR, default build-asan) and runs them with ctest.
 #   scripts/sanitize.sh                 every test

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # What the support inertia (Material::support_inertia, docs/solver.md "Support inertia") does
 # to beam3 under the default 64 substeps x 1 iteration at 60 Hz, E 10 kPa - 10 MPa:
 #  - at rest (pliant-sim static, damping 5/s) against the Newton equilibrium of the same mesh,

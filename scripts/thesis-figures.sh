@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Regenerates the solver figures in docs/solver.md and docs/figures.md from the built tools:
 #   bash scripts/thesis-figures.sh [BUILD_DIR]
 # Writes docs/data/*.csv|*.jsonl and docs/img/*.png (gnuplot). Takes a few minutes on 2 cores,

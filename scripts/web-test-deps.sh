@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Installs what the viewer's browser test needs (tests/web/browser.mjs): Debian's chromium and
 # node, and the npm package playwright-core pinned in tests/web/package-lock.json (npm ci).
 # Skips each step that is already done. scripts/deps.sh runs it (not with --no-dev).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The Pliant viewer: connects to pliant-web's socket, draws the scene's surface as frames
 // arrive, plots the solver's behaviour and lets the mouse pull the body (Grab / MoveGrab /
 // Release). URL parameters: scene=ID, token=WEB_TOKEN, encoding=float32|uint16, rate=HZ.

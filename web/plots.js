@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Small 2D-canvas plots: a strip chart of a value over time (last N points) and a bar/line of
 // the residual per iteration of the last tick. Log scales for residuals.
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Decoders of pliant-web's binary messages (docs/web.md, "Binary messages"). Little-endian;
 // arrays are 4-byte aligned, so positions are viewed in place over the message's buffer.
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant_haptic_bench: the haptic bridge's figures on loopback, against an in-process server.
 //  A. pliant-haptic's default scene (beam1 at 1 kHz, realtime), the bridge's simulated device
 //     stroking it:

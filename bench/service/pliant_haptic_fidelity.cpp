@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant_haptic_fidelity: is the force the bridge's default scene feels the force of the model?
 // Steps the scene `pliant-haptic` creates (beam1 with its bottom face fixed, or its end with
 // --clamp end; gravity off, damping 20/s, 1 kHz ticks, the bridge's nu unless given) with the press the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant_service_bench: the service's timing figures.
 //  1. Achieved tick rate and tick jitter (lateness of each tick's start against its absolute
 //     deadline, p50/p99) for a 1 kHz realtime scene on beam1 and a 60 Hz realtime scene on a

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant_tick_profile: where the time of one server tick goes on a large mesh. Steps the 50k-tet
 // beam of pliant_haptic_bench (0.25 x 0.1 x 0.05 m, E = 50 MPa, x <= 1 mm fixed, gravity off,
 // damping 20/s, dt = 1/60 s, 1 substep x 1 iteration by default) with a sphere (r = 1 cm) lowered

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Load on pliant-web without browsers: raw WebSocket clients (node's net, no packages) on one
 // realtime scene. Prints one JSON line:
 //   lateness_p99_ms with 1 reading client, then with 10 (the server's tick lateness, from the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant: the command-line client. Human output by default, --json for scripts.
 // Exit codes: 0 ok; 1 the server refused the request (or health is not SERVING);
 // 2 usage error; 3 server unreachable or too slow (UNAVAILABLE, DEADLINE_EXCEEDED);

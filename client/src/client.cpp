@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The client library over the generated stubs.
 #include "pliant/client/client.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-haptic: the haptic-device bridge. Runs the device loop at 1 kHz on its own thread,
 // streams tool poses to a Pliant scene and renders the contact force it gets back, with local
 // force extrapolation between server updates and safety limits. Uses a scripted simulated

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: Apache-2.0
 """How many realtime scenes one server holds: adds scenes in steps and measures, per step, the
 fraction of ticks that ended late and the deadlines skipped, until lateness appears.
 

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: Apache-2.0
 """Convergence of the solver methods on one tick: the residual |r| after every iteration of the
 tick's last substep, per method, as CSV and a plot.
 

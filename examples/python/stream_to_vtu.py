@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: Apache-2.0
 """Streams a scene's frames from a Pliant server and writes one .vtu file per frame plus a .pvd
 collection with each frame's simulation time; open the .pvd in ParaView.
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "pliant/proto/enums.hpp"
 
 #include <array>

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Python client for Pliant, the real-time soft-body simulation service (docs/python.md).
 
     import pliant

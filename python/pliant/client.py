@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A typed client for a Pliant server (pliant.v1 over gRPC).
 
 Every call raises :class:`pliant.PliantError` (gRPC status code and the server's message) when the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Which server holds a scene: rendezvous (highest-random-weight) hashing of the scene id.
 
 The rule (docs/deploy.md, "Scene placement"), the same bit for bit in the C++ client

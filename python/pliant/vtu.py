@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """VTK XML files for ParaView / VTK: tetrahedral meshes (.vtu) and time series (.pvd).
 
 ``write_vtu`` writes one UnstructuredGrid piece (VTK XML format version 1.0, little endian,

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Echoing client input in errors, and model_path names confined to the model path.
 #include "pliant/server/edge.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-server: hosts soft-body scenes over gRPC until SIGTERM/SIGINT, then saves them.
 #include "pliant/server/server.hpp"
 #include "pliant/version.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Flags, environment and config file for pliant-server.
 #include "pliant/server/options.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Requests to scenes: validation with messages naming field and value, model building,
 // limits, proto conversions, snapshots on disk.
 #include "pliant/server/registry.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The scene's tick thread: drains commands, steps on absolute deadlines, rolls back blow-ups,
 // publishes frames.
 #include "pliant/server/scene.hpp"

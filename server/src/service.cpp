@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gRPC glue: the pliant.v1 services over the SceneRegistry, token check, health, reflection,
 // TLS and graceful shutdown.
 #include "pliant/server/server.hpp"
@@ -462,9 +463,15 @@ PliantServer::PliantServer(ServerOptions options) : impl_(std::make_unique<Impl>
       for (const char* s : kServices) health->SetServingStatus(s, serving);
     }
   };
-  // Without --model-path: $PLIANT_MODEL_PATH, then the source tree's meshes/ (the model set).
+  // Without --model-path: $PLIANT_MODEL_PATH, then the model set (the installed
+  // share/pliant/meshes next to the program, else the source tree's meshes/).
   ro.model_path = impl_->options.model_path.empty() ? default_model_path()
                                                      : split_path(impl_->options.model_path);
+  {
+    std::string joined;
+    for (const std::string& d : ro.model_path) joined += (joined.empty() ? "" : ":") + d;
+    spdlog::info("model path: {}", joined);
+  }
   impl_->registry = std::make_unique<SceneRegistry>(std::move(ro));
 }
 

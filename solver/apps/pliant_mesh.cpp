@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-mesh: inspect, validate, convert, tetrahedralize and embed meshes.
 // Output meant for the user goes to stdout; logs (warnings about quality, repairs) go to stderr.
 #include "pliant/builtin_meshes.hpp"

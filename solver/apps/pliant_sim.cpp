@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-sim: offline experiments with the solver, no server.
 //   converge  the thesis's one-step convergence experiment (residual and true error per iteration)
 //   static    step a clamped body under gravity to rest and report the tip displacement

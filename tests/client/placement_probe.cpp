@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The C++ side of the cross-language placement test (tests/python/test_sharded.py):
 //   placement_probe --servers A,B,C [--create] ID...
 // For each scene id: with --create, creates it (beam1, lockstep) on the server the placement

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Scene placement (pliant/client/placement.hpp): the published FNV-1a vectors, the golden
 // vectors shared with the Python client, and the properties rendezvous hashing promises.
 #include "pliant/client/placement.hpp"

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 # pliant_add_gtest: one GoogleTest executable, its tests registered with ctest under one label
 # and one per-test timeout. Sources are listed explicitly (a new test file is added to the
 # executable whose speed and area it shares; tests/README.md says which).

@@ -1,4 +1,5 @@
 #!/usr/bin/python3
+# SPDX-License-Identifier: Apache-2.0
 """Checks Pliant's deployment files without kubectl or docker.
 
     validate_manifests.py [--dockerfile docker/Dockerfile] [--compose compose.yaml] K8S.yaml...

@@ -1,4 +1,5 @@
 #!/usr/bin/python3
+# SPDX-License-Identifier: Apache-2.0
 """Files the programs write and read, checked with independent readers.
 
   sim      pliant-sim run writes a recording; VTK's own XML reader (python3-vtk9) reads the .pvd's

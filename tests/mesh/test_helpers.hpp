@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Shared helpers for the mesh tests: the test data's paths; the model set and a scratch
 // directory per test come from the test support library.
 #pragma once

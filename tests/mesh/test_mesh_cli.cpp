@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The pliant-mesh tool: `info --json` prints one JSON object with the promised keys; bad arguments
 // exit non-zero with one line naming the argument; convert/embed write files that load back.
 #include "pliant/mesh_io.hpp"

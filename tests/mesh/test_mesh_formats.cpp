@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Every reader and writer: round trips are exact, and the same mesh in every format loads to the
 // same counts and volume.
 #include "pliant/builtin_meshes.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Malformed input at scale: every truncation and random byte garbage of valid files in each
 // format fails cleanly with MeshError (about a thousand loads: seconds). The table of specific
 // malformed cases is in test_mesh_malformed.cpp.

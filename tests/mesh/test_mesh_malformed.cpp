@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Malformed input: each case in the table fails with its own specific message (file, line or
 // element, value); repairs of inverted and zero-volume tets. Truncations and byte garbage at
 // every position: test_mesh_fuzz.cpp.

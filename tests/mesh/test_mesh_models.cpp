@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The shipped models (meshes/): every registered model loads at its documented size, the thesis
 // armadillo and the IPC armadillo with their counts, the armadillo's render surface embedded
 // and deformed, and its surface tetrahedralized as meshes/SOURCES.md says. Seconds each: the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Validation and repair on meshes built in memory, quality measures, the resolver and the model set.
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/mesh_io.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Render-mesh embedding: every surface vertex is bound with weights summing to 1, the rest surface
 // is reproduced exactly, a deformed tet mesh moves the surface consistently, the binding file
 // round-trips; surfaces load through assimp; tetrahedralize runs TetGen when it is installed.

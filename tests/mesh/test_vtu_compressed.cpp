@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // zlib-compressed .vtu (compressor="vtkZLibDataCompressor", as VTK and meshio write by default):
 // files made here with zlib in VTK's layout (header [blocks, block size, last block size,
 // compressed sizes], blocks back to back; inline base64 with header and blocks encoded

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The recording writer (.vtu frames + .pvd): values written come back byte for byte from the
 // appended block, the mesh reader reads the frame's geometry, det F is the volume ratio, and a
 // bad frame is refused. tests/mesh/check_vtu_recording.py reads the same files with VTK itself.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Real pliant-server processes for the Python client's tests: each on 127.0.0.1 port 0, the
 port read from its 'listening on ... (port N)' log line."""
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The Python client against a real pliant-server: scenes, frames as numpy, errors with their
 gRPC status, grabs and the haptic stream."""
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The examples in examples/python against a real pliant-server.
 
 stream_to_vtu: 600 frames of a 60 Hz realtime scene, none skipped, written as .vtu files and a

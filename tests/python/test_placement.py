@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Scene placement in Python against the golden vectors the C++ test reads too
 (tests/client/placement_golden.tsv) and the published FNV-1a vectors."""
 from __future__ import annotations

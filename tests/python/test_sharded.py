@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Three real servers: scenes placed by id with the rendezvous rule by the Python client and by
 the C++ client library (placement_probe), each found and streamed by the other."""
 from __future__ import annotations

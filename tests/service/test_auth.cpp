@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The access token: read from --token-file or PLIANT_TOKEN (kept out of the process list),
 // checked on every pliant.v1 call whatever the presented length, and on reflection when
 // --reflection token says so (--reflection off refuses reflection altogether).

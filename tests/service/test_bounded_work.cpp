@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Bounded work per tick: the sweeps a tick may ask for are limited; update, reset, pause,
 // delete and shutdown stop a tick in progress at its next sweep; --max-tick-ms stops a tick
 // that runs too long and pauses its scene; a tick stuck past --stuck-tick-ms turns health

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Static colliders in a scene's spec: a body dropped on a plane or a box comes to rest on it,
 // GetScene and snapshots carry the colliders, and bad values are refused with the field named.
 #include "pliant/client/client.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Crash safety with the real pliant-server on 127.0.0.1: periodic checkpoints survive kill -9
 // under load (every scene comes back, every file loads), created and deleted scenes reach the
 // data directory at once, SIGTERM ends a server whose scene has a minutes-long tick, and a

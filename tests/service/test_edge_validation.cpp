@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Input checked at the edge: every field of a restored snapshot (finite multipliers and time,
 // ticks and ids in range, sizes matching the mesh), stream rates, and the server's flags
 // (ports, intervals). Each refusal names the field and the value.

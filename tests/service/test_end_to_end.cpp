@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // End to end: the real pliant-server binary, driven by the real pliant CLI (through a restart;
 // grab / move-grab / release) and by pliant-haptic. Paths come from CMake (PLIANT_SERVER_BIN,
 // PLIANT_CLI_BIN, PLIANT_HAPTIC_BIN).

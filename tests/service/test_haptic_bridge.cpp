@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The haptic bridge: the force renderer's safety limits and extrapolation (no server), and the
 // bridge against an in-process server: it feels the beam, cuts the force to zero within one
 // loop period when the server goes away, and reconnects when it comes back. Waits are

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // InteractionService over an in-process server on 127.0.0.1 port 0: grab / move / release in a
 // lockstep scene, the haptic stream's feedback (tick id, echoed pose, force and contacts), and
 // errors that name the field and the value. No timing assertions (bench/ measures latency).

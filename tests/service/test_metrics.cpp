@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-server's Prometheus endpoint (--metrics-listen): GET /metrics answers the text
 // exposition format with the server-wide and per-scene series, labelled by scene, and the
 // counters grow as the scenes tick; streams and grabs show while they are open.

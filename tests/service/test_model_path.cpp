@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // MeshSource.model_path confined to --model-path: symlinks out of it, '..', NUL and names that
 // exist only relative to the working directory are refused; a file that is not a mesh is
 // refused without quoting it; long input is echoed capped. Registry-level, plus one check of

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Every program's command-line conventions: --version prints pliant::kVersion, --help the
 // usage (both exit 0 on stdout), an unknown flag or a bad value exits non-zero with ONE line
 // on stderr naming the flag and the value, nothing on stdout. And their JSON lines are strict

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Server reflection answers, so generic gRPC tools (grpcurl, grpc_cli) can discover the API.
 // The reflection protocol is spoken with a raw generic call to keep its stubs out of the build.
 #include "pliant/server/server.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Integration tests: an in-process pliant server on 127.0.0.1 port 0, driven through the client
 // library. Scenes are beam1 with few iterations so the suite stays fast; nothing here asserts
 // on timing (the benchmark measures that).

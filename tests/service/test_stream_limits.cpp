@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Limits on open streams (server-wide and per scene) and on grabs per scene: the call over the
 // limit gets RESOURCE_EXHAUSTED naming the limit; closing a stream or releasing a grab frees
 // its place.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // beam1 as the interaction tests use it: clamped at x = 0 (it spans [0, 0.115] x [0, 0.01] x
 // [0, 0.01] m), and the vertex or top-face triangle nearest to a point.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The accuracy figure of merit: method specs parse as documented (and bad ones are named), and
 // `pliant-sim accuracy` on beam1 with a small budget writes one CSV per spec whose true error
 // falls with the milliseconds spent, a JSON last line with ms_to_error per method, and reports a

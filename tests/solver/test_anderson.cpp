@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The Anderson mixer on problems with known answers: type II on a linear contraction reaches
 // the fixed point far faster than the plain iteration; the condition-number safeguard drops
 // columns of a degenerate history.

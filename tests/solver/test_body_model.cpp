@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The body model and its state, checked directly or over one step: what each vertex's inertia
 // is (the inertia floor, the support inertia), kinetic energy and RMS speed over the free
 // vertices, and the inversion floor putting inverted tets back.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The strain constraint as physics: derivatives against finite differences, invariance under
 // rigid motions, the energy identity 1/2 C^T K C = V psi_StVK, and the fused solver kernel
 // against the readable definition.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // beam1 spans [0, 0.115] x [0, 0.01] x [0, 0.01] m, clamped at x = 0.
 // Interaction in the solver: grabs pull points to their targets, a rigid tool pressed into a
 // clamped beam feels a force that grows with depth and stiffness and equals, at rest, the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Builtin thesis beams: counts, sizes, conformity (the only boundary faces are the box's).
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/model.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The global Newton step (method newton): it reaches the converged implicit-Euler step of the
 // reference solver, converges quadratically near it, conserves linear momentum, holds fixed
 // vertices, pulls grabs to their targets, keeps bodies out of colliders, and feels a tool with

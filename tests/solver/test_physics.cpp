@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Whole-body physics: static deflection against beam theory and against the Newton reference,
 // recovery from inversion (the thesis's limitation), resting on a floor, and damping that
 // leaves rigid motion alone.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Real-time robustness: at a 60 Hz tick with the default substeps x iterations,
 // the thesis beams, hippo and armadillo hang under gravity from a clamp for E from 10 kPa to
 // 10 MPa (nu = 0.4) without blowing up, the beams with no inverted tet at the end and the thesis

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The sequential sweep (Gauss-Seidel one tet at a time in mesh order, one thread: the thesis's
 // setting): it conserves momentum, converges to the Newton step with and without the
 // accelerators, its result depends on the tet order but its fixed point does not, and it

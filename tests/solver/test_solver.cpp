@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The solver loop as physics: momentum conservation of a sweep, accelerators reducing the
 // residual, Anderson's safeguards, lambda-SOR divergence reported (not a crash), and the
 // iterative step converging to the reference Newton step.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tool contact without stepping: closest points on triangles, sphere and capsule geometry, one
 // projection pass of the contacts on beam1 (faces pushed out of a small tool, vertices put on
 // a big tool's surface), and interaction inputs validated with the field and value named.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Vertex block descent as physics: the per-vertex kernel against the reference energy and
 // finite differences, monotone descent of the incremental potential, the converged step equal
 // to Newton's, conservation of momentum, rigid motion, fixed vertices, grabs, tools and

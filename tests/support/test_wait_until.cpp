@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The test support library's wait: succeeds as soon as the condition holds, and fails at the
 // deadline with a message naming what it waited for.
 #include "pliant/test/wait_until.hpp"

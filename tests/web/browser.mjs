@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The page in a real browser: starts pliant-server and pliant-web on free loopback ports,
 // creates a realtime beam scene and drives Debian's headless Chromium (software WebGL) with
 // playwright-core. Checks that frames arrive and are drawn, the canvas changes, the plots have

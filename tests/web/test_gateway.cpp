@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-web end to end: the real pliant-server and pliant-web on free loopback ports, a
 // lockstep scene, and a small WebSocket client (civetweb's) speaking docs/web.md: the topology
 // comes first, then every stepped tick arrives or is counted as skipped; a grab pulls the body;

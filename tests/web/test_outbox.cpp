@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The socket's send slot (latest frame wins, skips counted) and the grabs a socket releases
 // when it closes.
 #include "grabs.hpp"

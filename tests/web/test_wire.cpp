@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The wire format against golden bytes (tests/web/golden/*.hex, also decoded by the page's
 // decoder in wire.test.mjs), the quantisation error bound, and the topology's surface view.
 #include "wire.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The page's decoder (web/wire.js) against the golden bytes the C++ encoder is tested against
 // (golden/*.hex): the same frame and topology, field by field.
 import { test } from 'node:test';

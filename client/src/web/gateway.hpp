@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-web's gateway: one civetweb server that serves the page (web/) and three.js, and a
 // WebSocket (/ws) per browser. Each socket is a gRPC client session of pliant-server: JSON
 // control messages in, JSON replies and binary topology/frames out (docs/web.md). The

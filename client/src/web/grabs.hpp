@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The grabs one browser socket holds, so that closing the socket (or leaving a scene) releases
 // them: a grab left behind would pull the body forever.
 #pragma once

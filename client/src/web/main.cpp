@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-web: the browser front end's gateway. A gRPC client of pliant-server that serves the
 // page (web/) and a WebSocket per browser: live surface frames, solver plots, pick-and-drag.
 // Exit codes: 0 stopped by a signal; 1 could not start; 2 usage error.
@@ -50,13 +51,13 @@ std::string env_or(const char* name, const std::string& fallback) {
   return v && *v ? v : fallback;
 }
 
-// The page's files: installed next to the program (../share/pliant/web), else the source tree's.
+// The page's files: installed next to the program (<bin>/../share/pliant/web), else the source tree's.
 std::string default_web_root(const char* argv0) {
   namespace fs = std::filesystem;
   std::error_code ec;
   const fs::path exe = fs::canonical("/proc/self/exe", ec);
   const fs::path base = ec ? fs::path(argv0).parent_path() : exe.parent_path();
-  for (const fs::path& p : {base / "../share/pliant/web", fs::path(PLIANT_WEB_SOURCE_ROOT)})
+  for (const fs::path& p : {base / PLIANT_DATA_FROM_BIN / "web", fs::path(PLIANT_WEB_SOURCE_ROOT)})
     if (fs::is_regular_file(p / "index.html")) return fs::weakly_canonical(p).string();
   return PLIANT_WEB_SOURCE_ROOT;
 }

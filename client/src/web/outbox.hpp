@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What one browser socket has still to send: control messages (JSON replies, topology) in
 // order, and at most one frame. A newer frame replaces an unsent one; the frames dropped that
 // way (and those the server had already skipped for them) are added to the skipped_frames of

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The binary messages pliant-web sends to the browser (docs/web.md, "Binary messages"): the
 // topology once per subscription and one frame per tick shown. Little-endian, every array
 // 4-byte aligned so the page views positions in place (Float32Array over the message).

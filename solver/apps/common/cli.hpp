@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Command-line plumbing shared by Pliant's programs: CLI11 errors as one line, a validator for
 // a fixed set of words, JSON lines through nlohmann-json (strict JSON for any input: escaped
 // strings, invalid UTF-8 replaced, NaN and infinities as null), a progress reporter for long

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Meshes Pliant can build without a file: the thesis's cantilever beams. A beam is a grid of
 // nx x ny x nz nodes spaced `cube` apart along +x, +y, +z from the origin, each cube split into
 // 5 tets with alternating orientation so that neighbouring cubes share face diagonals

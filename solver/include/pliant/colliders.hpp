@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Static collision geometry (planes, spheres, boxes) and the contact constraint
 // C(p) = (p - q).n >= 0 projected against it, with Coulomb friction at position level.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Interaction inputs to a step: attachments (grab a vertex, or a point inside a tet by
 // barycentric weights, and pull it to a moving target through a compliant constraint) and
 // rigid tools (sphere, capsule) posed by the caller that the body's vertices collide with.

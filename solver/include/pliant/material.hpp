@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Linear-elastic material parameters (SI units) and the StVK stiffness they give the strain
 // constraint: the 6x6 matrix K with energy density psi = 1/2 c^T K c for the strain vector
 // c = (e_xx, e_yy, e_zz, g_yz, g_xz, g_xy) with engineering shears g_ij = 2 e_ij.

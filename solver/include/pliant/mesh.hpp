@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tetrahedral meshes as plain data: vertex positions and tets (4 vertex indices each).
 // This is what every loader produces and what a body model is built from; geometry helpers
 // (volumes, boundary extraction, bounding box) live beside it.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Reading meshes: one entry point for every format, plus the resolver that turns what a user
 // types (a builtin name like "beam3", a short model name like "armadillo", or a path) into a
 // validated TetMesh. Errors are MeshError exceptions whose message names the file, the
@@ -50,9 +51,12 @@ TetMesh resolve_mesh(std::string_view spec, const std::vector<std::string>& sear
 MeshLoadResult resolve_mesh_with_report(std::string_view spec, const std::vector<std::string>& search_path,
                                         const MeshLoadOptions& options = {});
 
-// The default model search path: $PLIANT_MODEL_PATH (colon-separated) then the compiled-in
-// meshes/ directory of the source tree.
+// The default model search path: $PLIANT_MODEL_PATH (colon-separated) then bundled_model_dir().
 std::vector<std::string> default_model_path();
+// The model set that comes with Pliant: the installed one next to the running program
+// (<bin>/../share/pliant/meshes), else the build's PLIANT_MESH_DIR (the source tree's meshes/),
+// else the install prefix's share/pliant/meshes as configured at build time.
+std::string bundled_model_dir();
 
 // The short-name registry of the model set in meshes/ (see meshes/SOURCES.md).
 struct ModelEntry {

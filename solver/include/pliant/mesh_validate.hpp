@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Validation and repair of tet meshes, run on every load: what would break a simulation is
 // refused with a message naming the file, the element and the value; what can be repaired
 // safely (inverted tets, unreferenced vertices, duplicate tets) is repaired with a warning; what

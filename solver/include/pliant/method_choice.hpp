@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Choosing a solver by measurement (method auto): each candidate method runs the body's first
 // step from rest under the scene's loads within the time budget, and the one whose result is
 // nearest the converged implicit step (Newton to a tight tolerance) wins.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The immutable part of a soft body: rest shape, per-tet rest data, lumped masses, material
 // and the constraint colouring. Built once from a mesh, shared read-only (shared_ptr<const>)
 // by the solver, snapshots and any number of readers. Mutable quantities live in BodyState.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Ground truth for tests and experiments: Newton's method with a sparse direct solve on the
 // same equations the XPBD iterations approximate.
 //  - implicit step: x* = argmin 1/(2h^2) (x - x~)^T M (x - x~) + sum_t 1/2 C_t^T K C_t, the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Render meshes: a high-resolution triangle surface (read through assimp: OBJ, STL, PLY, glTF/GLB,
 // FBX, OFF, ...) embedded in a coarse tet mesh by barycentric coordinates, so a front end gets a
 // smooth deformed surface while the solver runs on the tet mesh. Also the binding file written

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Everything a step needs to know besides the model and the state: time step, substeps,
 // the sweep and accelerator choice with their parameters, stopping rules, damping, gravity.
 // Names and defaults here are the ones the CLI and the API expose.

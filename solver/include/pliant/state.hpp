@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The mutable part of a soft body: positions, velocities and the Lagrange multipliers of the
 // last step. Plain vectors, cheap to copy for snapshots and rollback.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // One time step of the XPBD solver: substeps, the projection sweep (Gauss-Seidel or Jacobi),
 // the chosen accelerator, contacts, damping, and a report of what the step did (iterations,
 // residual history, accelerations accepted/rejected, time split as in thesis figure 3.10).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The strain-based XPBD constraint of one tetrahedron (thesis section 2.1.2):
 // C = sqrt(V0) * c, c = (e_xx, e_yy, e_zz, g_yz, g_xz, g_xy), Green strain E = 1/2 (F^T F - I),
 // engineering shears g_ij = 2 E_ij = f_i . f_j (f_i the columns of F = D_s D_m^-1).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Recordings for ParaView: one binary VTK XML UnstructuredGrid (.vtu) per frame and a .pvd
 // collection that gives each frame its simulation time. Shared by `pliant-sim run` (offline)
 // and `pliant record` (frames streamed from a server).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Accelerators: each one small class with one job, combined with any sweep by the solver loop
 // (stepper.cpp). After every projection sweep the loop calls after_sweep(); an accelerator may
 // change positions (SOR, Chebyshev) unconditionally, or propose an accelerated iterate that the

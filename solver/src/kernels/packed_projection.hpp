@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The strain projection four tets at a time. Tets of one colour share no vertex, so a colour
 // is cut into packs of 4 whose rest data is stored lane by lane (structure of arrays); the
 // kernel is the same algebra as projection.cpp written on 4-wide vectors (GCC vector

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The hot loop of the solver: the fused strain-constraint projection of one tet, the position
 // update from a given multiplier increment, and the constraint residual. Algebraically equal to
 // the readable forms in strain_constraint.cpp (tests compare them), but written on the

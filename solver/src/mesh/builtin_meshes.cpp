@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "pliant/builtin_meshes.hpp"
 
 #include <stdexcept>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "pliant/mesh_io.hpp"
 
 #include "mesh/mesh_parse.hpp"
@@ -92,6 +93,23 @@ TetMesh load_mesh(const std::string& path, const MeshLoadOptions& options) {
   return load_mesh_with_report(path, options).mesh;
 }
 
+std::string bundled_model_dir() {
+  std::error_code ec;
+  // Installed: <prefix>/bin/<program> finds <prefix>/share/pliant/meshes wherever the prefix
+  // was moved to.
+  const fs::path exe = fs::canonical("/proc/self/exe", ec);
+  if (!ec) {
+    const fs::path installed = exe.parent_path() / PLIANT_DATA_FROM_BIN / "meshes";
+    if (fs::is_directory(installed, ec)) return fs::weakly_canonical(installed, ec).string();
+  }
+  // A build tree: the source tree's meshes/ (or the directory given as PLIANT_MESH_DIR).
+  if (fs::is_directory(PLIANT_MESH_DIR, ec)) return PLIANT_MESH_DIR;
+  // A program outside the prefix linking the installed library: the prefix configured at build time.
+  const fs::path configured = fs::path(PLIANT_INSTALL_FULL_DATADIR) / "meshes";
+  if (fs::is_directory(configured, ec)) return configured.string();
+  return PLIANT_MESH_DIR;
+}
+
 std::vector<std::string> default_model_path() {
   std::vector<std::string> out;
   if (const char* env = std::getenv("PLIANT_MODEL_PATH")) {
@@ -99,7 +117,7 @@ std::vector<std::string> default_model_path() {
     for (std::string item; std::getline(ss, item, ':');)
       if (!item.empty()) out.push_back(item);
   }
-  out.push_back(PLIANT_MESH_DIR);
+  out.push_back(bundled_model_dir());
   return out;
 }
 

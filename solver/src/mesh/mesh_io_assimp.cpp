@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Surface meshes through assimp (OBJ, STL, PLY, glTF/GLB, FBX, OFF, ...), and a tiny OFF/OBJ
 // writer for handing a surface to TetGen.
 #include "mesh/mesh_parse.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Gmsh .msh reader: v1 ($NOD/$ELM), v2.2 and v4.1, ASCII and binary (little-endian, 8-byte
 // size_t). Tetrahedra (type 4, and the corners of higher-order tets) are kept; other element
 // types are skipped with one log line per type; unknown sections are skipped.

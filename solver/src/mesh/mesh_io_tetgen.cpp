@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // TetGen .node/.ele reader. The index base (0 or 1) is the first node's index, as TetGen itself
 // decides; attributes and boundary markers are read and ignored; a .face file is not needed.
 #include "mesh/mesh_parse.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // VTK readers: legacy UNSTRUCTURED_GRID (.vtk; ASCII and big-endian BINARY; the classic
 // CELLS layout and the 5.1 OFFSETS/CONNECTIVITY layout) and XML UnstructuredGrid (.vtu; ascii,
 // inline base64 binary and raw appended data, uncompressed or zlib-compressed as VTK and meshio

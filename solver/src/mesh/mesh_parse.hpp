@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Private to the mesh loaders: a bounded cursor over a whole file held in memory. Every read
 // checks the remaining bytes, so a truncated or garbage file ends in a MeshError naming the file
 // and the line (text) or byte offset (binary), never in a crash or an endless loop.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "pliant/mesh_validate.hpp"
 
 #include "pliant/material.hpp"  // kDefaultInertiaFloor: which vertices the report calls light

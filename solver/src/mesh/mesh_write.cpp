@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Writers for TetGen, VTK legacy, VTU and Gmsh. Coordinates are written in the shortest form that
 // reads back to the same double, so write-then-read gives the same mesh bit for bit.
 #include "mesh/mesh_parse.hpp"

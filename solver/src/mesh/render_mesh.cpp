@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Render-mesh embedding, deformation and normals; the binding file; running TetGen.
 //
 // Binding file format ("pliant-binding 1"), text, '#' starts a comment:

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Recordings for ParaView: binary .vtu frames (appended raw data, UInt64 headers) and a .pvd.
 #include "pliant/vtu_recording.hpp"
 

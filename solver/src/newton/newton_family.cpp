@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The global implicit step: Newton's method on the incremental potential of implicit Euler,
 //   G(x) = sum_i I_i / (2 h^2) |x_i - y_i|^2 + sum_tets E_tet(x) + contact and grab energies,
 // y the prediction (stages.hpp: inertia, gravity on the weight, external forces), I_i the

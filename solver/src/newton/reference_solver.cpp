@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "pliant/reference_solver.hpp"
 
 #include "pliant/strain_constraint.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The seam between the step and its solver families. Stepper::step hands a step to the family
 // of settings.method: constraint projection (XPBD with its sweeps and accelerators, in
 // stepper.cpp), vertex block descent (vbd/) or the global Newton step (newton/). Every family

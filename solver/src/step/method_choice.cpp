@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "pliant/method_choice.hpp"
 
 #include "pliant/state.hpp"

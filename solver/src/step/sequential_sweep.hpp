@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The thesis's sweep: Gauss-Seidel over the tets one at a time in mesh order, on the calling
 // thread, with the scalar kernel (kernels/projection.hpp). The multipliers stay in the packed
 // sweep's slot order (PackedModel::tet_slot), so the residual and the accelerators, which work

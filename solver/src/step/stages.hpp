@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Stages of a substep that every solver family shares: the prediction (inertia and loads), the
 // static colliders' contacts, and the velocity update with damping at the end.
 #pragma once

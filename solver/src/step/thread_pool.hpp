@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A small fixed pool of worker threads for data-parallel loops inside one step. The calling
 // thread takes part in the work, so threads = 1 means no worker at all. Loops are split into
 // contiguous chunks (one per thread) so results never depend on scheduling. Workers spin

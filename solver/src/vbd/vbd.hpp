@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Vertex block descent (Chen et al., SIGGRAPH 2024) on the implicit-Euler incremental potential
 //   G(x) = sum_i inertia_i / (2 h^2) |x_i - y_i|^2 + sum_tets E_tet(x) + grabs + tool contacts,
 // y the prediction (inertia, weight and external forces: stages.hpp). Each iteration visits the

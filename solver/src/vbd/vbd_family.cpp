@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The vertex block descent family (vbd.hpp): substeps, colour sweeps of per-vertex Newton
 // steps, the paper's Chebyshev acceleration and adaptive initial guess, grabs and tools as
 // energies, static colliders through the shared stage, and the report.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // One tet's contribution to one vertex's 3x3 Newton system, without the 12x12 Hessian.
 //
 // F = D_s D_m^-1, so a change dx of corner k changes F by dF = dx b (b the row 3-vector of

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The C++ client library for a Pliant server: typed calls returning values or a Status
 // (never throwing for remote errors), a frame stream as an iterator or with a callback, and
 // the standard health check. Messages are the pliant.v1 protobuf types.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The haptic bridge behind `pliant-haptic`: a device loop at 1 kHz on its own thread that never
 // waits for the network, a network side that streams tool poses to a Pliant server and reads
 // back the contact force after every tick, and between the two a force renderer that

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Which server holds a scene: rendezvous (highest-random-weight) hashing of the scene id over an
 // ordered list of servers (docs/deploy.md, "Scene placement"). The same rule, bit for bit, as the
 // Python client's pliant.placement:

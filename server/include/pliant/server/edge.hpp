@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Checks at the service's edge that several requests share: how client input is echoed back in
 // error messages, and how a model_path name becomes a file inside the server's model path.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Prometheus metrics of the scenes a SceneRegistry hosts: the text exposition format (0.0.4)
 // rendered from the scenes' latest frames and statuses, served over HTTP at /metrics by
 // civetweb on pliant-server's --metrics-listen HOST:PORT.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // pliant-server's settings: command-line flags, an optional config file of `name = value`
 // lines, and PLIANT_<NAME> environment variables. Precedence: flags, then environment, then
 // the config file, then defaults.

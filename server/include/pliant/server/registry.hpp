@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The server's scenes by id, and everything between the API messages (pliant.v1) and the
 // scenes: validating requests (errors name the field and value), building models, limits,
 // snapshots in the data directory. Protobuf messages only; the gRPC glue is service.cpp.

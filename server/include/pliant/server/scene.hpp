@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // One simulated scene and the thread that ticks it. Only the tick thread touches the body
 // state: callers post commands that the tick drains at the start of a tick, and read the
 // latest immutable Frame, published atomically after every tick. No gRPC in here.

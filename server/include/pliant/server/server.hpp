@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The gRPC server around a SceneRegistry: pliant.v1 services, grpc.health.v1, reflection,
 // token check, TLS, and graceful shutdown (NOT_SERVING, streams end with UNAVAILABLE, then
 // every scene is written to the data directory). Used by pliant-server and the tests.

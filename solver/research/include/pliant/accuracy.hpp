@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The figure of merit of a solver budget: the true error of one implicit-Euler step,
 // ||x - x*|| / ||x0 - x*|| against the converged step x* (Newton, reference_solver.hpp), as a
 // function of wall-clock milliseconds, for method specs such as "xpbd:64x1" or

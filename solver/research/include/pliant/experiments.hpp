@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The thesis experiments as library calls, shared by pliant-sim, the tests and the benchmarks:
 // the cantilever set-up (clamp, bent start), the one-step convergence run with its true error
 // against the reference solver, and stepping a body to rest.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Conversions between the solver's enums and the API's, shared by the server and the CLI so
 // that a value added to one side is mapped in one place.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A fresh directory under the system temp dir for one test, removed when it goes out of scope.
 #pragma once
 

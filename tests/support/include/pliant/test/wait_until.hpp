@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Waiting on a condition with a deadline instead of sleeping a fixed time: as fast as the
 // condition allows on a quiet machine, patient on a loaded one, and a clear message on failure.
 #pragma once
