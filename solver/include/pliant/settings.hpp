@@ -43,11 +43,14 @@ enum class Damping { None, Simple, RigidPreserving };
 enum class NewtonLinearSolver {
   Auto,    // direct up to kNewtonDirectMaxDofs free dofs, cg above
   Direct,  // sparse LDL^T (Eigen SimplicialLDLT): the exact Newton direction
-  Cg,      // conjugate gradients preconditioned by the 3x3 vertex blocks, inexact (forcing term)
+  Cg,      // inexact Newton: conjugate gradients to a forcing term, preconditioned by a factorisation
+           // of an earlier Hessian (refreshed when CG slows) up to 20,000 free dofs, else as cg-jacobi
+  CgJacobi,  // the same preconditioned by the inverses of the 3x3 vertex blocks only
 };
 
-// Free dofs above which newton_linear_solver auto uses cg: beam3 (3,219 dofs) stays direct,
-// the thesis hippo and armadillo go to cg (docs/solver.md, "Inexact Newton": measured).
+// Free dofs above which newton_linear_solver auto uses cg: beam3 (4,320 free dofs) stays direct,
+// the thesis hippo (8,220) and armadillo (42,783) hanging from 10% of x go to cg (docs/solver.md,
+// "Inexact Newton").
 inline constexpr int kNewtonDirectMaxDofs = 5000;
 
 // Which Anderson formulation the anderson / anderson-sor methods use (see docs/solver.md).
@@ -110,7 +113,7 @@ std::string_view method_names();  // "xpbd, sor, ..., auto": the accepted names,
 std::string_view sweep_names();   // "gauss-seidel, jacobi, sequential"
 std::optional<Damping> parse_damping(std::string_view s); // "none" | "simple" | "rigid"
 std::string_view to_string(NewtonLinearSolver s);
-std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s);  // "auto" | "direct" | "cg"
+std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s);  // "auto" | "direct" | "cg" | "cg-jacobi"
 // Whether method newton on a body with `free_dofs` free degrees of freedom solves with cg.
 bool newton_uses_cg(NewtonLinearSolver s, int free_dofs);
 std::string_view to_string(AndersonForm f);

@@ -52,6 +52,12 @@ constexpr double kStickSpeed = 1e-3;
 // most CG iterations per Newton iteration.
 constexpr double kMaxForcing = 0.5;
 constexpr int kMaxCgIterations = 2000;
+// Up to this many free dofs CG is preconditioned by a factorisation of an earlier Hessian (the
+// hippo's costs a few ticks' budget, once; the armadillo's 1.8 s and each of its solves tens of
+// ms, so it gets the 3x3 vertex blocks); it is refreshed when a solve needs more than
+// kRefactorAfter CG iterations.
+constexpr int kFactorPreconditionerMaxDofs = 20000;
+constexpr int kRefactorAfter = 20;
 
 // The sparse Cholesky factorisation of the Hessian, its symbolic analysis (ordering, elimination
 // tree) done once per model. Eigen's simplicial LDL^T: CHOLMOD's supernodal LL^T (Debian
@@ -121,7 +127,11 @@ class NewtonFamily final : public SolverFamily {
   // d_ from CG on H_ d = -g_ to |H d + g| <= eta |g|, at most kMaxCgIterations or until
   // out_of_time() says so; the number of CG iterations run goes to `iterations`. False when
   // H_ showed a direction of non-positive curvature (d_ is then unusable).
-  bool conjugate_gradients(ThreadPool& tp, double eta, const std::function<bool()>& out_of_time, int& iterations);
+  bool conjugate_gradients(ThreadPool& tp, double eta, bool projected, bool block_jacobi_only,
+                           const std::function<bool()>& out_of_time, int& iterations);
+  using Preconditioner = std::function<void(const Eigen::VectorXd& r, Eigen::VectorXd& z)>;
+  bool preconditioned_cg(ThreadPool& tp, double eta, const std::function<bool()>& out_of_time, int& iterations,
+                         const Preconditioner& precondition);
 
   uint64_t compiled_model_ = 0;
   std::vector<int> dof_;  // vertex -> first dof, -1 when fixed
@@ -134,6 +144,8 @@ class NewtonFamily final : public SolverFamily {
   Eigen::VectorXd g_, d_;
   Eigen::VectorXd cg_r_, cg_z_, cg_p_, cg_q_;  // CG's residual, preconditioned residual, direction, H p
   std::vector<Eigen::Matrix3d> block_inverse_;  // per free vertex (dof / 3): its diagonal block's inverse
+  bool factored_ = false;   // cholesky_ holds a factorisation of an earlier Hessian (CG's preconditioner)
+  bool refactor_ = false;   // the last CG solve was slow: refresh it at the next one
   std::vector<Vec3> y_, x_start_, trial_, v_before_;
   std::vector<double> volume_ratio_;  // per tet, at the start of the substep (the warm start's floor)
   std::vector<Contact> contacts_;
@@ -195,6 +207,7 @@ void NewtonFamily::compile(const BodyModel& m) {
       for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) diag_entry_[9 * v + 3 * i + j] = entry(dof_[v] + i, dof_[v] + j);
   analysed_ = false;
+  factored_ = refactor_ = false;
   g_.setZero(ndof_);
 }
 
@@ -256,8 +269,27 @@ void NewtonFamily::multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::Vec
   }, 4096);
 }
 
-bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, const std::function<bool()>& out_of_time,
-                                       int& iterations) {
+bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projected, bool block_jacobi_only,
+                                       const std::function<bool()>& out_of_time, int& iterations) {
+  const bool use_factor = ndof_ <= kFactorPreconditionerMaxDofs && !block_jacobi_only;
+  // Refactorised from a projected Hessian only (the exact one may not be positive definite, and a
+  // failed factorisation would lose the earlier factor).
+  if (use_factor && (!factored_ || refactor_) && projected) {
+    if (!analysed_) {
+      cholesky_.analyze(H_);
+      analysed_ = true;
+    }
+    factored_ = cholesky_.factorize(H_);
+    refactor_ = false;
+    spdlog::debug("newton cg: preconditioner factorised ({})", factored_ ? "ok" : "not positive definite");
+  }
+  if (use_factor && factored_) {
+    const int before = iterations;
+    const bool ok = preconditioned_cg(tp, eta, out_of_time, iterations,
+                                      [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) { z = cholesky_.solve(r); });
+    if (iterations - before > kRefactorAfter) refactor_ = true;
+    return ok;
+  }
   // The block-Jacobi preconditioner: each free vertex's 3x3 diagonal block inverted (its
   // diagonal's where the block is not positive definite, as the exact Hessian's may not be).
   const double* values = H_.valuePtr();
@@ -276,10 +308,14 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, const std::fu
       for (int i = 0; i < 3; ++i) inv(i, i) = 1.0 / std::max(std::abs(b(i, i)), 1e-300);
     }
   }
-  auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
+  return preconditioned_cg(tp, eta, out_of_time, iterations, [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
     z.resize(ndof_);
     for (int k = 0; k < ndof_ / 3; ++k) z.segment<3>(3 * k) = block_inverse_[size_t(k)] * r.segment<3>(3 * k);
-  };
+  });
+}
+
+bool NewtonFamily::preconditioned_cg(ThreadPool& tp, double eta, const std::function<bool()>& out_of_time,
+                                     int& iterations, const Preconditioner& precondition) {
   d_.setZero(ndof_);
   cg_r_ = -g_;
   precondition(cg_r_, cg_z_);
@@ -602,7 +638,8 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       const auto t_solve = Clock::now();
       const double eta = std::min(kMaxForcing, std::sqrt(gnorm / g0));
       auto solve = [&] {
-        return cg ? conjugate_gradients(tp, eta, out_of_time, rep.linear_iterations) : cholesky_.factorize(H_);
+        return cg ? conjugate_gradients(tp, eta, !exact, s.newton_linear_solver == NewtonLinearSolver::CgJacobi, out_of_time,
+                                      rep.linear_iterations) : cholesky_.factorize(H_);
       };
       bool factored = solve();
       if (exact && !factored) {

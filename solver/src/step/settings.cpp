@@ -86,18 +86,21 @@ std::string_view to_string(NewtonLinearSolver s) {
     case NewtonLinearSolver::Auto: return "auto";
     case NewtonLinearSolver::Direct: return "direct";
     case NewtonLinearSolver::Cg: return "cg";
+    case NewtonLinearSolver::CgJacobi: return "cg-jacobi";
   }
   return "?";
 }
 
 std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s) {
-  for (NewtonLinearSolver v : {NewtonLinearSolver::Auto, NewtonLinearSolver::Direct, NewtonLinearSolver::Cg})
+  for (NewtonLinearSolver v : {NewtonLinearSolver::Auto, NewtonLinearSolver::Direct, NewtonLinearSolver::Cg,
+                               NewtonLinearSolver::CgJacobi})
     if (to_string(v) == s) return v;
   return std::nullopt;
 }
 
 bool newton_uses_cg(NewtonLinearSolver s, int free_dofs) {
-  return s == NewtonLinearSolver::Cg || (s == NewtonLinearSolver::Auto && free_dofs > kNewtonDirectMaxDofs);
+  return s == NewtonLinearSolver::Cg || s == NewtonLinearSolver::CgJacobi ||
+         (s == NewtonLinearSolver::Auto && free_dofs > kNewtonDirectMaxDofs);
 }
 
 double under_resolution(double wave_courant_number, int iterations) {
