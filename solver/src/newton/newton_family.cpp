@@ -15,7 +15,8 @@
 //
 // Inexact Newton (newton_linear_solver cg, or auto above kNewtonDirectMaxDofs free dofs): where
 // the factorisation does not fit a tick, H d = -g is solved by conjugate gradients on the same
-// assembled matrix, preconditioned by the inverses of its 3x3 vertex blocks, to a relative
+// assembled matrix, preconditioned by a factorisation of an earlier Hessian (up to
+// kFactorPreconditionerMaxDofs) or by the inverses of its 3x3 vertex blocks, to a relative
 // residual eta = min(kMaxForcing, sqrt(|g| / |g0|)) (a forcing term that tightens as Newton
 // converges, so the outer iteration stays superlinear); the time budget stops CG too, and its
 // last iterate is still a descent direction for the line search. Negative curvature of the
@@ -124,14 +125,17 @@ class NewtonFamily final : public SolverFamily {
   void remember_normal_forces();
   // y = H_ x, rows in parallel (H_ stores both triangles, so column c is row c).
   void multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::VectorXd& y) const;
-  // d_ from CG on H_ d = -g_ to |H d + g| <= eta |g|, at most kMaxCgIterations or until
-  // out_of_time() says so; the number of CG iterations run goes to `iterations`. False when
-  // H_ showed a direction of non-positive curvature (d_ is then unusable).
+  // d_ from CG on H_ d = -g_ to |H d + g| <= eta |g| in the preconditioner's norm, at most
+  // kMaxCgIterations or until out_of_time() says so; the CG iterations run are added to
+  // `iterations`. `projected`: H_ is the PSD-projected Hessian (else the exact one, which may
+  // be indefinite). False when H_ showed non-positive curvature before any progress, or at all
+  // when not projected (d_ is then unusable). Preconditioner: conjugate_gradients' comment.
   bool conjugate_gradients(ThreadPool& tp, double eta, bool projected, bool block_jacobi_only,
                            const std::function<bool()>& out_of_time, int& iterations);
   using Preconditioner = std::function<void(const Eigen::VectorXd& r, Eigen::VectorXd& z)>;
-  bool preconditioned_cg(ThreadPool& tp, double eta, const std::function<bool()>& out_of_time, int& iterations,
-                         const Preconditioner& precondition);
+  // The CG loop itself, z = M^-1 r by `precondition`.
+  bool preconditioned_cg(ThreadPool& tp, double eta, bool projected, const std::function<bool()>& out_of_time,
+                         int& iterations, const Preconditioner& precondition);
 
   uint64_t compiled_model_ = 0;
   std::vector<int> dof_;  // vertex -> first dof, -1 when fixed
@@ -285,7 +289,7 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
   }
   if (use_factor && factored_) {
     const int before = iterations;
-    const bool ok = preconditioned_cg(tp, eta, out_of_time, iterations,
+    const bool ok = preconditioned_cg(tp, eta, projected, out_of_time, iterations,
                                       [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) { z = cholesky_.solve(r); });
     if (iterations - before > kRefactorAfter) refactor_ = true;
     return ok;
@@ -308,14 +312,15 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
       for (int i = 0; i < 3; ++i) inv(i, i) = 1.0 / std::max(std::abs(b(i, i)), 1e-300);
     }
   }
-  return preconditioned_cg(tp, eta, out_of_time, iterations, [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
+  return preconditioned_cg(tp, eta, projected, out_of_time, iterations, [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
     z.resize(ndof_);
     for (int k = 0; k < ndof_ / 3; ++k) z.segment<3>(3 * k) = block_inverse_[size_t(k)] * r.segment<3>(3 * k);
   });
 }
 
-bool NewtonFamily::preconditioned_cg(ThreadPool& tp, double eta, const std::function<bool()>& out_of_time,
-                                     int& iterations, const Preconditioner& precondition) {
+bool NewtonFamily::preconditioned_cg(ThreadPool& tp, double eta, bool projected,
+                                     const std::function<bool()>& out_of_time, int& iterations,
+                                     const Preconditioner& precondition) {
   d_.setZero(ndof_);
   cg_r_ = -g_;
   precondition(cg_r_, cg_z_);
@@ -327,7 +332,9 @@ bool NewtonFamily::preconditioned_cg(ThreadPool& tp, double eta, const std::func
   for (int k = 0; k < kMaxCgIterations; ++k) {
     multiply(tp, cg_p_, cg_q_);
     const double curvature = cg_p_.dot(cg_q_);
-    if (!(curvature > 0)) return false;
+    // Non-positive curvature: the exact Hessian is not positive definite here (the caller goes
+    // back to the projected one); on the projected one only round-off, so keep what CG has.
+    if (!(curvature > 0)) return projected && k > 0;
     const double a = rz / curvature;
     d_ += a * cg_p_;
     cg_r_ -= a * cg_q_;
