@@ -150,6 +150,7 @@ class NewtonFamily final : public SolverFamily {
   std::vector<Eigen::Matrix3d> block_inverse_;  // per free vertex (dof / 3): its diagonal block's inverse
   bool factored_ = false;   // cholesky_ holds a factorisation of an earlier Hessian (CG's preconditioner)
   bool refactor_ = false;   // the last CG solve was slow: refresh it at the next one
+  size_t factored_contacts_ = 0, factored_attachments_ = 0;  // the penalties it was factorised with
   std::vector<Vec3> y_, x_start_, trial_, v_before_;
   std::vector<double> volume_ratio_;  // per tet, at the start of the substep (the warm start's floor)
   std::vector<Contact> contacts_;
@@ -278,6 +279,9 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
   const bool use_factor = ndof_ <= kFactorPreconditionerMaxDofs && !block_jacobi_only;
   // Refactorised from a projected Hessian only (the exact one may not be positive definite, and a
   // failed factorisation would lose the earlier factor).
+  // Contacts and grabs add penalties far stiffer than the body: a factor without them (or with
+  // others) preconditions them badly, so a change of either set refreshes it.
+  if (contacts_.size() != factored_contacts_ || attachment_k_.size() != factored_attachments_) refactor_ = true;
   if (use_factor && (!factored_ || refactor_) && projected) {
     if (!analysed_) {
       cholesky_.analyze(H_);
@@ -285,6 +289,8 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
     }
     factored_ = cholesky_.factorize(H_);
     refactor_ = false;
+    factored_contacts_ = contacts_.size();
+    factored_attachments_ = attachment_k_.size();
     spdlog::debug("newton cg: preconditioner factorised ({})", factored_ ? "ok" : "not positive definite");
   }
   if (use_factor && factored_) {
