@@ -32,10 +32,11 @@ rest() {  # mesh clamp-x max-ticks extra... : at rest at 60 Hz, damping 0.5 (the
 {
   run reference --mesh hippo --young 1e6 --fix-x-max -0.07159
   for it in 1 3 10; do rest hippo -0.07159 900 --newton-linear-solver cg --iterations "$it"; done
+  rest hippo -0.07159 900 --newton-linear-solver cg-jacobi --iterations 1
   rest hippo -0.07159 900 --newton-linear-solver cg --iterations 100000 --time-budget-ms 8.333
   rest hippo -0.07159 900 --newton-linear-solver direct --iterations 100000 --time-budget-ms 8.333
-  run accuracy --mesh hippo --young 1e6 --fix-x-max -0.07159 --dt 1/60 --start sag --budget-ms 3000 \
-    --threads "$THREADS" --methods newton:1xN:linear=cg,newton:1xN:linear=direct
+  run accuracy --mesh hippo --young 1e6 --fix-x-max -0.07159 --dt 1/60 --start sag --budget-ms 2000 \
+    --threads "$THREADS" --methods newton:1xN:linear=cg,newton:1xN:linear=direct,newton:1xN:linear=cg-jacobi
   if [ -z "${SKIP_ARMADILLO:-}" ]; then
     run reference --mesh armadillo --young 1e6 --fix-x-max -0.04936
     for it in 1 3; do rest armadillo -0.04936 400 --newton-linear-solver cg --iterations "$it" ; done
