@@ -71,6 +71,10 @@ common options:
   --method X          xpbd | sor | lambda-sor | chebyshev | anderson | anderson-sor | extrapolation
                       (constraint projection) | vbd (vertex block descent) | newton (global
                       Newton step on the implicit-Euler potential; iterations = Newton iterations)
+  --newton-linear-solver L   newton's linear solver: direct (sparse LDL^T) | cg (inexact
+                      Newton: CG preconditioned by an earlier factorisation up to 20000 free
+                      dofs, by 3x3 vertex blocks above) | cg-jacobi (vertex blocks only) | auto
+                      (default: cg above 5000 free dofs)
   --sweep S           gauss-seidel (coloured, parallel) | jacobi | sequential (one tet at a time
                       in mesh order, one thread: the thesis's sweep; needs --threads 1)
   --tet-order O       renumber the tets before building the body: mesh (as given; the beams:
@@ -109,7 +113,8 @@ accuracy:  --methods LIST  --budget-ms T (default 100)  --start bend|sag (defaul
            LIST: comma-separated specs METHOD:SUBSTEPSxITERATIONS[:KEY=VALUE...], N in one of
            the two places meaning "grows with the budget", e.g.
              xpbd:64x1,xpbd:16x4,xpbd:1xN,xpbd:Nx1,anderson-sor:1xN:omega=2,chebyshev:1xN:rho=0.99
-           keys: omega window sweep form rho gamma delay relaxation cond floor line-search.
+           keys: omega window sweep form rho gamma delay relaxation cond floor line-search
+           linear (newton: direct | cg | cg-jacobi | auto).
            1xN records every iteration of one step (hook time excluded); other N specs run
            the whole step for N = 1, 2, 3, 4, 6, 8, 11, 16, ... until a run takes T ms; a fixed
            spec is one point. Every time is the fastest of up to 3 runs (per iteration for
@@ -140,7 +145,7 @@ run:       --steps N  --out DIR  --every K  --tip-csv FILE (last line: JSON with
 const std::set<std::string> kValued = {
     "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
     "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "time-budget-ms", "threads",
-    "log-level", "csv", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
+    "log-level", "csv", "newton-linear-solver", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
     "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model",
     "methods", "budget-ms", "start", "csv-dir", "png", "tet-order", "seed"};
 const std::set<std::string> kFlags = {"progress", "quiet", "no-line-search", "dynamic", "substep-floor"};
@@ -208,6 +213,11 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
     auto w = parse_sweep(*v);
     if (!w) throw cli::UsageError("--sweep: unknown sweep '" + *v + "' (" + std::string(sweep_names()) + ")");
     s.sweep = *w;
+  }
+  if (auto v = a.str("newton-linear-solver")) {
+    auto l = parse_newton_linear_solver(*v);
+    if (!l) throw cli::UsageError("--newton-linear-solver: unknown linear solver '" + *v + "' (auto, direct, cg, cg-jacobi)");
+    s.newton_linear_solver = *l;
   }
   if (auto v = a.str("anderson-form")) {
     auto f = parse_anderson_form(*v);
@@ -389,7 +399,13 @@ int cmd_static(const cli::Args& a) {
       .add("floored_vertices", long(model->floored_vertices()))
       .add("max_speed", r.max_speed).add("rms_speed", rms_speed(*model, r.state))
       .add("kinetic_energy", kinetic_energy(*model, r.state)).add("at_rest", r.at_rest).add("diverged", r.diverged)
-      .add("inverted_tets", long(count_inverted(*model, r.state.x)));
+      .add("inverted_tets", long(count_inverted(*model, r.state.x)))
+      .add("last_step_iterations", r.last_report.iterations)
+      .add("last_step_wall_ms", r.last_report.wall_ms);
+  if (s.method == Method::Newton)
+    j.add("newton_linear_solver",
+          std::string(to_string(newton_uses_cg(*model, s) ? NewtonLinearSolver::Cg : NewtonLinearSolver::Direct)))
+        .add("last_step_cg_iterations", r.last_report.linear_iterations);
   std::cout << j.str() << std::endl;
   return r.diverged ? 3 : (r.at_rest ? 0 : 4);
 }

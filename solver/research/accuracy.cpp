@@ -115,6 +115,11 @@ MethodSpec parse_method_spec(std::string_view text_in, const SolverSettings& bas
     else if (key == "cond") s.condition_limit = spec_number(text, key, value);
     else if (key == "floor") s.inversion_floor = spec_number(text, key, value);
     else if (key == "line-search") s.line_search = spec_number(text, key, value) != 0;
+    else if (key == "linear") {
+      const auto l = parse_newton_linear_solver(value);
+      if (!l) bad_spec(text, "unknown linear solver '" + value + "' (auto, direct, cg, cg-jacobi)");
+      s.newton_linear_solver = *l;
+    }
     else if (key == "sweep") {
       const auto w = parse_sweep(value);
       if (!w) bad_spec(text, "unknown sweep '" + value + "' (" + std::string(sweep_names()) + ")");
@@ -124,7 +129,7 @@ MethodSpec parse_method_spec(std::string_view text_in, const SolverSettings& bas
       if (!f) bad_spec(text, "unknown Anderson form '" + value + "' (thesis, type2)");
       s.anderson_form = *f;
     } else {
-      bad_spec(text, "unknown key '" + key + "' (omega, window, sweep, form, rho, gamma, delay, relaxation, cond, floor, line-search)");
+      bad_spec(text, "unknown key '" + key + "' (omega, window, sweep, form, rho, gamma, delay, relaxation, cond, floor, line-search, linear)");
     }
   }
   return spec;

@@ -26,7 +26,8 @@ struct MethodChoice {
   std::string summary;              // one line: the winner and each candidate's error and time
 };
 
-// Candidates: newton and vbd with one substep, and the projection family at base.substeps x 1
+// Candidates: newton (its linear solver as base.newton_linear_solver: by default cg above
+// kNewtonDirectMaxDofs free dofs, where a factorisation does not fit a tick) and vbd with one substep, and the projection family at base.substeps x 1
 // (base.method when it names a projection method, else xpbd), each with iterations capped
 // high and time_budget_ms = budget_ms. base supplies dt, gravity, damping, threads, the floor.
 // With budget_ms <= 0 the budget is half the tick (base.dt).

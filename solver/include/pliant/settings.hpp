@@ -40,6 +40,20 @@ SolverFamilyKind family_of(Method m);
 
 enum class Damping { None, Simple, RigidPreserving };
 
+// How the Newton family solves H d = -g each iteration (see docs/solver.md, "Inexact Newton").
+enum class NewtonLinearSolver {
+  Auto,    // direct up to kNewtonDirectMaxDofs free dofs, cg above
+  Direct,  // sparse LDL^T (Eigen SimplicialLDLT): the exact Newton direction
+  Cg,      // inexact Newton: conjugate gradients to a forcing term, preconditioned by a factorisation
+           // of an earlier Hessian (refreshed when CG slows) up to 20,000 free dofs, else as cg-jacobi
+  CgJacobi,  // the same preconditioned by the inverses of the 3x3 vertex blocks only
+};
+
+// Free dofs above which newton_linear_solver auto uses cg: beam3 (4,320 free dofs) stays direct,
+// the thesis hippo (8,220) and armadillo (42,783) hanging from 10% of x go to cg (docs/solver.md,
+// "Inexact Newton").
+inline constexpr int kNewtonDirectMaxDofs = 5000;
+
 // Which Anderson formulation the anderson / anderson-sor methods use (see docs/solver.md).
 enum class AndersonForm {
   Thesis,  // the thesis's eq. 2.11-2.15: Anderson on the increments, residual e = D_k - D_{k-1}
@@ -86,6 +100,8 @@ struct SolverSettings {
   // on compressed tets (see docs/solver.md). false: the thesis's full step.
   bool line_search = true;
   int threads = 1;          // worker threads for the sweeps (1: all on the calling thread)
+  // Method newton: the linear solver of each iteration (auto: by the body's size).
+  NewtonLinearSolver newton_linear_solver = NewtonLinearSolver::Auto;
   bool record_residuals = true;  // compute ||r|| after every iteration (needed by Anderson)
 };
 
@@ -97,6 +113,10 @@ std::optional<Method> parse_method(std::string_view s);   // "xpbd" | "sor" | "l
 std::string_view method_names();  // "xpbd, sor, ..., auto": the accepted names, for messages
 std::string_view sweep_names();   // "gauss-seidel, jacobi, sequential"
 std::optional<Damping> parse_damping(std::string_view s); // "none" | "simple" | "rigid"
+std::string_view to_string(NewtonLinearSolver s);
+std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s);  // "auto" | "direct" | "cg" | "cg-jacobi"
+// Whether method newton on a body with `free_dofs` free degrees of freedom solves with cg.
+bool newton_uses_cg(NewtonLinearSolver s, int free_dofs);
 std::string_view to_string(AndersonForm f);
 std::optional<AndersonForm> parse_anderson_form(std::string_view s);  // "thesis" | "type2"
 

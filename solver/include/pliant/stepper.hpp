@@ -42,6 +42,7 @@ struct StepReport {
   bool cancelled = false;              // StepInputs::cancel was set: the step stopped between sweeps
   int contacts = 0;                    // active contacts at the end of the step
   int volume_corrections = 0;          // inversion-floor projections in the last iteration
+  int linear_iterations = 0;           // method newton with cg: CG iterations over all substeps
   // One per StepInputs::tools, same order: force/torque on the tool averaged over the substeps
   // of the step (= impulse during the step / dt), and the vertices that touched it.
   std::vector<ToolReaction> tools;
@@ -67,6 +68,18 @@ struct StepInputs {
   // one sweep whatever the budget.
   const std::atomic<bool>* cancel = nullptr;
 };
+
+// The degrees of freedom a global solve works on: 3 per vertex of non-zero inverse mass.
+inline int free_dofs(const BodyModel& model) {
+  int n = 0;
+  for (double w : model.inv_mass) n += w > 0 ? 3 : 0;
+  return n;
+}
+
+// Whether method newton solves this body's linear systems with cg (settings' choice, auto by size).
+inline bool newton_uses_cg(const BodyModel& model, const SolverSettings& settings) {
+  return newton_uses_cg(settings.newton_linear_solver, free_dofs(model));
+}
 
 class Stepper {
  public:

@@ -13,6 +13,15 @@
 // so a step that pushes a vertex into an obstacle is shortened. Near the solution (after a full
 // step) the exact Hessian is tried first: Newton then converges quadratically; where it is not
 // positive definite the per-tet PSD-projected one is used.
+//
+// Inexact Newton (newton_linear_solver cg, or auto above kNewtonDirectMaxDofs free dofs): where
+// the factorisation does not fit a tick, H d = -g is solved by conjugate gradients on the same
+// assembled matrix, preconditioned by a factorisation of an earlier Hessian (up to
+// kFactorPreconditionerMaxDofs) or by the inverses of its 3x3 vertex blocks, to a relative
+// residual eta = min(kMaxForcing, sqrt(|g| / |g0|)) (a forcing term that tightens as Newton
+// converges, so the outer iteration stays superlinear); the time budget stops CG too, and its
+// last iterate is still a descent direction for the line search. Negative curvature of the
+// exact Hessian sends the iteration back to the projected one, as the failed factorisation does.
 #include "kernels/projection.hpp"
 #include "step/family.hpp"
 #include "step/stages.hpp"
@@ -20,12 +29,14 @@
 
 #include "pliant/strain_constraint.hpp"
 
+#include <Eigen/Dense>
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 
 namespace pliant::detail {
 
@@ -39,6 +50,16 @@ constexpr double kContactScale = 1e4;
 // Friction's static region: tangential slip below this speed (m/s) times h is treated as
 // sticking (the smoothed Coulomb model's epsilon_v).
 constexpr double kStickSpeed = 1e-3;
+// Inexact Newton: the loosest relative residual CG is asked for (first iterations), and the
+// most CG iterations per Newton iteration.
+constexpr double kMaxForcing = 0.5;
+constexpr int kMaxCgIterations = 2000;
+// Up to this many free dofs CG is preconditioned by a factorisation of an earlier Hessian (the
+// hippo's costs a few ticks' budget, once; the armadillo's 1.8 s and each of its solves tens of
+// ms, so it gets the 3x3 vertex blocks); it is refreshed when a solve needs more than
+// kRefactorAfter CG iterations.
+constexpr int kFactorPreconditionerMaxDofs = 20000;
+constexpr int kRefactorAfter = 20;
 
 // The sparse Cholesky factorisation of the Hessian, its symbolic analysis (ordering, elimination
 // tree) done once per model. Eigen's simplicial LDL^T: CHOLMOD's supernodal LL^T (Debian
@@ -97,10 +118,25 @@ class NewtonFamily final : public SolverFamily {
   double attachment_stiffness(const BodyModel& m, const Attachment& a, double h) const;
   double elastic_diagonal(int32_t v) const;
   double inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const;
+  // Sum of the tets' strain energies at x (in parallel on pool_).
+  double elastic_energy(const BodyModel& m, const std::vector<Vec3>& x) const;
   // Whether no tet of `trial` falls below the inversion floor, or below where it already was.
   bool keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const;
   // lagged_ = contacts_ with their normal forces at the current positions.
   void remember_normal_forces();
+  // y = H_ x, rows in parallel (H_ stores both triangles, so column c is row c).
+  void multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::VectorXd& y) const;
+  // d_ from CG on H_ d = -g_ to |H d + g| <= eta |g| in the preconditioner's norm, at most
+  // kMaxCgIterations or until out_of_time() says so; the CG iterations run are added to
+  // `iterations`. `projected`: H_ is the PSD-projected Hessian (else the exact one, which may
+  // be indefinite). False when H_ showed non-positive curvature before any progress, or at all
+  // when not projected (d_ is then unusable). Preconditioner: conjugate_gradients' comment.
+  bool conjugate_gradients(ThreadPool& tp, double eta, bool projected, bool block_jacobi_only,
+                           const std::function<bool()>& out_of_time, int& iterations);
+  using Preconditioner = std::function<void(const Eigen::VectorXd& r, Eigen::VectorXd& z)>;
+  // The CG loop itself, z = M^-1 r by `precondition`.
+  bool preconditioned_cg(ThreadPool& tp, double eta, bool projected, const std::function<bool()>& out_of_time,
+                         int& iterations, const Preconditioner& precondition);
 
   uint64_t compiled_model_ = 0;
   std::vector<int> dof_;  // vertex -> first dof, -1 when fixed
@@ -109,7 +145,13 @@ class NewtonFamily final : public SolverFamily {
   std::vector<int32_t> tet_entry_;  // 144 per tet: index into H_.valuePtr(), -1 for fixed
   std::vector<int32_t> diag_entry_; // 9 per vertex: its diagonal block's entries
   SparseCholesky cholesky_;
+  bool analysed_ = false;  // cholesky_ has this model's symbolic analysis
   Eigen::VectorXd g_, d_;
+  Eigen::VectorXd cg_r_, cg_z_, cg_p_, cg_q_;  // CG's residual, preconditioned residual, direction, H p
+  std::vector<Eigen::Matrix3d> block_inverse_;  // per free vertex (dof / 3): its diagonal block's inverse
+  bool factored_ = false;   // cholesky_ holds a factorisation of an earlier Hessian (CG's preconditioner)
+  bool refactor_ = false;   // the last CG solve was slow: refresh it at the next one
+  size_t factored_contacts_ = 0, factored_attachments_ = 0;  // the penalties it was factorised with
   std::vector<Vec3> y_, x_start_, trial_, v_before_;
   std::vector<double> volume_ratio_;  // per tet, at the start of the substep (the warm start's floor)
   std::vector<Contact> contacts_;
@@ -170,7 +212,8 @@ void NewtonFamily::compile(const BodyModel& m) {
     if (dof_[v] >= 0)
       for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) diag_entry_[9 * v + 3 * i + j] = entry(dof_[v] + i, dof_[v] + j);
-  cholesky_.analyze(H_);
+  analysed_ = false;
+  factored_ = refactor_ = false;
   g_.setZero(ndof_);
 }
 
@@ -216,6 +259,103 @@ void NewtonFamily::assemble(const BodyModel& m, const std::vector<Vec3>& x, doub
     if (hessian)
       for (int i = 0; i < 3; ++i) values[diag_entry_[9 * v + 4 * i]] += inv_h2 * m.inertia[v];
   }
+}
+
+void NewtonFamily::multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::VectorXd& y) const {
+  y.resize(ndof_);
+  const int* outer = H_.outerIndexPtr();
+  const int* inner = H_.innerIndexPtr();
+  const double* values = H_.valuePtr();
+  tp.parallel_for(size_t(ndof_), [&](int, size_t b, size_t e) {
+    for (size_t c = b; c < e; ++c) {
+      double sum = 0;
+      for (int k = outer[c]; k < outer[c + 1]; ++k) sum += values[k] * x[inner[k]];
+      y[Eigen::Index(c)] = sum;
+    }
+  }, 4096);
+}
+
+bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projected, bool block_jacobi_only,
+                                       const std::function<bool()>& out_of_time, int& iterations) {
+  const bool use_factor = ndof_ <= kFactorPreconditionerMaxDofs && !block_jacobi_only;
+  // Refactorised from a projected Hessian only (the exact one may not be positive definite, and a
+  // failed factorisation would lose the earlier factor).
+  // Contacts and grabs add penalties far stiffer than the body: a factor without them (or with
+  // others) preconditions them badly, so a change of either set refreshes it.
+  if (contacts_.size() != factored_contacts_ || attachment_k_.size() != factored_attachments_) refactor_ = true;
+  if (use_factor && (!factored_ || refactor_) && projected) {
+    if (!analysed_) {
+      cholesky_.analyze(H_);
+      analysed_ = true;
+    }
+    factored_ = cholesky_.factorize(H_);
+    refactor_ = false;
+    factored_contacts_ = contacts_.size();
+    factored_attachments_ = attachment_k_.size();
+    spdlog::debug("newton cg: preconditioner factorised ({})", factored_ ? "ok" : "not positive definite");
+  }
+  if (use_factor && factored_) {
+    const int before = iterations;
+    const bool ok = preconditioned_cg(tp, eta, projected, out_of_time, iterations,
+                                      [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) { z = cholesky_.solve(r); });
+    if (iterations - before > kRefactorAfter) refactor_ = true;
+    return ok;
+  }
+  // The block-Jacobi preconditioner: each free vertex's 3x3 diagonal block inverted (its
+  // diagonal's where the block is not positive definite, as the exact Hessian's may not be).
+  const double* values = H_.valuePtr();
+  block_inverse_.resize(size_t(ndof_ / 3));
+  for (size_t v = 0; v < dof_.size(); ++v) {
+    if (dof_[v] < 0) continue;
+    Eigen::Matrix3d b;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) b(i, j) = values[diag_entry_[9 * v + 3 * i + j]];
+    Eigen::LLT<Eigen::Matrix3d> llt(b);
+    Eigen::Matrix3d& inv = block_inverse_[size_t(dof_[v] / 3)];
+    if (llt.info() == Eigen::Success) {
+      inv = llt.solve(Eigen::Matrix3d::Identity());
+    } else {
+      inv.setZero();
+      for (int i = 0; i < 3; ++i) inv(i, i) = 1.0 / std::max(std::abs(b(i, i)), 1e-300);
+    }
+  }
+  return preconditioned_cg(tp, eta, projected, out_of_time, iterations, [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
+    z.resize(ndof_);
+    for (int k = 0; k < ndof_ / 3; ++k) z.segment<3>(3 * k) = block_inverse_[size_t(k)] * r.segment<3>(3 * k);
+  });
+}
+
+bool NewtonFamily::preconditioned_cg(ThreadPool& tp, double eta, bool projected,
+                                     const std::function<bool()>& out_of_time, int& iterations,
+                                     const Preconditioner& precondition) {
+  d_.setZero(ndof_);
+  cg_r_ = -g_;
+  precondition(cg_r_, cg_z_);
+  cg_p_ = cg_z_;
+  double rz = cg_r_.dot(cg_z_);
+  // Measured in the preconditioner's norm |r|_M^-1 = sqrt(r^T z): the plain |r| is dominated by
+  // the stiffest dofs (slivers) and wanders for hundreds of iterations while the step improves.
+  const double rz0 = rz, target = eta * eta * rz;
+  for (int k = 0; k < kMaxCgIterations; ++k) {
+    multiply(tp, cg_p_, cg_q_);
+    const double curvature = cg_p_.dot(cg_q_);
+    // Non-positive curvature: the exact Hessian is not positive definite here (the caller goes
+    // back to the projected one); on the projected one only round-off, so keep what CG has.
+    if (!(curvature > 0)) return projected && k > 0;
+    const double a = rz / curvature;
+    d_ += a * cg_p_;
+    cg_r_ -= a * cg_q_;
+    ++iterations;
+    precondition(cg_r_, cg_z_);
+    const double rz_next = cg_r_.dot(cg_z_);
+    if (rz_next <= target || out_of_time()) break;
+    if (k + 1 == kMaxCgIterations)
+      spdlog::debug("newton cg: {} iterations left |r|_M / |g|_M = {:.3g} (asked {:.3g})", kMaxCgIterations,
+                    std::sqrt(rz_next / rz0), eta);
+    cg_p_ = cg_z_ + (rz_next / rz) * cg_p_;
+    rz = rz_next;
+  }
+  return true;
 }
 
 void NewtonFamily::set_contact_stiffness(const BodyModel& m, double h) {
@@ -383,9 +523,21 @@ void NewtonFamily::add_interaction(const BodyModel& m, const std::vector<Vec3>& 
   }
 }
 
-double NewtonFamily::inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const {
+double NewtonFamily::elastic_energy(const BodyModel& m, const std::vector<Vec3>& x) const {
+  // Per chunk of tets, summed in chunk order: the same result for the same thread count.
+  std::vector<double> part(size_t(pool_->size()), 0.0);
+  pool_->parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
+    double sum = 0;
+    for (size_t t = b; t < e; ++t) sum += strain_energy(m.tets[t], m.stiffness, gather(x, m.tets[t].v), m.material.model);
+    part[size_t(chunk)] = sum;
+  }, 2048);
   double e = 0;
-  for (const TetRest& t : m.tets) e += strain_energy(t, m.stiffness, gather(x, t.v), m.material.model);
+  for (double p : part) e += p;
+  return e;
+}
+
+double NewtonFamily::inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const {
+  double e = elastic_energy(m, x);
   for (size_t i = 0; i < x.size(); ++i)
     if (dof_[i] >= 0) e += 0.5 / (h * h) * m.inertia[i] * (x[i] - y_[i]).squaredNorm();
   return e;
@@ -399,8 +551,7 @@ bool NewtonFamily::keeps_volume(const BodyModel& m, const std::vector<Vec3>& tri
 
 double NewtonFamily::potential(const BodyModel& m, const std::vector<Vec3>& x, double h,
                                const StepInputs& in) const {
-  double e = 0;
-  for (const TetRest& t : m.tets) e += strain_energy(t, m.stiffness, gather(x, t.v), m.material.model);
+  double e = elastic_energy(m, x);
   const double inv_h2 = 1.0 / (h * h);
   for (size_t i = 0; i < x.size(); ++i)
     if (dof_[i] >= 0) e += 0.5 * inv_h2 * m.inertia[i] * (x[i] - y_[i]).squaredNorm();
@@ -470,6 +621,14 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
                               : 0.0;
     StepReport rep;
     attachment_k_.assign(in.attachments.size(), 0.0);
+    const bool cg = newton_uses_cg(s.newton_linear_solver, ndof_);
+    if (!cg && !analysed_) {
+      cholesky_.analyze(H_);
+      analysed_ = true;
+    }
+    auto out_of_time = [&] {
+      return (budget > 0 && ms_since(t_sub) >= budget) || (in.cancel && in.cancel->load(std::memory_order_relaxed));
+    };
     double g0 = -1;
     bool full_step = false;  // the last iteration took the whole Newton step
     for (int it = 0; it < s.iterations; ++it) {
@@ -491,19 +650,27 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         break;
       }
       const auto t_solve = Clock::now();
-      bool factored = cholesky_.factorize(H_);
+      const double eta = std::min(kMaxForcing, std::sqrt(gnorm / g0));
+      auto solve = [&] {
+        return cg ? conjugate_gradients(tp, eta, !exact, s.newton_linear_solver == NewtonLinearSolver::CgJacobi, out_of_time,
+                                      rep.linear_iterations) : cholesky_.factorize(H_);
+      };
+      bool factored = solve();
       if (exact && !factored) {
         // Not positive definite here: the projected Hessian instead.
         exact = false;
         assemble(m, x, h, tp, true, false);
         add_interaction(m, x, h, in, true);
-        factored = cholesky_.factorize(H_);
+        factored = solve();
       }
       if (!factored) {
         rep.diverged = true;
         break;
       }
-      d_ = cholesky_.solve(-g_);
+      if (!cg) d_ = cholesky_.solve(-g_);
+      else
+        spdlog::debug("newton iteration {}: |g| {:.3e}, cg to {:.2g}: {} CG iterations so far in the substep", it,
+                      gnorm, eta, rep.linear_iterations);
       rep.times.update_ms += ms_since(t_solve);
       // A step below round-off of the coordinates: converged as far as double precision can tell.
       if (d_.lpNorm<Eigen::Infinity>() <= 1e-13 * m.mean_edge) {

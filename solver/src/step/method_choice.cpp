@@ -41,6 +41,7 @@ MethodChoice choose_method(const BodyModel& model, const SolverSettings& base, d
   exact.iterations = 200;
   exact.time_budget_ms = 0;
   exact.tolerance = 1e-10;
+  exact.newton_linear_solver = NewtonLinearSolver::Direct;  // the exact Newton direction
   BodyState converged = start;
   Stepper().step(model, converged, exact);
   const double scale = distance(start.x, converged.x);
@@ -99,7 +100,9 @@ MethodChoice choose_method(const BodyModel& model, const SolverSettings& base, d
     if (!t.failure.empty())
       parts += fmt::format("{} refused ({})", to_string(t.settings.method), t.failure);
     else
-      parts += fmt::format("{} {}x{} error {:.2e} in {:.2f} ms", to_string(t.settings.method), t.settings.substeps,
+      parts += fmt::format("{}{} {}x{} error {:.2e} in {:.2f} ms", to_string(t.settings.method),
+                           t.settings.method == Method::Newton && newton_uses_cg(model, t.settings) ? " (cg)" : "",
+                           t.settings.substeps,
                            t.iterations / std::max(1, t.settings.substeps), t.error, t.ms);
   }
   out.summary = fmt::format("{} (budget {:.2f} ms; first step from rest: {})", to_string(out.settings.method),

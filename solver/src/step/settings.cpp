@@ -82,6 +82,28 @@ std::optional<Damping> parse_damping(std::string_view s) {
   return std::nullopt;
 }
 
+std::string_view to_string(NewtonLinearSolver s) {
+  switch (s) {
+    case NewtonLinearSolver::Auto: return "auto";
+    case NewtonLinearSolver::Direct: return "direct";
+    case NewtonLinearSolver::Cg: return "cg";
+    case NewtonLinearSolver::CgJacobi: return "cg-jacobi";
+  }
+  return "?";
+}
+
+std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s) {
+  for (NewtonLinearSolver v : {NewtonLinearSolver::Auto, NewtonLinearSolver::Direct, NewtonLinearSolver::Cg,
+                               NewtonLinearSolver::CgJacobi})
+    if (to_string(v) == s) return v;
+  return std::nullopt;
+}
+
+bool newton_uses_cg(NewtonLinearSolver s, int free_dofs) {
+  return s == NewtonLinearSolver::Cg || s == NewtonLinearSolver::CgJacobi ||
+         (s == NewtonLinearSolver::Auto && free_dofs > kNewtonDirectMaxDofs);
+}
+
 double under_resolution(double wave_courant_number, int iterations) {
   return wave_courant_number / std::sqrt(double(std::max(1, iterations)));
 }

@@ -62,6 +62,7 @@ void add_substep(StepReport& total, StepReport&& r) {
   total.cancelled |= r.cancelled;
   total.contacts = r.contacts;
   total.volume_corrections = r.volume_corrections;
+  total.linear_iterations += r.linear_iterations;
   total.times.projection_ms += r.times.projection_ms;
   total.times.anderson_ms += r.times.anderson_ms;
   total.times.update_ms += r.times.update_ms;
