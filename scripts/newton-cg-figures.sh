@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Inexact Newton (method newton, newton_linear_solver cg) on the thesis hippo and armadillo at
 # E = 1 MPa hanging from their first 10% of x, and beam3's first swing under Newton: the figures
 # of docs/solver.md, "Inexact Newton". One JSON line per run (pliant-sim's last line, with the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Inexact Newton (method newton, newton_linear_solver cg): conjugate gradients on the Hessian
 // reach the same implicit-Euler step as the sparse factorisation, every Newton iteration lowers
 // the incremental potential, a step stopped by its time budget ends no worse than it began, and

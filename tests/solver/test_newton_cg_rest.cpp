@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Inexact Newton on a thesis model: the hippo hanging from its first 10% of x, stepped at 60 Hz
 // with a few CG-Newton iterations per tick (what a realtime budget runs; fixed counts here so
 // that the test does not depend on the machine's speed), comes to rest where the direct Newton
