@@ -140,9 +140,18 @@ void worker(int index, const ServerProcess& server, std::chrono::steady_clock::t
       v1::StreamFramesRequest q;
       q.set_scene_id(id);
       q.set_surface_only(op == 5);
+      const bool lockstep = is_lockstep(id);
+      if (lockstep) {  // a frame to start from (a new lockstep scene has none until it steps)
+        auto r = c.step(id, 1);
+        if (!r.ok()) {
+          ledger.fail("step " + id + ": " + r.status.to_string());
+          continue;
+        }
+        std::lock_guard lk(ledger.mu);
+        ledger.live[id] = static_cast<int64_t>(r->tick());
+      }
       auto s = c.stream_frames(q);
       v1::Frame f;
-      const bool lockstep = is_lockstep(id);
       bool got = s->next(&f);
       if (got && lockstep) {
         auto r = c.step(id, 2);
@@ -220,7 +229,7 @@ TEST(Soak, MixedLoadWithRestartsLosesNothingAndKeepsMemoryFlat) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   const fs::path data = dir / "data";
-  const std::vector<std::string> flags = {"--checkpoint-ms", "500", "--log-level", "warn"};
+  const std::vector<std::string> flags = {"--checkpoint-ms", "500", "--max-scenes", "64"};
   Ledger ledger;
 
   // Run 1 (a quarter of the time), then kill -9: scenes come back from their checkpoints.
