@@ -54,6 +54,7 @@ std::string_view to_string(Health h) {
 struct Client::Impl {
   ConnectOptions options;
   std::shared_ptr<grpc::Channel> channel;
+  std::shared_ptr<grpc::Channel> frame_channel;  // FrameService's (its own flow-control window)
   std::unique_ptr<v1::SceneService::Stub> scenes;
   std::unique_ptr<v1::FrameService::Stub> frames;
   std::unique_ptr<v1::SnapshotService::Stub> snapshots;
@@ -168,8 +169,19 @@ Client::Client(ConnectOptions options) : impl_(std::make_unique<Impl>()) {
   args.SetMaxReceiveMessageSize(o.max_message_mb * 1024 * 1024);
   args.SetMaxSendMessageSize(o.max_message_mb * 1024 * 1024);
   impl_->channel = grpc::CreateCustomChannel(o.address, creds, args);
+  impl_->frame_channel = impl_->channel;
+  if (o.frame_window_bytes > 0) {
+    // Frames on a connection of their own whose receive window stays small: a reader that stops
+    // reading leaves at most about one frame in its transport, so its next reads reach the
+    // newest frame (the server keeps only the newest unsent one). Whole messages still get the
+    // window they need when read.
+    grpc::ChannelArguments frame_args = args;
+    frame_args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+    frame_args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, o.frame_window_bytes);
+    impl_->frame_channel = grpc::CreateCustomChannel(o.address, creds, frame_args);
+  }
   impl_->scenes = v1::SceneService::NewStub(impl_->channel);
-  impl_->frames = v1::FrameService::NewStub(impl_->channel);
+  impl_->frames = v1::FrameService::NewStub(impl_->frame_channel);
   impl_->snapshots = v1::SnapshotService::NewStub(impl_->channel);
   impl_->interaction = v1::InteractionService::NewStub(impl_->channel);
   impl_->health = grpc::health::v1::Health::NewStub(impl_->channel);

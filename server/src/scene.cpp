@@ -149,6 +149,29 @@ void Scene::request_stop() {
     cancel_tick_ = true;
   }
   cv_.notify_all();
+  {
+    // Frame waiters see stop_ under frame_mu_ (wait_frame's predicate takes mu_ inside it).
+    std::lock_guard lk(frame_mu_);
+  }
+  frame_cv_.notify_all();
+  notify_listeners();
+}
+
+uint64_t Scene::add_frame_listener(std::function<void()> fn) {
+  std::lock_guard lk(listeners_mu_);
+  const uint64_t id = next_listener_++;
+  listeners_.emplace(id, std::move(fn));
+  return id;
+}
+
+void Scene::remove_frame_listener(uint64_t id) {
+  std::lock_guard lk(listeners_mu_);
+  listeners_.erase(id);
+}
+
+void Scene::notify_listeners() {
+  std::lock_guard lk(listeners_mu_);
+  for (auto& [id, fn] : listeners_) fn();
 }
 
 void Scene::stop() {
@@ -777,6 +800,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     latest_ = std::move(frame);
   }
   frame_cv_.notify_all();
+  notify_listeners();
   // A Step completes after its last frame and status are visible to every reader.
   if (!t.steps.empty()) {
     auto& job = t.steps.front();

@@ -21,6 +21,8 @@
 #include <array>
 #include <atomic>
 #include <condition_variable>
+#include <deque>
+#include <map>
 #include <filesystem>
 #include <fstream>
 #include <future>
@@ -78,12 +80,12 @@ struct ServiceContext {
   bool token_required = false;
   Digest expected{};  // SHA-256 of "Bearer <token>"
 
-  grpc::Status check(grpc::ServerContext* ctx) const {
+  grpc::Status check(const grpc::ServerContextBase* ctx) const {
     if (!token_required) return grpc::Status::OK;
     return check_token(ctx->client_metadata(), expected);
   }
 
-  grpc::Status answer(const char* rpc, grpc::ServerContext* ctx, const Error& e) const {
+  grpc::Status answer(const char* rpc, const grpc::ServerContextBase* ctx, const Error& e) const {
     if (!e.ok()) spdlog::debug("{} from {}: {}", rpc, ctx->peer(), e.message);
     return to_status(e);
   }
@@ -91,7 +93,7 @@ struct ServiceContext {
 
 // Runs `body` unless the call is unauthenticated; exceptions never escape to gRPC.
 template <class F>
-grpc::Status guarded(const ServiceContext& sc, const char* rpc, grpc::ServerContext* ctx, F&& body) {
+grpc::Status guarded(const ServiceContext& sc, const char* rpc, const grpc::ServerContextBase* ctx, F&& body) {
   if (grpc::Status s = sc.check(ctx); !s.ok()) {
     spdlog::warn("{} from {}: {}", rpc, ctx->peer(), s.error_message());
     return s;
@@ -150,79 +152,271 @@ class SceneServiceImpl final : public v1::SceneService::Service {
   ServiceContext sc_;
 };
 
-class FrameServiceImpl final : public v1::FrameService::Service {
+// A few threads that run the frame streams' work (building a frame message and starting its
+// write) for every open stream, now or at a given time (max_rate_hz). Open streams cost no
+// thread of their own: an idle stream is a registered listener and a reactor.
+class StreamPump {
  public:
-  explicit FrameServiceImpl(ServiceContext sc) : sc_(std::move(sc)) {}
+  explicit StreamPump(int threads) {
+    for (int i = 0; i < threads; ++i) threads_.emplace_back([this] { run(); });
+  }
+  ~StreamPump() {
+    {
+      std::lock_guard lk(mu_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    for (auto& t : threads_) t.join();
+  }
+  StreamPump(const StreamPump&) = delete;
+  StreamPump& operator=(const StreamPump&) = delete;
+
+  void post(std::function<void()> fn) {
+    {
+      std::lock_guard lk(mu_);
+      ready_.push_back(std::move(fn));
+    }
+    cv_.notify_one();
+  }
+  void post_at(Clock::time_point when, std::function<void()> fn) {
+    {
+      std::lock_guard lk(mu_);
+      timers_.emplace(when, std::move(fn));
+    }
+    cv_.notify_one();
+  }
+
+ private:
+  void run() {
+    std::unique_lock lk(mu_);
+    while (true) {
+      const auto now = Clock::now();
+      while (!timers_.empty() && timers_.begin()->first <= now) {
+        ready_.push_back(std::move(timers_.begin()->second));
+        timers_.erase(timers_.begin());
+      }
+      if (!ready_.empty()) {
+        auto fn = std::move(ready_.front());
+        ready_.pop_front();
+        lk.unlock();
+        try {
+          fn();
+        } catch (const std::exception& e) {
+          spdlog::error("StreamFrames: internal error: {}", e.what());
+        }
+        fn = nullptr;  // drops what it holds outside the lock
+        lk.lock();
+        continue;
+      }
+      if (stop_) return;
+      if (timers_.empty()) cv_.wait(lk);
+      else cv_.wait_until(lk, timers_.begin()->first);
+    }
+  }
+
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<std::function<void()>> ready_;
+  std::multimap<Clock::time_point, std::function<void()>> timers_;
+  bool stop_ = false;
+  std::vector<std::thread> threads_;
+};
+
+// A call refused before it started streaming.
+class RefusedFrames final : public grpc::ServerWriteReactor<v1::Frame> {
+ public:
+  explicit RefusedFrames(grpc::Status s) { Finish(std::move(s)); }
+  void OnDone() override { delete this; }
+};
+
+// One StreamFrames call on gRPC's callback API. It holds at most one frame message: the
+// scene's tick wakes it (a frame listener), and when no write is in flight it sends the
+// scene's newest frame; a frame published while a write is in flight replaces the one waiting,
+// and the write's completion sends the newest with the count of frames skipped in between.
+class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
+                                 public std::enable_shared_from_this<FrameStreamReactor> {
+ public:
+  struct Setup {
+    std::shared_ptr<Scene> scene;
+    std::shared_ptr<void> slot;
+    FrameSelection selection;
+    uint64_t every = 1;
+    Clock::duration min_interval{};
+  };
+
+  FrameStreamReactor(const ServiceContext& sc, StreamPump& pump, grpc::CallbackServerContext* ctx, Setup setup)
+      : sc_(sc), pump_(pump), peer_(ctx->peer()), setup_(std::move(setup)), next_allowed_(Clock::now()) {
+    // Start with the latest frame, so a paused scene's subscriber sees its current state.
+    auto latest = setup_.scene->latest_frame();
+    after_ = latest ? latest->seq - 1 : 0;
+  }
+
+  // Registers the listener and sends the first frame (or waits for it).
+  void begin(std::shared_ptr<FrameStreamReactor> self) {
+    self_ = std::move(self);
+    std::weak_ptr<FrameStreamReactor> weak = self_;
+    listener_ = setup_.scene->add_frame_listener([weak] {
+      if (auto s = weak.lock()) s->wake();
+    });
+    spdlog::debug("StreamFrames: {} subscribed to '{}'", peer_, setup_.scene->id());
+    wake();
+  }
+
+  void OnWriteDone(bool ok) override {
+    {
+      std::lock_guard lk(mu_);
+      writing_ = false;
+      if (!ok) finishing_ = true;  // the client went away (or the call was cancelled)
+    }
+    if (!ok) return finish(grpc::Status::OK);
+    pump();
+  }
+
+  void OnCancel() override { finish(grpc::Status(grpc::StatusCode::CANCELLED, "the call was cancelled")); }
+
+  void OnDone() override {
+    setup_.scene->remove_frame_listener(listener_);
+    setup_.slot.reset();  // frees the stream's place in the limits
+    spdlog::debug("StreamFrames: {} left '{}'", peer_, setup_.scene->id());
+    auto keep = std::move(self_);  // may destroy this at the end of the scope
+  }
+
+ private:
+  // From the tick (a new frame or the scene stopping): have the pump look at the scene unless
+  // a write or a look is already pending (the write's completion looks again).
+  void wake() {
+    std::lock_guard lk(mu_);
+    if (finished_ || writing_ || scheduled_) return;
+    scheduled_ = true;
+    pump_.post([s = shared_from_this()] {
+      {
+        std::lock_guard lk2(s->mu_);
+        s->scheduled_ = false;
+      }
+      s->pump();
+    });
+  }
+
+  // Sends the newest frame when one is due; ends the call when the scene or the server is gone.
+  void pump() {
+    std::unique_lock lk(mu_);
+    if (finished_ || finishing_ || writing_ || scheduled_) return;
+    if (sc_.registry->shutting_down()) {
+      lk.unlock();
+      return finish(to_status(Error::make(Code::Unavailable, "the server is shutting down")));
+    }
+    Scene& scene = *setup_.scene;
+    auto frame = scene.latest_frame();
+    bool due = frame && frame->seq > after_;
+    if (due && have_last_ && frame->seq < last_sent_ + setup_.every) {  // decimation
+      after_ = frame->seq;
+      due = false;
+    }
+    if (!due) {
+      if (scene.stopped()) {
+        lk.unlock();
+        return finish(to_status(Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", scene.id()))));
+      }
+      return;
+    }
+    const bool limited = setup_.min_interval > Clock::duration::zero();
+    const auto now = Clock::now();
+    if (limited && now < next_allowed_) {
+      // Rate limit: look again when the slot opens, and send whatever is newest then.
+      scheduled_ = true;
+      pump_.post_at(next_allowed_, [s = shared_from_this()] {
+        {
+          std::lock_guard lk2(s->mu_);
+          s->scheduled_ = false;
+        }
+        s->pump();
+      });
+      return;
+    }
+    uint64_t skipped = 0;
+    if (have_last_ && !limited) skipped = (frame->seq - last_sent_) / setup_.every - 1;
+    msg_.Clear();
+    SceneRegistry::fill_frame(*frame, setup_.selection, scene.surface_vertices(), skipped, &msg_);
+    // Keep the decimation's phase when a late reader sends an off-phase frame.
+    last_sent_ = have_last_ ? frame->seq - (frame->seq - last_sent_) % setup_.every : frame->seq;
+    have_last_ = true;
+    after_ = frame->seq;
+    if (limited) {
+      next_allowed_ += setup_.min_interval;
+      if (next_allowed_ < now) next_allowed_ = now;
+    }
+    writing_ = true;
+    lk.unlock();
+    StartWrite(&msg_);
+  }
+
+  void finish(grpc::Status s) {
+    {
+      std::lock_guard lk(mu_);
+      if (finished_) return;
+      finished_ = true;
+    }
+    if (!s.ok() && s.error_code() != grpc::StatusCode::CANCELLED)
+      spdlog::debug("StreamFrames from {}: {}", peer_, s.error_message());
+    Finish(std::move(s));
+  }
+
+  const ServiceContext& sc_;
+  StreamPump& pump_;
+  const std::string peer_;
+  Setup setup_;
+  uint64_t listener_ = 0;
+  std::shared_ptr<FrameStreamReactor> self_;  // alive until OnDone
+
+  std::mutex mu_;
+  bool writing_ = false;    // a StartWrite whose OnWriteDone has not run
+  bool scheduled_ = false;  // a pump is queued (now or at the rate limit's slot)
+  bool finishing_ = false;  // the write failed: no more writes
+  bool finished_ = false;   // Finish was called
+  v1::Frame msg_;           // the message being written (one per stream)
+  uint64_t after_ = 0;      // the newest frame seq looked at
+  bool have_last_ = false;
+  uint64_t last_sent_ = 0;  // decimation phase
+  Clock::time_point next_allowed_;
+};
+
+class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_StreamFrames<v1::FrameService::Service> {
+ public:
+  // Two pump threads serve every open frame stream.
+  explicit FrameServiceImpl(ServiceContext sc) : sc_(std::move(sc)), pump_(2) {}
   grpc::Status GetTopology(grpc::ServerContext* c, const v1::GetTopologyRequest* r, v1::Topology* o) override {
     return guarded(sc_, "GetTopology", c, [&] { return sc_.registry->topology(r->scene_id(), o); });
   }
 
-  grpc::Status StreamFrames(grpc::ServerContext* c, const v1::StreamFramesRequest* r,
-                            grpc::ServerWriter<v1::Frame>* writer) override {
-    return guarded(sc_, "StreamFrames", c, [&] { return stream(c, *r, writer); });
-  }
-
- private:
-  Error stream(grpc::ServerContext* c, const v1::StreamFramesRequest& r, grpc::ServerWriter<v1::Frame>* writer) {
-    std::shared_ptr<Scene> scene;
-    if (Error e = sc_.registry->find(r.scene_id(), &scene); !e.ok()) return e;
-    std::shared_ptr<void> slot;
-    if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
-    FrameSelection sel;
-    if (Error e = SceneRegistry::parse_stream_request(r, &sel); !e.ok()) return e;
-    const uint64_t every = r.every_nth_tick() <= 1 ? 1 : r.every_nth_tick();
-    const auto min_interval = r.max_rate_hz() > 0
-        ? std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / r.max_rate_hz()))
-        : Clock::duration::zero();
-    const auto& surface = scene->surface_vertices();
-
-    // Start with the latest frame, so a paused scene's subscriber sees its current state.
-    auto latest = scene->latest_frame();
-    uint64_t after = latest ? latest->seq - 1 : 0;
-    bool have_last = false;
-    uint64_t last_sent = 0;
-    Clock::time_point next_allowed = Clock::now();
-    v1::Frame msg;
-    spdlog::debug("StreamFrames: {} subscribed to '{}'", c->peer(), scene->id());
-    while (true) {
-      if (c->IsCancelled()) return {};
-      auto frame = scene->wait_frame(after, Clock::now() + std::chrono::milliseconds(100));
-      if (!frame) {
-        if (sc_.registry->shutting_down())
-          return Error::make(Code::Unavailable, "the server is shutting down");
-        if (scene->stopped())
-          return Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", scene->id()));
-        continue;
-      }
-      if (have_last && frame->seq < last_sent + every) {  // decimation
-        after = frame->seq;
-        continue;
-      }
-      if (min_interval > Clock::duration::zero() && Clock::now() < next_allowed) {
-        // Rate limit: wait for the slot (cancellably), then send whatever is latest.
-        while (Clock::now() < next_allowed && !c->IsCancelled() && !scene->stopped())
-          std::this_thread::sleep_for(std::min<Clock::duration>(next_allowed - Clock::now(),
-                                                                std::chrono::milliseconds(50)));
-        if (auto newer = scene->latest_frame()) frame = newer;
-      }
-      uint64_t skipped = 0;
-      if (have_last && min_interval == Clock::duration::zero())
-        skipped = (frame->seq - last_sent) / every - 1;
-      msg.Clear();
-      SceneRegistry::fill_frame(*frame, sel, surface, skipped, &msg);
-      if (!writer->Write(msg)) return {};  // the client went away
-      // Keep the decimation's phase when a late reader sends an off-phase frame.
-      last_sent = have_last ? frame->seq - (frame->seq - last_sent) % every : frame->seq;
-      have_last = true;
-      after = frame->seq;
-      if (min_interval > Clock::duration::zero()) {
-        next_allowed += min_interval;
-        if (next_allowed < Clock::now()) next_allowed = Clock::now();
-      }
+  grpc::ServerWriteReactor<v1::Frame>* StreamFrames(grpc::CallbackServerContext* c,
+                                                    const v1::StreamFramesRequest* r) override {
+    FrameStreamReactor::Setup setup;
+    const grpc::Status s = guarded(sc_, "StreamFrames", c, [&] { return prepare(*r, &setup); });
+    if (!s.ok()) return new RefusedFrames(s);
+    try {
+      auto reactor = std::make_shared<FrameStreamReactor>(sc_, pump_, c, std::move(setup));
+      reactor->begin(reactor);
+      return reactor.get();
+    } catch (const std::exception& e) {
+      spdlog::error("StreamFrames: internal error: {}", e.what());
+      return new RefusedFrames(grpc::Status(grpc::StatusCode::INTERNAL, std::string("StreamFrames: ") + e.what()));
     }
   }
 
+ private:
+  Error prepare(const v1::StreamFramesRequest& r, FrameStreamReactor::Setup* out) {
+    if (Error e = sc_.registry->find(r.scene_id(), &out->scene); !e.ok()) return e;
+    if (Error e = sc_.registry->open_stream(out->scene->id(), &out->slot); !e.ok()) return e;
+    if (Error e = SceneRegistry::parse_stream_request(r, &out->selection); !e.ok()) return e;
+    out->every = r.every_nth_tick() <= 1 ? 1 : r.every_nth_tick();
+    out->min_interval = r.max_rate_hz() > 0
+        ? std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / r.max_rate_hz()))
+        : Clock::duration::zero();
+    return {};
+  }
+
   ServiceContext sc_;
+  StreamPump pump_;
 };
 
 class InteractionServiceImpl final : public v1::InteractionService::Service {

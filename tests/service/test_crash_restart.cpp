@@ -6,6 +6,7 @@
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/client/client.hpp"
 #include "pliant/server/registry.hpp"
+#include "server_process.hpp"
 
 #include <gtest/gtest.h>
 
@@ -27,79 +28,8 @@ using client::Client;
 
 namespace {
 
-std::string read_text(const fs::path& p) {
-  std::ifstream f(p, std::ios::binary);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
-// pliant-server in a child process with its log in a file; the port is read from the log.
-class Server {
- public:
-  Server(const fs::path& data, const fs::path& log, std::vector<std::string> extra = {}) : log_(log) {
-    std::vector<std::string> args = {PLIANT_SERVER_BIN, "--listen", "127.0.0.1:0", "--data-dir", data.string(),
-                                     "--log-level", "info"};
-    args.insert(args.end(), extra.begin(), extra.end());
-    pid_ = fork();
-    if (pid_ == 0) {
-      FILE* f = std::fopen(log.c_str(), "w");
-      dup2(fileno(f), 1);
-      dup2(fileno(f), 2);
-      std::vector<char*> argv;
-      for (auto& a : args) argv.push_back(a.data());
-      argv.push_back(nullptr);
-      execv(PLIANT_SERVER_BIN, argv.data());
-      _exit(127);
-    }
-    const std::regex port_re(R"(listening on .*\(port (\d+)\))");
-    for (int i = 0; i < 3000 && port_ == 0; ++i) {
-      std::smatch m;
-      const std::string text = read_text(log_);
-      if (std::regex_search(text, m, port_re)) port_ = std::stoi(m[1]);
-      else std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
-  }
-  ~Server() {
-    if (pid_ > 0) kill_now();
-  }
-  int port() const { return port_; }
-  Client client() const {
-    client::ConnectOptions c;
-    c.address = "127.0.0.1:" + std::to_string(port_);
-    c.timeout = std::chrono::seconds(20);
-    c.step_timeout = std::chrono::seconds(20);
-    return Client(c);
-  }
-  void kill_now() {
-    ::kill(pid_, SIGKILL);
-    int status = 0;
-    waitpid(pid_, &status, 0);
-    pid_ = -1;
-  }
-  // SIGTERM, then waits up to `limit` for the exit. The exit code, or -1 if it did not exit
-  // (then it is killed).
-  int terminate(std::chrono::seconds limit) {
-    ::kill(pid_, SIGTERM);
-    const auto end = std::chrono::steady_clock::now() + limit;
-    int status = 0;
-    while (std::chrono::steady_clock::now() < end) {
-      if (waitpid(pid_, &status, WNOHANG) == pid_) {
-        pid_ = -1;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    kill_now();
-    return -1;
-  }
-  std::string log() const { return read_text(log_); }
-
- private:
-  fs::path log_;
-  pid_t pid_ = -1;
-  int port_ = 0;
-};
+using test::read_text;
+using test::ServerProcess;
 
 fs::path fresh_dir(const std::string& name) {
   fs::path p = fs::temp_directory_path() / ("pliant_crash_" + name + "_" + std::to_string(::getpid()));
@@ -148,7 +78,7 @@ TEST(CrashRestart, CreatedAndDeletedScenesReachTheDataDirectoryAtOnce) {
   // A temporary file left by a crash mid-write is removed on start.
   fs::create_directories(dir / "data" / "scenes");
   std::ofstream(dir / "data" / "scenes" / "old.snapshot.tmp.123.0") << "torn";
-  Server s(dir / "data", dir / "server.log", {"--checkpoint-ms", "60000"});
+  ServerProcess s(dir / "data", dir / "server.log", {"--checkpoint-ms", "60000"});
   ASSERT_GT(s.port(), 0) << s.log();
   EXPECT_FALSE(fs::exists(dir / "data" / "scenes" / "old.snapshot.tmp.123.0"));
   Client c = s.client();
@@ -173,7 +103,7 @@ TEST(CrashRestart, KillNineUnderLoadLosesAtMostOneCheckpoint) {
   std::mt19937 rng(12345);
   uint64_t stepped_to = 0;
   for (int round = 0; round < 4; ++round) {
-    Server s(data, dir / ("server" + std::to_string(round) + ".log"), {"--checkpoint-ms", "200"});
+    ServerProcess s(data, dir / ("server" + std::to_string(round) + ".log"), {"--checkpoint-ms", "200"});
     ASSERT_GT(s.port(), 0) << s.log();
     Client c = s.client();
     if (round == 0) {
@@ -229,7 +159,7 @@ TEST(CrashRestart, KillNineUnderLoadLosesAtMostOneCheckpoint) {
 
 TEST(CrashRestart, SigtermEndsAServerWithAMinutesLongTick) {
   const fs::path dir = fresh_dir("sigterm");
-  Server s(dir / "data", dir / "server.log", {"--max-tick-ms", "0", "--stuck-tick-ms", "0"});
+  ServerProcess s(dir / "data", dir / "server.log", {"--max-tick-ms", "0", "--stuck-tick-ms", "0"});
   ASSERT_GT(s.port(), 0) << s.log();
   Client c = s.client();
   // A 2,875-tet beam at the sweep limit: minutes per tick.
@@ -255,7 +185,7 @@ TEST(CrashRestart, AFailedSaveAtShutdownExitsNonZero) {
   const fs::path dir = fresh_dir("failsave");
   fs::create_directories(dir / "data");
   std::ofstream(dir / "data" / "scenes") << "a file where the scenes directory should be\n";
-  Server s(dir / "data", dir / "server.log");
+  ServerProcess s(dir / "data", dir / "server.log");
   ASSERT_GT(s.port(), 0) << s.log();
   Client c = s.client();
   ASSERT_TRUE(c.create_scene(beam("doomed", v1::TICK_MODE_LOCKSTEP)).ok());

@@ -46,6 +46,11 @@ struct ConnectOptions {
   int max_message_mb = 64;
   std::chrono::milliseconds timeout{30000};        // unary calls
   std::chrono::milliseconds step_timeout{600000};  // Step (many ticks can take long)
+  // FrameService calls use a connection of their own whose HTTP/2 lookahead is this many bytes
+  // (and no BDP probing), so a reader that pauses finds about one stale frame in its transport
+  // before the newest one; 0: the main connection with gRPC's defaults (64 KiB or more of
+  // frames queue up for a paused reader).
+  int frame_window_bytes = 1;
 };
 
 enum class Health { Unknown, Serving, NotServing, ServiceUnknown };

@@ -223,6 +223,13 @@ class Scene {
   std::shared_ptr<const Frame> wait_frame(uint64_t after_seq,
                                           std::chrono::steady_clock::time_point deadline) const;
 
+  // Frame listeners: `fn` runs on the tick thread after every published frame, and once when
+  // the scene stops (stop / request_stop), so that a stream can notice both without a thread
+  // of its own. It must return quickly and not call the listener functions. After
+  // remove_frame_listener returns, the listener is not running and will not run again.
+  uint64_t add_frame_listener(std::function<void()> fn);
+  void remove_frame_listener(uint64_t id);
+
   // Bumped whenever the scene's state or settings change (every tick and command that
   // publishes status): a checkpoint is due when it moved.
   uint64_t generation() const { return generation_.load(); }
@@ -279,6 +286,12 @@ class Scene {
   mutable std::condition_variable frame_cv_;
   std::shared_ptr<const Frame> latest_;
   uint64_t seq_ = 0;
+
+  // Frame listeners (under listeners_mu_, which is held while they run).
+  void notify_listeners();
+  std::mutex listeners_mu_;
+  std::map<uint64_t, std::function<void()>> listeners_;
+  uint64_t next_listener_ = 1;
 
   // Cancellation of the tick in progress (StepInputs::cancel): set by interrupting commands,
   // stop and abort_tick, cleared when the tick thread takes the next commands (under mu_).
