@@ -78,14 +78,17 @@ void worker(int index, const ServerProcess& server, std::chrono::steady_clock::t
   Client c = server.client();
   std::mt19937 rng(1000 * generation + index);
   std::vector<std::string> mine;
+  // The worker's prefix, built without `"literal" + std::string` (GCC 12's -Wrestrict false positive).
+  std::string tag = std::to_string(index);
+  tag.insert(0, "w");
   {
     std::lock_guard lk(ledger.mu);
     for (auto& [id, t] : ledger.live)
-      if (id.rfind("w" + std::to_string(index) + "-", 0) == 0) mine.push_back(id);
+      if (id.rfind(tag + "-", 0) == 0) mine.push_back(id);
   }
   int serial = 0;
   uint32_t vertices = 2;
-  if (auto probe = c.create_scene(scene_request("w" + std::to_string(index) + "-probe" + std::to_string(generation),
+  if (auto probe = c.create_scene(scene_request(tag + "-probe" + std::to_string(generation),
                                                v1::TICK_MODE_LOCKSTEP));
       probe.ok()) {
     vertices = probe->vertex_count();
@@ -106,7 +109,7 @@ void worker(int index, const ServerProcess& server, std::chrono::steady_clock::t
       bool realtime = std::none_of(mine.begin(), mine.end(), [&](const std::string& id) { return !is_lockstep(id); }) &&
                       std::uniform_int_distribution<int>(0, 3)(rng) == 0;
       const std::string id =
-          "w" + std::to_string(index) + "-g" + std::to_string(generation) + "-" + std::to_string(serial++);
+          tag + "-g" + std::to_string(generation) + "-" + std::to_string(serial++);
       auto r = c.create_scene(scene_request(id, realtime ? v1::TICK_MODE_REALTIME : v1::TICK_MODE_LOCKSTEP));
       if (!r.ok()) {
         ledger.fail("create " + id + ": " + r.status.to_string());
