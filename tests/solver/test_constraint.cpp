@@ -210,7 +210,7 @@ TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
   EXPECT_EQ(packed.packs[0].lanes, 3);
   std::vector<Vec3> x = mesh.vertices;
   for (auto& p : x) p += 0.05 * Vec3(std::sin(7 * p.x()), std::cos(5 * p.y()), std::sin(3 * p.z()));
-  std::vector<Vec6> lambda(3, Vec6::Constant(1e-4)), dl(3, Vec6::Zero());
+  std::vector<Vec6> lambda(packed.slot_count(), Vec6::Constant(1e-4)), dl(packed.slot_count(), Vec6::Zero());
   const Mat6 at = model->compliance * 3600.0;
   std::vector<Vec3> xp = x;
   std::vector<Vec6> lp = lambda;
@@ -249,12 +249,12 @@ TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
   for (int t = 0; t < 3; ++t)
     for (int k = 0; k < 4; ++k) x[4 * t + k].z() *= squash[t];
   const Mat6 at = model->compliance * 3600.0;
-  const std::vector<Vec6> lambda(3, Vec6::Zero());
+  const std::vector<Vec6> lambda(packed.slot_count(), Vec6::Zero());
   auto det_f = [&](const std::vector<Vec3>& y, int t) {
     return signed_tet_volume(y[4 * t], y[4 * t + 1], y[4 * t + 2], y[4 * t + 3]) / model->tets[t].volume;
   };
   std::vector<Vec3> with = x, without = x;
-  std::vector<Vec6> lw = lambda, lo = lambda, dl(3, Vec6::Zero());
+  std::vector<Vec6> lw = lambda, lo = lambda, dl(packed.slot_count(), Vec6::Zero());
   detail::project_pack(packed.packs[0], with, lw, dl, *model, at, 1.0, 0.0, true);
   detail::project_pack(packed.packs[0], without, lo, dl, *model, at, 1.0, 0.0, false);
   for (int t = 0; t < 3; ++t) {
@@ -467,13 +467,13 @@ TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
   ASSERT_EQ(packed.packs.size(), 1u);
   std::vector<Vec3> x = mesh.vertices;
   for (auto& p : x) p += 0.2 * Vec3(std::sin(7 * p.x()), std::cos(5 * p.y()), std::sin(3 * p.z()));
-  std::vector<Vec6> lambda(3, Vec6::Constant(1e-4)), dl(3, Vec6::Zero());
+  std::vector<Vec6> lambda(packed.slot_count(), Vec6::Constant(1e-4)), dl(packed.slot_count(), Vec6::Zero());
   const Mat6 at = model->compliance * 3600.0;
   std::vector<Vec3> xp = x;
   std::vector<Vec6> lp = lambda;
   detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0, false);
   std::vector<Vec3> xs = x;  // the pack with the line search
-  std::vector<Vec6> ls = lambda, dls(3, Vec6::Zero());
+  std::vector<Vec6> ls = lambda, dls(packed.slot_count(), Vec6::Zero());
   detail::project_pack(packed.packs[0], xs, ls, dls, *model, at, 1.0, 0.0, true);
   for (int t = 0; t < 3; ++t) {
     const TetRest& tet = model->tets[t];
