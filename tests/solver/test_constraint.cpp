@@ -147,6 +147,61 @@ TEST(StrainConstraint, EnergyHessianMatchesFiniteDifferencesOfGradient) {
   }
 }
 
+TEST(StrainConstraint, PsdPartsHessianIsPsdAndExactWhereTheStressIsTensile) {
+  // Newton's per-tet Hessian: J^T K J plus the stress term with its negative curvature removed.
+  // Stretched along the world axes (F = R diag(s), s > 1: every stress component tensile) the
+  // exact Hessian is already positive semi-definite and must come back unchanged; squashed and
+  // sheared, the exact one is indefinite and the projected one must not be.
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> stretch(1.02, 1.3);
+  const Mat6 K = stvk_stiffness(lame_parameters(1.0, 0.3));
+  int indefinite = 0;
+  for (int trial = 0; trial < 40; ++trial) {
+    const auto X = random_tet(rng);
+    const TetRest tet = make_rest(X);
+    const bool tensile = trial % 2 == 0;
+    std::array<Vec3, 4> x;
+    if (tensile) {
+      const Mat3 F = Eigen::Quaterniond::UnitRandom().toRotationMatrix() *
+                     Vec3(stretch(rng), stretch(rng), stretch(rng)).asDiagonal();
+      for (int k = 0; k < 4; ++k) x[k] = F * X[k];
+    } else {
+      x = deform(X, rng, 0.25);
+      for (auto& p : x) p *= 0.8;
+    }
+    Vec12 g_exact, g_parts;
+    Mat12 H_exact, H_parts;
+    strain_energy_derivatives(tet, K, x, &g_exact, &H_exact, false);
+    strain_energy_derivatives_psd_parts(tet, K, x, &g_parts, &H_parts);
+    EXPECT_LT((g_parts - g_exact).norm(), 1e-14 * (1 + g_exact.norm())) << trial;
+    const double scale = H_exact.norm();
+    Eigen::SelfAdjointEigenSolver<Mat12> eig(H_parts, Eigen::EigenvaluesOnly);
+    EXPECT_GE(eig.eigenvalues().minCoeff(), -1e-12 * scale) << trial;
+    // The reference: the stress term sqrt(V0) G (x) I3 read off the exact Hessian, G's negative
+    // eigenvalues clamped by a plain 4x4 eigen decomposition.
+    const Mat6x12 J = strain_jacobian(tet, x);
+    const Mat12 material = J.transpose() * K * J;
+    Eigen::Matrix4d G;
+    for (int k = 0; k < 4; ++k)
+      for (int l = 0; l < 4; ++l) G(k, l) = (H_exact - material)(3 * k, 3 * l) / tet.sqrt_volume;
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> g_eig(G);
+    const Eigen::Matrix4d G_clamped = g_eig.eigenvectors() * g_eig.eigenvalues().cwiseMax(0.0).asDiagonal() *
+                                      g_eig.eigenvectors().transpose();
+    Mat12 H_reference = material;
+    for (int k = 0; k < 4; ++k)
+      for (int l = 0; l < 4; ++l)
+        H_reference.block<3, 3>(3 * k, 3 * l).diagonal().array() += tet.sqrt_volume * G_clamped(k, l);
+    EXPECT_LT((H_parts - H_reference).norm(), 1e-9 * scale) << trial;
+    if (tensile) {
+      EXPECT_LT((H_parts - H_exact).norm(), 1e-12 * scale) << trial;
+    } else {
+      Eigen::SelfAdjointEigenSolver<Mat12> exact(H_exact, Eigen::EigenvaluesOnly);
+      indefinite += exact.eigenvalues().minCoeff() < -1e-6 * scale;
+    }
+  }
+  EXPECT_GE(indefinite, 5) << "the squashed cases must need the projection, or they test nothing";
+}
+
 TEST(StrainConstraint, RigidMotionGivesZeroStrainAndZeroResidual) {
   std::mt19937 rng(3);
   for (int trial = 0; trial < 20; ++trial) {

@@ -194,6 +194,32 @@ Eigen::Matrix<double, N, N> clamp_to_psd(const Eigen::Matrix<double, N, N>& A) {
   return eig.eigenvectors() * ev.asDiagonal() * eig.eigenvectors().transpose();
 }
 
+// The stress term of the StVK Hessian is G = B S B^T, B the four shape-function gradients as
+// rows (rank 3) and S the symmetric 3x3 stress matrix of K C (S_ii = KC_i, S_ac = KC_shear).
+// With B^T B = L L^T, Q = B L^-T has orthonormal columns and G = Q M Q^T, M = L^T S L: G's
+// nonzero eigenpairs are M's, so its projection is Q clamp(M) Q^T = B P B^T with
+// P = L^-T clamp(M) L^-1. A closed-form 3x3 eigen solve instead of an iterative 4x4 one;
+// nothing to do when M has no negative eigenvalue (a tensile stress).
+Eigen::Matrix4d clamp_stress_term_to_psd(const Eigen::Matrix4d& G, const std::array<Eigen::RowVector3d, 4>& b,
+                                         const Vec6& KC) {
+  Eigen::Matrix<double, 4, 3> B;
+  for (int k = 0; k < 4; ++k) B.row(k) = b[k];
+  const Eigen::LLT<Mat3> llt(B.transpose() * B);
+  if (llt.info() != Eigen::Success) return clamp_to_psd<4>(G);  // a degenerate rest shape
+  const Mat3 L = llt.matrixL();
+  Mat3 S;
+  for (int i = 0; i < 3; ++i) S(i, i) = KC[i];
+  for (int s = 0; s < 3; ++s) S(kShearA[s], kShearB[s]) = S(kShearB[s], kShearA[s]) = KC[3 + s];
+  Eigen::SelfAdjointEigenSolver<Mat3> eig;
+  eig.computeDirect(L.transpose() * S * L);
+  if (eig.eigenvalues().minCoeff() >= 0) return G;
+  const Mat3 clamped = eig.eigenvectors() * eig.eigenvalues().cwiseMax(0.0).asDiagonal() *
+                       eig.eigenvectors().transpose();
+  const Mat3 L_inv = L.triangularView<Eigen::Lower>().solve(Mat3::Identity());
+  const Mat3 P = L_inv.transpose() * clamped * L_inv;
+  return B * P * B.transpose();
+}
+
 // How the Hessian is made positive semi-definite.
 enum class Psd { None, Whole, Parts };
 
@@ -233,7 +259,7 @@ void derivatives(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x
         }
         G(k, l) = w;
       }
-    if (psd == Psd::Parts) G = clamp_to_psd<4>(G);
+    if (psd == Psd::Parts) G = clamp_stress_term_to_psd(G, b, KC);
     for (int k = 0; k < 4; ++k)
       for (int l = 0; l < 4; ++l) H.block<3, 3>(3 * k, 3 * l).diagonal().array() += tet.sqrt_volume * G(k, l);
   }
