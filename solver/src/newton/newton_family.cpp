@@ -16,8 +16,8 @@
 //
 // Inexact Newton (newton_linear_solver cg, or auto above kNewtonDirectMaxDofs free dofs): where
 // the factorisation does not fit a tick, H d = -g is solved by conjugate gradients on the same
-// assembled matrix, preconditioned by a factorisation of an earlier Hessian (up to
-// kFactorPreconditionerMaxDofs) or by the inverses of its 3x3 vertex blocks, to a relative
+// assembled matrix, preconditioned by a factorisation of an earlier Hessian (single precision
+// where it keeps every pivot positive, else double; up to kFactorPreconditionerMaxDofs) or by the inverses of its 3x3 vertex blocks, to a relative
 // residual eta = min(kMaxForcing, sqrt(|g| / |g0|)) (a forcing term that tightens as Newton
 // converges, so the outer iteration stays superlinear); the time budget stops CG too, and its
 // last iterate is still a descent direction for the line search. Negative curvature of the
@@ -67,16 +67,29 @@ constexpr int kRefactorAfter = 20;
 // armadillo (docs/solver.md), so it is not used.
 class SparseCholesky {
  public:
-  void analyze(const Eigen::SparseMatrix<double>& A) { solver_.analyzePattern(A); }
-  // False unless A was positive definite.
+  void analyze(const Eigen::SparseMatrix<double>& A) {
+    solver_.analyzePattern(A);
+    single_.analyzePattern(A.cast<float>());
+  }
+  // False unless A was positive definite. Single precision first (half the memory traffic of
+  // every preconditioner solve); double where single loses a pivot.
   bool factorize(const Eigen::SparseMatrix<double>& A) {
+    single_.factorize(A.cast<float>());
+    use_single_ = single_.info() == Eigen::Success && single_.vectorD().minCoeff() > 0;
+    if (use_single_) return true;
     solver_.factorize(A);
     return solver_.info() == Eigen::Success && solver_.vectorD().minCoeff() > 0;
   }
-  Eigen::VectorXd solve(const Eigen::VectorXd& b) const { return solver_.solve(b); }
+  Eigen::VectorXd solve(const Eigen::VectorXd& b) const {
+    if (use_single_) return single_.solve(b.cast<float>()).cast<double>();
+    return solver_.solve(b);
+  }
+  bool single() const { return use_single_; }
 
  private:
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver_;
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<float>> single_;
+  bool use_single_ = false;
 };
 
 // One vertex touching a collider or a tool in this iteration's active set.
@@ -309,7 +322,8 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
     refactor_ = false;
     factored_contacts_ = contacts_.size();
     factored_attachments_ = attachment_k_.size();
-    spdlog::debug("newton cg: preconditioner factorised ({})", factored_ ? "ok" : "not positive definite");
+    spdlog::debug("newton cg: preconditioner factorised ({}, {})", factored_ ? "ok" : "not positive definite",
+                  cholesky_.single() ? "single" : "double");
   }
   if (use_factor && factored_) {
     const int before = iterations;
