@@ -243,9 +243,11 @@ void derivatives(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x
     for (int k = 0; k < 4; ++k)
       for (int i = 0; i < 3; ++i)
         for (int c = 0; c < 3; ++c) D(3 * i + c, 3 * k + c) = b[k][i];
-    H = tet.volume * D.transpose() * T * D;
+    // lazyProduct: coefficient-based products; Eigen's default sends these fixed sizes through
+    // its blocked GEMM, whose packing costs more than the arithmetic here.
+    H = tet.volume * D.transpose().lazyProduct(Eigen::Matrix<double, 9, 12>(T.lazyProduct(D)));
   } else {
-    H = J.transpose() * K * J;
+    H = J.transpose().lazyProduct(Mat6x12(K.lazyProduct(J)));
     // Second derivatives of C: each row is sqrt(V0) times a bilinear form in the b_k, times I3,
     // so the whole term is sqrt(V0) G (x) I3 with G a 4x4 matrix.
     Eigen::Matrix4d G;
