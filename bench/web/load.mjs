@@ -8,6 +8,7 @@
 //
 //   node bench/web/load.mjs --server BIN --web BIN --cli BIN --web-root DIR
 //        [--mesh armadillo] [--create-flags="..."] [--seconds 20] [--stall-seconds 60]
+//        [--ack]   (the clients acknowledge each frame on arrival, as the page does)
 import { spawn } from 'node:child_process';
 import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
@@ -21,6 +22,7 @@ const { values: args } = parseArgs({
     mesh: { type: 'string', default: 'armadillo' },
     'create-flags': { type: 'string', default: '--rate 60 --fix-box -1,-1,-1,1,-0.040,1 --substeps 1 --iterations 2' },
     seconds: { type: 'string', default: '20' }, 'stall-seconds': { type: 'string', default: '60' },
+    ack: { type: 'boolean', default: false },
   },
 });
 for (const k of ['server', 'web', 'cli', 'web-root']) {
@@ -74,7 +76,8 @@ async function phase(n) {
   for (let i = 0; i < n; ++i) {
     const s = new RawSocket(web.port, path);
     await s.open;
-    s.send({ type: 'subscribe', scene: 'load', max_rate_hz: 0 });
+    s.send({ type: 'subscribe', scene: 'load', max_rate_hz: 0, ack: args.ack });
+    if (args.ack) s.onFrame = () => s.send({ type: 'ack' });  // as the page does, on arrival
     socks.push(s);
   }
   await sleep(2000);  // warm up
@@ -109,7 +112,7 @@ for (let t = 0; t <= stallSeconds; t += 5) {
 }
 const readerFps = reader.frames.length / (stallSeconds + 1);
 console.log(JSON.stringify({
-  mesh: args.mesh, create_flags: args['create-flags'], seconds,
+  mesh: args.mesh, create_flags: args['create-flags'], seconds, ack: args.ack,
   one_client: one, ten_clients: ten,
   stalled: { seconds: stallSeconds, web_rss_kb_every_5s: rss, rss_growth_kb: rss[rss.length - 1] - rss[1],
     reader_frames_per_s: Number(readerFps.toFixed(1)) },

@@ -57,6 +57,7 @@ export class RawSocket {
         this.frames.push(p.readDoubleLE(80));
         const nowNs = (performance.timeOrigin + performance.now()) * 1e6;
         this.latencies.push((nowNs - Number(p.readBigInt64LE(88))) / 1e6);
+        if (this.onFrame) this.onFrame();
       }
     }
   }

@@ -286,7 +286,7 @@ async function measure(pages, seconds, observer) {
   const snap = (p) => p.evaluate(() => {
     const s = window.pliant;
     return { r: s.framesReceived, d: s.framesDrawn, a: s.animationFrames, rd: s.renders, sk: s.skippedFrames,
-      t: s.header.tick, perf: { ...s.perf }, now: performance.now(), visible: document.visibilityState };
+      t: s.header.tick, st: s.header.skippedTicks, perf: { ...s.perf }, now: performance.now(), visible: document.visibilityState };
   });
   const before = await Promise.all(pages.map(snap));
   await Promise.all(pages.map((p) => p.evaluate(() => { window.pliant.latenciesMs.length = 0; if (window.pliant.latenessMs) window.pliant.latenessMs.length = 0; })));
@@ -310,7 +310,7 @@ async function measure(pages, seconds, observer) {
   const after = await Promise.all(pages.map((p) => p.evaluate(() => {
     const s = window.pliant;
     return { r: s.framesReceived, d: s.framesDrawn, a: s.animationFrames, rd: s.renders, sk: s.skippedFrames,
-      t: s.header.tick, perf: { ...s.perf }, now: performance.now(), lat: s.latenciesMs.slice(),
+      t: s.header.tick, st: s.header.skippedTicks, perf: { ...s.perf }, now: performance.now(), lat: s.latenciesMs.slice(),
       bytes: s.lastFrameBytes, n: s.topology.surfaceVertices, late: s.header.lateTicks };
   })));
   const perPage = after.map((a, i) => {
@@ -318,7 +318,7 @@ async function measure(pages, seconds, observer) {
     const wall = (a.now - b.now) / 1000;
     const frames = a.d - b.d, msgs = a.r - b.r;
     const per = (k, n) => Number(n ? ((a.perf[k] - b.perf[k]) / n).toFixed(3) : NaN);
-    return { wall, ticks: (a.t - b.t) / wall, received: msgs / wall, drawn: frames / wall, animation: (a.a - b.a) / wall,
+    return { wall, ticks: (a.t - b.t) / wall, skippedTicks: (a.st - b.st) / wall, received: msgs / wall, drawn: frames / wall, animation: (a.a - b.a) / wall,
       renders: (a.rd - b.rd) / wall, skipped: a.sk - b.sk, visible: b.visible,
       decode_ms: per('decodeMs', msgs), normals_ms: per('normalsMs', frames), render_ms: per('renderMs', a.rd - b.rd),
       plots_ms: per('plotsMs', a.perf.plotDraws - b.perf.plotDraws) };
@@ -331,7 +331,7 @@ async function measure(pages, seconds, observer) {
   const p0 = perPage[0];
   const res = {
     pages: pages.length, surface_vertices: after[0].n, seconds: r1(p0.wall), load_average: r2(load0),
-    ticks_per_s: r1(p0.ticks),
+    ticks_per_s: r1(p0.ticks), ticks_skipped_per_s: r1(p0.skippedTicks),
     // with several pages: the median page, and the lowest
     frames_received_per_s: r1(med(perPage.map((p) => p.received))),
     frames_drawn_per_s: r1(med(perPage.map((p) => p.drawn))),
