@@ -2,17 +2,22 @@
 // The page in a real browser: starts pliant-server and pliant-web on free loopback ports,
 // creates a realtime beam scene and drives Debian's headless Chromium (software WebGL) with
 // playwright-core. Checks that frames arrive and are drawn, the canvas changes, the plots have
-// points, and that dragging the beam's tip grabs it, moves it and releases it. Saves a
-// screenshot of the page (docs/img/web.png comes from here).
+// points, that dragging the beam's tip grabs it, moves it and releases it, and that the canvas
+// is not redrawn while the scene is paused. Saves a screenshot of the page (docs/img/web.png
+// comes from here).
 //
 //   node tests/web/browser.mjs --server BIN --web BIN --cli BIN --web-root DIR [--screenshot PNG]
 //   node tests/web/browser.mjs ... --bench [--seconds S] [--encoding float32|uint16]
-//        [--mesh NAME] [--create-flags="--rate 60 ..."]
+//        [--mesh NAME] [--create-flags="--rate 60 ..."] [--pages N] [--browser-nice N]
+//        [--gpu-compositing] [--cpu-profile FILE]
 //
 // --bench streams a scene (default: the thesis armadillo, realtime 60 Hz) instead and prints one
-// JSON line:
-// frames drawn per second, latency from the end of a tick to the frame handled in the page
-// (p50/p99), bytes per frame. The browser is Chromium at $PLIANT_CHROMIUM or /usr/bin/chromium;
+// JSON line: frames received and drawn per second, latency from the end of a tick to the frame
+// handled in the page (p50/p99), an observer socket's latency and every tick's lateness, the
+// page's main-thread ms per stage, bytes per frame; with --pages N, the same again with N pages
+// on the scene (`with_pages`). --gpu-compositing: the compositor on SwiftShader's GL too (the
+// old setup); --browser-nice N: the browser's processes at nice N; --cpu-profile FILE: a V8
+// profile of the page during the measurement. The browser is Chromium at $PLIANT_CHROMIUM or /usr/bin/chromium;
 // a missing browser or playwright-core is an error (scripts/web-test-deps.sh installs both).
 import { spawn, spawnSync } from 'node:child_process';
 import { existsSync, mkdtempSync, readdirSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
@@ -238,6 +243,28 @@ async function check() {
   await page.mouse.up();
   await waitFor(page, 'the release', () => window.pliant.grab === null && window.pliant.grabsReleased >= 1, undefined, 5000);
   ok('releasing removes the grab', true);
+
+  // A paused scene sends no frames: the page stops drawing the canvas (nothing on it changed).
+  await page.click('#pause');
+  const snap = () => page.evaluate(() => ({ frames: window.pliant.framesReceived, renders: window.pliant.renders,
+    animation: window.pliant.animationFrames }));
+  let idle0 = await snap();
+  for (let i = 0; i < 40; ++i) {  // until no frame came for 500 ms (the last frames were in flight)
+    await sleep(500);
+    const s1 = await snap();
+    if (s1.frames === idle0.frames) break;
+    idle0 = s1;
+  }
+  await sleep(1000);
+  const idle1 = await snap();
+  ok('a paused scene is not redrawn', Number.isInteger(idle1.renders) && idle1.frames === idle0.frames &&
+    idle1.animation > idle0.animation &&
+    idle1.renders === idle0.renders,
+    `${idle1.frames - idle0.frames} frames, ${idle1.renders - idle0.renders} renders in ${idle1.animation - idle0.animation} animation frames`);
+  await page.click('#resume');
+  const resumedAt = idle1.frames;
+  await waitFor(page, 'frames after resume', (n) => window.pliant.framesReceived > n, resumedAt, 10000);
+
   ok('no page errors', consoleErrors.length === 0, consoleErrors.join('; '));
 
   const failed = results.filter((r) => !r.ok).length;
