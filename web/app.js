@@ -25,7 +25,13 @@ const state = {
   lastFrameBytes: 0,
   skippedFrames: 0,
   header: null,
-  latenciesMs: [],          // end of tick (server publish) -> frame handled here, last 2000
+  latenciesMs: [],          // end of tick (server publish) -> frame handled here, the last 2000 or more
+  latenessMs: [],           // the server's lateness of each frame's tick (header), as latenciesMs
+  animationFrames: 0,       // requestAnimationFrame callbacks
+  renders: 0,               // animation frames that drew the canvas (a new frame, camera, grab or size)
+  // Main-thread time spent per stage, ms (summed; the bench divides by the counts above):
+  // decode + apply of each frame message, normals of each drawn frame, renderer.render calls.
+  perf: { decodeMs: 0, normalsMs: 0, renderMs: 0, plotsMs: 0, plotDraws: 0 },
   grab: null,               // { vertex (surface-local), id, target, force }
   grabsMade: 0,
   grabsReleased: 0,
@@ -40,6 +46,10 @@ const canvas = $('gl');
 // keeps up with 60 frames/s.
 const renderer = new THREE.WebGLRenderer({ canvas, antialias: false });
 renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
+// The canvas is drawn only when something on it changed: a new frame, the camera, the grab's
+// drawing or the canvas size. Animation frames without a change cost nothing.
+let needsRender = true;
+const invalidate = () => { needsRender = true; };
 const scene3 = new THREE.Scene();
 scene3.background = new THREE.Color(0x1a2027);
 const camera = new THREE.PerspectiveCamera(40, 1, 1e-4, 100);
@@ -50,16 +60,21 @@ keyLight.position.set(0.4, 1, 0.6);
 camera.add(keyLight);
 const controls = new OrbitControls(camera, canvas);
 controls.enableDamping = false;
+controls.addEventListener('change', invalidate);
 const grid = new THREE.GridHelper(1, 20, 0x3a4450, 0x262d35);
 scene3.add(grid);
 
 let mesh = null;           // the surface
 let positionAttr = null;   // its position attribute (array swapped per frame, no copy)
+let normalAttr = null;     // its normals, recomputed in place for each drawn frame
+let triangles = null;      // the surface's triangles (Uint32Array, 3 per triangle)
 let dequantized = null;    // scratch for 16-bit frames
-let frameDirty = false;
+let frameDirty = false;    // a frame arrived since the last draw
+let plotsDirty = true;     // a frame arrived since the plots were drawn
 let sceneSize = 0.1;
 const grabLine = new THREE.Line(new THREE.BufferGeometry().setFromPoints([new THREE.Vector3(), new THREE.Vector3()]),
   new THREE.LineBasicMaterial({ color: 0xffee58 }));
+const grabLineAttr = grabLine.geometry.getAttribute('position');
 grabLine.visible = false;
 grabLine.frustumCulled = false;
 scene3.add(grabLine);
@@ -72,12 +87,41 @@ for (const o of [grabLine, forceArrow.line, forceArrow.cone]) {
   o.renderOrder = 10;
 }
 
+// The canvas's CSS size, from a ResizeObserver: reading clientWidth in every animation frame
+// would force a layout whenever the statistics table changed.
+let cssSize = null;
+new ResizeObserver((entries) => {
+  const r = entries[entries.length - 1].contentRect;
+  cssSize = { w: r.width, h: r.height };
+  invalidate();
+}).observe(canvas);
+
 function resize() {
-  const w = canvas.clientWidth, h = canvas.clientHeight;
-  if (canvas.width !== Math.floor(w * renderer.getPixelRatio()) || canvas.height !== Math.floor(h * renderer.getPixelRatio())) {
-    renderer.setSize(w, h, false);
-    camera.aspect = w / Math.max(h, 1);
-    camera.updateProjectionMatrix();
+  if (!cssSize) return;
+  const { w, h } = cssSize;
+  cssSize = null;
+  renderer.setSize(w, h, false);
+  camera.aspect = w / Math.max(h, 1);
+  camera.updateProjectionMatrix();
+}
+
+// Area-weighted vertex normals of the surface, in place (what three.js's
+// computeVertexNormals gives, without its per-triangle vector objects).
+function computeNormals(pos, tris, out) {
+  out.fill(0);
+  for (let t = 0; t < tris.length; t += 3) {
+    const a = 3 * tris[t], b = 3 * tris[t + 1], c = 3 * tris[t + 2];
+    const bx = pos[b], by = pos[b + 1], bz = pos[b + 2];
+    const ux = pos[c] - bx, uy = pos[c + 1] - by, uz = pos[c + 2] - bz;
+    const vx = pos[a] - bx, vy = pos[a + 1] - by, vz = pos[a + 2] - bz;
+    const nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+    out[a] += nx; out[a + 1] += ny; out[a + 2] += nz;
+    out[b] += nx; out[b + 1] += ny; out[b + 2] += nz;
+    out[c] += nx; out[c + 1] += ny; out[c + 2] += nz;
+  }
+  for (let i = 0; i < out.length; i += 3) {
+    const l = Math.sqrt(out[i] * out[i] + out[i + 1] * out[i + 1] + out[i + 2] * out[i + 2]);
+    if (l > 0) { out[i] /= l; out[i + 1] /= l; out[i + 2] /= l; }
   }
 }
 
@@ -96,9 +140,15 @@ function buildMesh(topo) {
   for (let i = 0; i < topo.surfaceVertices; ++i) colors.set([0.93, 0.55, 0.36], 3 * i);
   for (const f of topo.fixed) colors.set([0.35, 0.45, 0.75], 3 * f);
   g.setAttribute('color', new THREE.BufferAttribute(colors, 3));
-  g.computeVertexNormals();
+  normalAttr = new THREE.BufferAttribute(new Float32Array(3 * topo.surfaceVertices), 3);
+  normalAttr.setUsage ? normalAttr.setUsage(THREE.DynamicDrawUsage) : (normalAttr.dynamic = true);
+  g.setAttribute('normal', normalAttr);
+  triangles = topo.triangles;
+  computeNormals(positionAttr.array, triangles, normalAttr.array);
   g.computeBoundingSphere();
-  mesh = new THREE.Mesh(g, new THREE.MeshLambertMaterial({ vertexColors: THREE.VertexColors, side: THREE.DoubleSide }));
+  // The surface is closed and its triangles face outward: back faces are culled, which halves
+  // what software WebGL rasterises and lights.
+  mesh = new THREE.Mesh(g, new THREE.MeshLambertMaterial({ vertexColors: THREE.VertexColors, side: THREE.FrontSide }));
   mesh.frustumCulled = false;
   scene3.add(mesh);
   dequantized = new Float32Array(3 * topo.surfaceVertices);
@@ -116,14 +166,18 @@ function buildMesh(topo) {
   camera.updateProjectionMatrix();
   controls.target.copy(c);
   controls.update();
+  invalidate();
 }
 
+// A frame message: positions into the geometry (the GPU upload and the normals wait for the
+// next drawn animation frame, so frames arriving faster than the screen cost only this), the
+// header into the table and plots.
 function applyFrame(buffer) {
+  const t0 = performance.now();
   const { header, residuals, positions } = decodeFrame(buffer, dequantized);
   if (header.subscription !== state.subscription || !mesh) return;  // from an older subscription
   if (positions.length === positionAttr.array.length) {
     positionAttr.array = positions;  // a view over the message (float32) or the scratch array
-    positionAttr.needsUpdate = true;
     frameDirty = true;
   }
   state.framesReceived += 1;
@@ -135,12 +189,20 @@ function applyFrame(buffer) {
   charts.tps.push(header.ticksPerSecond);
   charts.late.push(header.latenessMs);
   charts.step.push(header.stepMs);
-  const nowNs = (performance.timeOrigin + performance.now()) * 1e6;
-  const latency = (nowNs - Number(header.publishedUnixNs)) / 1e6;
+  plotsDirty = true;
+  const now = performance.now();
+  const latency = ((performance.timeOrigin + now) * 1e6 - Number(header.publishedUnixNs)) / 1e6;
   if (header.publishedUnixNs > 0n && latency >= 0) {
-    state.latenciesMs.push(latency);
-    if (state.latenciesMs.length > 2000) state.latenciesMs.shift();
+    keepLast(state.latenciesMs, latency);
+    keepLast(state.latenessMs, header.latenessMs);
   }
+  state.perf.decodeMs += now - t0;
+}
+
+// Appends to a list that keeps at least its last 2000 values (trimmed in batches, not per push).
+function keepLast(list, v) {
+  list.push(v);
+  if (list.length > 4000) list.splice(0, list.length - 2000);
 }
 
 // ---- plots and text ---------------------------------------------------------------------------
@@ -159,21 +221,28 @@ state.plotPoints = () => ({
 function showText() {
   const h = state.header;
   if (h) {
-    $('s-tick').textContent = h.tick;
-    $('s-time').textContent = `${h.simTime.toFixed(3)} s`;
-    $('s-state').textContent = h.state + (h.rolledBack ? ' (rolled back)' : '');
-    $('s-tps').textContent = h.ticksPerSecond.toFixed(1);
-    $('s-late').textContent = `${h.lateTicks} / ${h.skippedTicks}`;
-    $('s-skipped').textContent = state.skippedFrames;
-    $('s-iter').textContent = h.iterations;
-    $('s-bytes').textContent = `${(state.lastFrameBytes / 1024).toFixed(1)} KiB, ${h.encoding ? 'uint16' : 'float32'}`;
+    setText('s-tick', h.tick);
+    setText('s-time', `${h.simTime.toFixed(3)} s`);
+    setText('s-state', h.state + (h.rolledBack ? ' (rolled back)' : ''));
+    setText('s-tps', h.ticksPerSecond.toFixed(1));
+    setText('s-late', `${h.lateTicks} / ${h.skippedTicks}`);
+    setText('s-skipped', state.skippedFrames);
+    setText('s-iter', h.iterations);
+    setText('s-bytes', `${(state.lastFrameBytes / 1024).toFixed(1)} KiB, ${h.encoding ? 'uint16' : 'float32'}`);
     const l = state.latenciesMs;
-    if (l.length) $('s-latency').textContent = `${l[l.length - 1].toFixed(2)} ms`;
+    if (l.length) setText('s-latency', `${l[l.length - 1].toFixed(2)} ms`);
   }
   const g = state.grab;
-  $('s-grab').textContent = g ? (g.force ? `${vlen(g.force).toFixed(3)} N` : 'grabbing') : '-';
+  setText('s-grab', g ? (g.force ? `${vlen(g.force).toFixed(3)} N` : 'grabbing') : '-');
 }
 const vlen = (v) => Math.hypot(v[0], v[1], v[2]);
+const shownText = new Map();
+function setText(id, text) {
+  const t = String(text);
+  if (shownText.get(id) === t) return;
+  shownText.set(id, t);
+  $(id).textContent = t;
+}
 
 function setBanner(text) {
   state.banner = text;
@@ -378,8 +447,9 @@ function drawGrab() {
   grabLine.visible = forceArrow.visible = false;
   if (!g || !mesh) return;
   const p = vertexPosition(g.vertex);
-  const t = new THREE.Vector3(...g.target);
-  grabLine.geometry.setFromPoints([p, t]);
+  grabLineAttr.setXYZ(0, p.x, p.y, p.z);
+  grabLineAttr.setXYZ(1, g.target[0], g.target[1], g.target[2]);
+  grabLineAttr.needsUpdate = true;
   grabLine.visible = true;
   if (g.force) {
     const f = new THREE.Vector3(...g.force);
@@ -410,22 +480,43 @@ state.grabDrawing = () => ({ line: grabLine.visible, arrow: forceArrow.visible,
 // ---- loop ---------------------------------------------------------------------------------------
 function animate() {
   requestAnimationFrame(animate);
+  state.animationFrames += 1;
   resize();
   if (frameDirty && mesh) {
-    mesh.geometry.computeVertexNormals();
+    const t0 = performance.now();
+    positionAttr.needsUpdate = true;
+    computeNormals(positionAttr.array, triangles, normalAttr.array);
+    normalAttr.needsUpdate = true;
+    state.perf.normalsMs += performance.now() - t0;
     state.framesDrawn += 1;
     frameDirty = false;
+    needsRender = true;
   }
-  drawGrab();
+  if (state.grab || grabLine.visible) {
+    drawGrab();
+    needsRender = true;
+  }
+  if (!needsRender) return;
+  needsRender = false;
+  const t0 = performance.now();
   renderer.render(scene3, camera);
+  state.perf.renderMs += performance.now() - t0;
+  state.renders += 1;
 }
 
+// Plots and table 5 times a second; the plots only when a frame came, the table's cells only
+// where their text changed (each change costs a layout and a paint of the side bar).
 function drawPlots() {
+  showText();
+  if (!plotsDirty) return;
+  plotsDirty = false;
+  const t0 = performance.now();
   residualPlot.draw();
   for (const c of Object.values(charts)) c.draw();
-  showText();
+  state.perf.plotsMs += performance.now() - t0;
+  state.perf.plotDraws += 1;
 }
-setInterval(drawPlots, 100);
+setInterval(drawPlots, 200);
 setInterval(() => send({ type: 'list' }), 2000);  // scene list, and resubscribe after an end
 
 $('scene').addEventListener('change', (ev) => subscribe(ev.target.value));

@@ -8,13 +8,13 @@
 //
 //   node bench/web/load.mjs --server BIN --web BIN --cli BIN --web-root DIR
 //        [--mesh armadillo] [--create-flags="..."] [--seconds 20] [--stall-seconds 60]
+//        [--ack]   (the clients acknowledge each frame on arrival, as the page does)
 import { spawn } from 'node:child_process';
-import { createConnection } from 'node:net';
-import { randomBytes } from 'node:crypto';
 import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { parseArgs } from 'node:util';
+import { RawSocket } from './rawsocket.mjs';
 
 const { values: args } = parseArgs({
   options: {
@@ -22,6 +22,7 @@ const { values: args } = parseArgs({
     mesh: { type: 'string', default: 'armadillo' },
     'create-flags': { type: 'string', default: '--rate 60 --fix-box -1,-1,-1,1,-0.040,1 --substeps 1 --iterations 2' },
     seconds: { type: 'string', default: '20' }, 'stall-seconds': { type: 'string', default: '60' },
+    ack: { type: 'boolean', default: false },
   },
 });
 for (const k of ['server', 'web', 'cli', 'web-root']) {
@@ -52,65 +53,6 @@ function start(argv) {
   });
 }
 
-// A minimal RFC 6455 client: text out (masked), frames in; answers pings unless stalled.
-class RawSocket {
-  constructor(port, path) {
-    this.frames = [];          // lateness_ms of each frame received
-    this.latencies = [];       // ms from the end of its tick to its arrival here
-    this.bytes = 0;
-    this.buf = Buffer.alloc(0);
-    this.open = new Promise((resolve, reject) => {
-      this.sock = createConnection(port, '127.0.0.1', () => {
-        this.sock.write(`GET ${path} HTTP/1.1\r\nHost: 127.0.0.1:${port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n` +
-          `Sec-WebSocket-Key: ${randomBytes(16).toString('base64')}\r\nSec-WebSocket-Version: 13\r\n\r\n`);
-      });
-      let handshake = true;
-      this.sock.on('data', (d) => {
-        this.buf = Buffer.concat([this.buf, d]);
-        if (handshake) {
-          const end = this.buf.indexOf('\r\n\r\n');
-          if (end < 0) return;
-          if (!this.buf.subarray(0, 12).toString().includes('101')) return reject(new Error(this.buf.toString()));
-          this.buf = this.buf.subarray(end + 4);
-          handshake = false;
-          resolve();
-        }
-        this.parse();
-      });
-      this.sock.on('error', reject);
-    });
-  }
-  send(obj, opcode = 1) {
-    const payload = Buffer.from(typeof obj === 'string' ? obj : JSON.stringify(obj));
-    const mask = randomBytes(4);
-    const head = payload.length < 126 ? Buffer.from([0x80 | opcode, 0x80 | payload.length])
-      : Buffer.from([0x80 | opcode, 0x80 | 126, payload.length >> 8, payload.length & 255]);
-    const body = Buffer.from(payload.map((b, i) => b ^ mask[i % 4]));
-    this.sock.write(Buffer.concat([head, mask, body]));
-  }
-  parse() {
-    for (;;) {
-      if (this.buf.length < 2) return;
-      const op = this.buf[0] & 0x0f;
-      let len = this.buf[1] & 0x7f, off = 2;
-      if (len === 126) { if (this.buf.length < 4) return; len = this.buf.readUInt16BE(2); off = 4; }
-      else if (len === 127) { if (this.buf.length < 10) return; len = Number(this.buf.readBigUInt64BE(2)); off = 10; }
-      if (this.buf.length < off + len) return;
-      const p = this.buf.subarray(off, off + len);
-      this.buf = this.buf.subarray(off + len);
-      this.bytes += len;
-      if (op === 9) this.send(p.toString('latin1'), 10);           // ping -> pong
-      else if (op === 2 && p[0] === 2) {
-        this.frames.push(p.readDoubleLE(80));
-        const nowNs = (performance.timeOrigin + performance.now()) * 1e6;
-        this.latencies.push((nowNs - Number(p.readBigInt64LE(88))) / 1e6);
-      }
-    }
-  }
-  stall() { this.sock.pause(); }
-  close() { this.sock.destroy(); }
-}
-
 function quantile(xs, q) {
   const s = [...xs].sort((a, b) => a - b);
   return s.length ? s[Math.min(s.length - 1, Math.floor(q * s.length))] : NaN;
@@ -134,7 +76,8 @@ async function phase(n) {
   for (let i = 0; i < n; ++i) {
     const s = new RawSocket(web.port, path);
     await s.open;
-    s.send({ type: 'subscribe', scene: 'load', max_rate_hz: 0 });
+    s.send({ type: 'subscribe', scene: 'load', max_rate_hz: 0, ack: args.ack });
+    if (args.ack) s.onFrame = () => s.send({ type: 'ack' });  // as the page does, on arrival
     socks.push(s);
   }
   await sleep(2000);  // warm up
@@ -169,7 +112,7 @@ for (let t = 0; t <= stallSeconds; t += 5) {
 }
 const readerFps = reader.frames.length / (stallSeconds + 1);
 console.log(JSON.stringify({
-  mesh: args.mesh, create_flags: args['create-flags'], seconds,
+  mesh: args.mesh, create_flags: args['create-flags'], seconds, ack: args.ack,
   one_client: one, ten_clients: ten,
   stalled: { seconds: stallSeconds, web_rss_kb_every_5s: rss, rss_growth_kb: rss[rss.length - 1] - rss[1],
     reader_frames_per_s: Number(readerFps.toFixed(1)) },

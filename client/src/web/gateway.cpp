@@ -464,7 +464,12 @@ void Gateway::start() {
                                    "num_threads", threads.c_str(),
                                    "enable_directory_listing", "no",
                                    "enable_websocket_ping_pong", "yes",
-                                   "websocket_timeout_ms", "10000"};
+                                   "websocket_timeout_ms", "10000",
+                                   // civetweb writes a WebSocket frame's header and payload in
+                                   // two writes; with Nagle's algorithm the payload waits for the
+                                   // peer's ACK of the header, which an acknowledging page's
+                                   // kernel delays (about 40 ms) to piggyback on its next ack.
+                                   "tcp_nodelay", "1"};
   if (!o.tls_cert.empty()) {
     opts.push_back("ssl_certificate");
     opts.push_back(o.tls_cert.c_str());
