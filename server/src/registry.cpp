@@ -280,25 +280,30 @@ Error SceneRegistry::remove(const std::string& id) {
   return {};
 }
 
-Error SceneRegistry::reset(const std::string& id, v1::Scene* out) {
+namespace {
+
+// Pause, resume, reset: a command on the scene's tick (its default timeout), answered with the
+// Scene message.
+Error command_and_answer(const SceneRegistry& registry, const std::string& id,
+                         Error (Scene::*command)(std::chrono::milliseconds), v1::Scene* out) {
   std::shared_ptr<Scene> s;
-  if (Error e = find(id, &s); !e.ok()) return e;
-  if (Error e = s->reset(); !e.ok()) return e;
+  if (Error e = registry.find(id, &s); !e.ok()) return e;
+  if (Error e = ((*s).*command)(std::chrono::seconds(10)); !e.ok()) return e;
   return answer(*s, out);
+}
+
+}  // namespace
+
+Error SceneRegistry::reset(const std::string& id, v1::Scene* out) {
+  return command_and_answer(*this, id, &Scene::reset, out);
 }
 
 Error SceneRegistry::pause(const std::string& id, v1::Scene* out) {
-  std::shared_ptr<Scene> s;
-  if (Error e = find(id, &s); !e.ok()) return e;
-  if (Error e = s->pause(); !e.ok()) return e;
-  return answer(*s, out);
+  return command_and_answer(*this, id, &Scene::pause, out);
 }
 
 Error SceneRegistry::resume(const std::string& id, v1::Scene* out) {
-  std::shared_ptr<Scene> s;
-  if (Error e = find(id, &s); !e.ok()) return e;
-  if (Error e = s->resume(); !e.ok()) return e;
-  return answer(*s, out);
+  return command_and_answer(*this, id, &Scene::resume, out);
 }
 
 Error SceneRegistry::step(const v1::StepRequest& req, Clock::time_point deadline, v1::StepResponse* out,
