@@ -7,6 +7,7 @@
 // Every refusal must carry a message within the service's cap.
 #include "pliant/server/edge.hpp"
 #include "pliant/server/registry.hpp"
+#include "pliant/server/stream_proto.hpp"
 
 #include <spdlog/spdlog.h>
 
@@ -59,14 +60,14 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       v1::StreamFramesRequest r;
       if (!r.ParseFromArray(body, n)) return 0;
       server::FrameSelection sel;
-      check_message(server::SceneRegistry::parse_stream_request(r, &sel));
+      check_message(server::parse_stream_request(r, &sel));
       break;
     }
     case 2: {
       v1::ToolPose p;
       if (!p.ParseFromArray(body, n)) return 0;
       RigidTool tool;
-      server::Error e = server::SceneRegistry::parse_tool_pose(p, nullptr, &tool);
+      server::Error e = server::parse_tool_pose(p, nullptr, &tool);
       check_message(e);
       if (e.ok() && !(tool.position.allFinite() && tool.radius > 0)) __builtin_trap();
       break;

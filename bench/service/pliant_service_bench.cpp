@@ -88,7 +88,7 @@ TickFigures measure_ticks(server::SceneRegistry& reg, const v1::CreateSceneReque
     if (!first) first = f;
     last = f;
     lateness.push_back(f->lateness_ms);
-    step_ms.push_back(f->step_wall_ms);
+    step_ms.push_back(f->solver.wall_ms);
   }
   reg.pause(req.scene_id(), &ignored);
   TickFigures t;
@@ -98,8 +98,8 @@ TickFigures measure_ticks(server::SceneRegistry& reg, const v1::CreateSceneReque
     t.ticks = last->tick - first->tick;
     t.seconds = std::chrono::duration<double>(last->published - first->published).count();
     t.achieved_hz = t.ticks / t.seconds;
-    t.late_ticks = last->late_ticks - first->late_ticks;
-    t.skipped_ticks = last->skipped_ticks - first->skipped_ticks;
+    t.late_ticks = last->counters.late_ticks - first->counters.late_ticks;
+    t.skipped_ticks = last->counters.skipped_ticks - first->counters.skipped_ticks;
   }
   t.lateness_p50_ms = percentile(lateness, 0.5);
   t.lateness_p99_ms = percentile(lateness, 0.99);

@@ -67,23 +67,23 @@ std::string render_metrics(const SceneRegistry& registry) {
     const std::string& id = scene->id();
     const SceneStatus st = scene->status();
     ticks.samples.emplace_back(id, double(st.tick));
-    late.samples.emplace_back(id, double(st.late_ticks));
-    skipped.samples.emplace_back(id, double(st.skipped_ticks));
-    rollbacks.samples.emplace_back(id, double(st.rollbacks));
+    late.samples.emplace_back(id, double(st.counters.late_ticks));
+    skipped.samples.emplace_back(id, double(st.counters.skipped_ticks));
+    rollbacks.samples.emplace_back(id, double(st.counters.rollbacks));
     running.samples.emplace_back(id, st.running ? 1.0 : 0.0);
-    rate.samples.emplace_back(id, st.running ? st.ticks_per_second : 0.0);
+    rate.samples.emplace_back(id, st.running ? st.counters.ticks_per_second : 0.0);
     auto s = streams.find(id);
     scene_streams.samples.emplace_back(id, s == streams.end() ? 0.0 : double(s->second));
     // Before its first tick a scene has no frame: the per-tick gauges are left out for it.
     if (const auto f = scene->latest_frame()) {
-      step_last.samples.emplace_back(id, f->step_wall_ms * 1e-3);
+      step_last.samples.emplace_back(id, f->solver.wall_ms * 1e-3);
       step_mean.samples.emplace_back(id, f->stepped_ticks > 0 ? f->step_wall_ms_sum * 1e-3 / double(f->stepped_ticks)
                                                               : std::nan(""));
-      residual.samples.emplace_back(id, f->residual_final);
-      relative.samples.emplace_back(id, f->residual_initial > 0 ? f->residual_final / f->residual_initial
+      residual.samples.emplace_back(id, f->solver.residual_final);
+      relative.samples.emplace_back(id, f->solver.residual_initial > 0 ? relative_residual(f->solver)
                                                                 : std::nan(""));
-      iterations.samples.emplace_back(id, double(f->iterations));
-      substeps.samples.emplace_back(id, double(f->substeps));
+      iterations.samples.emplace_back(id, double(f->solver.iterations));
+      substeps.samples.emplace_back(id, double(f->solver.substeps));
       grabs.samples.emplace_back(id, double(f->grab_forces.size()));
     }
   }

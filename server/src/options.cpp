@@ -67,6 +67,18 @@ Error parse_ms(const std::string& flag, const std::string& v, int64_t* out) {
   return parse_int(flag, v, 0, 86'400'000, out);
 }
 
+// The setter of a flag that takes an integer in [lo, hi] into `field`.
+template <class T>
+std::function<Error(const std::string&, ServerOptions&)> integer(const char* flag, int64_t lo, int64_t hi,
+                                                                 T ServerOptions::*field) {
+  return [=](const std::string& v, ServerOptions& o) {
+    int64_t x = 0;
+    if (Error e = parse_int(flag, v, lo, hi, &x); !e.ok()) return e;
+    o.*field = static_cast<T>(x);
+    return Error{};
+  };
+}
+
 const std::vector<Flag>& flags() {
   static const std::vector<Flag> f = {
       {"listen", "HOST:PORT to listen on (default 0.0.0.0:50051; port 0 picks a free port)",
@@ -81,26 +93,11 @@ const std::vector<Flag>& flags() {
                      "(MeshSource.model_path; default: the source tree's meshes/)",
        [](const std::string& v, ServerOptions& o) { o.model_path = v; return Error{}; }},
       {"max-scenes", "most scenes hosted at once (default 16)",
-       [](const std::string& v, ServerOptions& o) {
-         int64_t x = 0;
-         if (Error e = parse_int("max-scenes", v, 1, 100000, &x); !e.ok()) return e;
-         o.max_scenes = static_cast<int>(x);
-         return Error{};
-       }},
+       integer("max-scenes", 1, 100000, &ServerOptions::max_scenes)},
       {"max-vertices", "most vertices in one scene's mesh (default 2000000)",
-       [](const std::string& v, ServerOptions& o) {
-         int64_t x = 0;
-         if (Error e = parse_int("max-vertices", v, 4, 1'000'000'000, &x); !e.ok()) return e;
-         o.max_vertices = x;
-         return Error{};
-       }},
+       integer("max-vertices", 4, 1'000'000'000, &ServerOptions::max_vertices)},
       {"max-message-mb", "largest request or response message, MiB (default 64)",
-       [](const std::string& v, ServerOptions& o) {
-         int64_t x = 0;
-         if (Error e = parse_int("max-message-mb", v, 1, 2000, &x); !e.ok()) return e;
-         o.max_message_mb = static_cast<int>(x);
-         return Error{};
-       }},
+       integer("max-message-mb", 1, 2000, &ServerOptions::max_message_mb)},
       {"log-level", "trace | debug | info | warn | error | critical | off (default info)",
        [](const std::string& v, ServerOptions& o) {
          static const char* levels[] = {"trace", "debug", "info", "warn", "error", "critical", "off"};
@@ -146,26 +143,11 @@ const std::vector<Flag>& flags() {
       {"stuck-tick-ms", "health is NOT_SERVING while a tick has run longer than this (default 15000; 0: never)",
        [](const std::string& v, ServerOptions& o) { return parse_ms("stuck-tick-ms", v, &o.stuck_tick_ms); }},
       {"max-streams", "most open StreamFrames + HapticStream calls (default 256)",
-       [](const std::string& v, ServerOptions& o) {
-         int64_t x = 0;
-         if (Error e = parse_int("max-streams", v, 1, 100000, &x); !e.ok()) return e;
-         o.max_streams = static_cast<int>(x);
-         return Error{};
-       }},
+       integer("max-streams", 1, 100000, &ServerOptions::max_streams)},
       {"max-streams-per-scene", "most open streams on one scene (default 64)",
-       [](const std::string& v, ServerOptions& o) {
-         int64_t x = 0;
-         if (Error e = parse_int("max-streams-per-scene", v, 1, 100000, &x); !e.ok()) return e;
-         o.max_streams_per_scene = static_cast<int>(x);
-         return Error{};
-       }},
+       integer("max-streams-per-scene", 1, 100000, &ServerOptions::max_streams_per_scene)},
       {"max-grabs-per-scene", "most grabs held on one scene at once (default 64)",
-       [](const std::string& v, ServerOptions& o) {
-         int64_t x = 0;
-         if (Error e = parse_int("max-grabs-per-scene", v, 1, 100000, &x); !e.ok()) return e;
-         o.max_grabs_per_scene = static_cast<int>(x);
-         return Error{};
-       }},
+       integer("max-grabs-per-scene", 1, 100000, &ServerOptions::max_grabs_per_scene)},
       {"checkpoint-ms", "scenes that changed are saved to --data-dir this often (default 5000; 0: only at "
                         "shutdown)",
        [](const std::string& v, ServerOptions& o) {
@@ -174,12 +156,7 @@ const std::vector<Flag>& flags() {
          return Error{};
        }},
       {"threads", "most solver threads one scene may use (default 1)",
-       [](const std::string& v, ServerOptions& o) {
-         int64_t x = 0;
-         if (Error e = parse_int("threads", v, 1, 256, &x); !e.ok()) return e;
-         o.threads = static_cast<int>(x);
-         return Error{};
-       }},
+       integer("threads", 1, 256, &ServerOptions::threads)},
       {"restore", "true | false: restore the scenes saved in --data-dir on start (default true)",
        [](const std::string& v, ServerOptions& o) {
          if (v == "true" || v == "1" || v == "yes") o.restore = true;

@@ -70,9 +70,7 @@ struct Scene::TickState {
   bool schedule_valid = false;
   Clock::time_point anchor;
   uint64_t slot = 0;
-  uint64_t late_ticks = 0;
-  uint64_t skipped_ticks = 0;
-  uint64_t rollbacks = 0;
+  TickCounters counters;  // ticks_per_second: over the last second
   int consecutive_rollbacks = 0;
   // Solver wall time summed over the ticks run in this process (the metrics' mean step time).
   double step_wall_ms_sum = 0;
@@ -80,7 +78,6 @@ struct Scene::TickState {
   // Tick rate over the last second.
   Clock::time_point rate_window_start = Clock::now();
   uint64_t rate_window_ticks = 0;
-  double ticks_per_second = 0;
   Clock::time_point last_tick_end;
   struct TickProfile {
     uint64_t ticks = 0;
@@ -231,10 +228,7 @@ void Scene::publish_status() {
   s.mode = ts_->mode;
   s.tick = ts_->tick;
   s.sim_time = ts_->state.time;
-  s.late_ticks = ts_->late_ticks;
-  s.skipped_ticks = ts_->skipped_ticks;
-  s.rollbacks = ts_->rollbacks;
-  s.ticks_per_second = ts_->ticks_per_second;
+  s.counters = ts_->counters;
   s.pause_reason = ts_->pause_reason;
   std::lock_guard lk(info_mu_);
   ++generation_;
@@ -244,26 +238,25 @@ void Scene::publish_status() {
   model_shared_ = ts_->model;
 }
 
-Error Scene::call(std::function<Error()> fn, Clock::time_point deadline, bool interrupt) {
-  auto promise = std::make_shared<std::promise<Error>>();
-  auto future = promise->get_future();
+Error Scene::enqueue(Command fn, bool interrupt) {
   bool wake = false;
   {
     std::lock_guard lk(mu_);
     if (stop_) return Error::make(Code::Unavailable, "scene '" + id_ + "' is shutting down");
-    commands_.push_back([promise, fn = std::move(fn)] { promise->set_value(fn()); });
+    commands_.push_back(std::move(fn));
     wake = waiting_for_commands_;
     if (interrupt) cancel_tick_ = true;
   }
   if (wake) cv_.notify_all();
-  if (future.wait_until(deadline) != std::future_status::ready)
-    return Error::make(Code::DeadlineExceeded,
-                       "scene '" + id_ + "' did not reach a tick boundary in time");
-  try {
-    return future.get();
-  } catch (const std::future_error&) {
-    return Error::make(Code::Unavailable, "scene '" + id_ + "' stopped before the command ran");
-  }
+  return {};
+}
+
+Error Scene::not_in_time() const {
+  return Error::make(Code::DeadlineExceeded, "scene '" + id_ + "' did not reach a tick boundary in time");
+}
+
+Error Scene::stopped_before_running() const {
+  return Error::make(Code::Unavailable, "scene '" + id_ + "' stopped before the command ran");
 }
 
 bool Scene::post(Command fn) {
@@ -283,46 +276,50 @@ bool Scene::post(Command fn) {
 
 Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
                   std::chrono::milliseconds timeout, size_t max_grabs) {
-  auto id = std::make_shared<uint64_t>(0), first = std::make_shared<uint64_t>(0);
+  struct Granted {
+    uint64_t id = 0, first_tick = 0;
+  } granted;
   Error e = call(
-      [this, attachment, id, first, max_grabs] {
+      [this, attachment, max_grabs](Granted& out) {
         if (ts_->grabs.size() >= max_grabs)
           return Error::make(Code::ResourceExhausted,
                              "scene '" + id_ + "' already has " + std::to_string(ts_->grabs.size()) +
                                  " grabs (--max-grabs-per-scene " + std::to_string(max_grabs) + "); release one first");
-        *id = ts_->next_grab_id++;
-        ts_->grabs[*id] = attachment;
+        out.id = ts_->next_grab_id++;
+        ts_->grabs[out.id] = attachment;
         ++generation_;  // grabs are saved: a checkpoint is due
-        *first = ts_->tick + 1;
+        out.first_tick = ts_->tick + 1;
         return Error{};
       },
-      Clock::now() + timeout);
+      &granted, Clock::now() + timeout);
   if (e.ok()) {
-    if (grab_id) *grab_id = *id;
-    if (first_tick) *first_tick = *first;
+    if (grab_id) *grab_id = granted.id;
+    if (first_tick) *first_tick = granted.first_tick;
   }
   return e;
 }
 
 Error Scene::move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tick, Vec3* last_force,
                        std::chrono::milliseconds timeout) {
-  auto first = std::make_shared<uint64_t>(0);
-  auto force = std::make_shared<Vec3>(Vec3::Zero());
+  struct Moved {
+    uint64_t first_tick = 0;
+    Vec3 force = Vec3::Zero();
+  } moved;
   Error e = call(
-      [this, grab_id, target, first, force] {
+      [this, grab_id, target](Moved& out) {
         auto it = ts_->grabs.find(grab_id);
         if (it == ts_->grabs.end())
           return Error::make(Code::NotFound, "grab_id " + std::to_string(grab_id) + " is not a grab of scene '" + id_ + "'");
         it->second.target = target;
         ++generation_;
-        if (auto f = ts_->grab_forces.find(grab_id); f != ts_->grab_forces.end()) *force = f->second;
-        *first = ts_->tick + 1;
+        if (auto f = ts_->grab_forces.find(grab_id); f != ts_->grab_forces.end()) out.force = f->second;
+        out.first_tick = ts_->tick + 1;
         return Error{};
       },
-      Clock::now() + timeout);
+      &moved, Clock::now() + timeout);
   if (e.ok()) {
-    if (first_tick) *first_tick = *first;
-    if (last_force) *last_force = *force;
+    if (first_tick) *first_tick = moved.first_tick;
+    if (last_force) *last_force = moved.force;
   }
   return e;
 }
@@ -357,12 +354,15 @@ void Scene::remove_tool(uint64_t tool_id) {
   post([this, tool_id] { ts_->tools.erase(tool_id); });
 }
 
+Error Scene::not_in_lockstep() const {
+  if (ts_->mode != TickMode::Lockstep) return {};
+  return Error::make(Code::FailedPrecondition, "scene '" + id_ + "' is in lockstep mode (it ticks only on Step)");
+}
+
 Error Scene::pause(std::chrono::milliseconds timeout) {
   return call(
       [this] {
-        if (ts_->mode == TickMode::Lockstep)
-          return Error::make(Code::FailedPrecondition,
-                             "scene '" + id_ + "' is in lockstep mode (it ticks only on Step)");
+        if (Error e = not_in_lockstep(); !e.ok()) return e;
         ts_->running = false;
         ts_->schedule_valid = false;
         publish_status();
@@ -374,9 +374,7 @@ Error Scene::pause(std::chrono::milliseconds timeout) {
 Error Scene::resume(std::chrono::milliseconds timeout) {
   return call(
       [this] {
-        if (ts_->mode == TickMode::Lockstep)
-          return Error::make(Code::FailedPrecondition,
-                             "scene '" + id_ + "' is in lockstep mode (it ticks only on Step)");
+        if (Error e = not_in_lockstep(); !e.ok()) return e;
         ts_->running = true;
         ts_->pause_reason.clear();
         ts_->consecutive_rollbacks = 0;
@@ -427,17 +425,13 @@ Error Scene::update(const SceneUpdate& update, std::chrono::milliseconds timeout
 
 Error Scene::apply_force(std::vector<int32_t> vertices, const Vec3& force, uint32_t ticks,
                          uint64_t* first_tick, std::chrono::milliseconds timeout) {
-  // Results go through shared storage: the command may outlive a caller that timed out.
-  auto first = std::make_shared<uint64_t>(0);
-  Error e = call(
-      [this, vertices = std::move(vertices), force, ticks, first]() mutable {
+  return call(
+      [this, vertices = std::move(vertices), force, ticks](uint64_t& first) mutable {
         ts_->forces.push_back(ActiveForce{std::move(vertices), force, ticks});
-        *first = ts_->tick + 1;
+        first = ts_->tick + 1;
         return Error{};
       },
-      Clock::now() + timeout);
-  if (e.ok() && first_tick) *first_tick = *first;
-  return e;
+      first_tick, Clock::now() + timeout);
 }
 
 Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out,
@@ -451,7 +445,7 @@ Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out,
                              "scene '" + id_ + "' is running in " +
                                  std::string(to_string(ts_->mode)) +
                                  " mode; pause it or switch it to lockstep before stepping");
-        ts_->steps.push_back(StepJob{ticks, ts_->rollbacks, done});
+        ts_->steps.push_back(StepJob{ticks, ts_->counters.rollbacks, done});
         return Error{};
       },
       deadline);
@@ -496,26 +490,7 @@ Error Scene::step(uint32_t ticks, Clock::time_point deadline, StepResult* out,
   return {};
 }
 
-Error Scene::snapshot(SceneSnapshot* out, std::chrono::milliseconds timeout) {
-  auto result = std::make_shared<SceneSnapshot>();
-  Error e = call(
-      [this, result] {
-        result->id = id_;
-        result->config = config();
-        result->model = ts_->model;
-        result->state = ts_->state;
-        result->tick = ts_->tick;
-        result->paused = !ts_->running;
-        result->grabs = ts_->grabs;
-        result->next_grab_id = ts_->next_grab_id;
-        return Error{};
-      },
-      Clock::now() + timeout);
-  if (e.ok()) *out = std::move(*result);
-  return e;
-}
-
-SceneSnapshot Scene::snapshot_stopped() const {
+SceneSnapshot Scene::snapshot_now() const {
   SceneSnapshot out;
   out.id = id_;
   out.config = config();
@@ -527,6 +502,17 @@ SceneSnapshot Scene::snapshot_stopped() const {
   out.next_grab_id = ts_->next_grab_id;
   return out;
 }
+
+Error Scene::snapshot(SceneSnapshot* out, std::chrono::milliseconds timeout) {
+  return call(
+      [this](SceneSnapshot& snap) {
+        snap = snapshot_now();
+        return Error{};
+      },
+      out, Clock::now() + timeout);
+}
+
+SceneSnapshot Scene::snapshot_stopped() const { return snapshot_now(); }
 
 std::shared_ptr<const Frame> Scene::latest_frame() const {
   std::lock_guard lk(frame_mu_);
@@ -615,6 +601,33 @@ void Scene::cancelled_tick(const std::string& abort_reason) {
   publish_status();
 }
 
+// The one place the solver's report of a tick goes into its frame: the report as a whole, its
+// per-tool reactions by tool id and its per-grab forces by grab id (none after a rollback: the
+// tick's contacts were undone with it). The grab forces are kept for MoveGrab's answer.
+void Scene::carry_report(StepReport&& report, bool rolled_back, Frame& frame) {
+  TickState& t = *ts_;
+  size_t k = 0;
+  frame.tools.reserve(t.tools.size());
+  for (const auto& [id, pt] : t.tools) {
+    FrameTool ft{id, pt.seq, pt.client_ns, {}};
+    if (!rolled_back && k < report.tools.size()) ft.reaction = std::move(report.tools[k]);
+    frame.tools.push_back(std::move(ft));
+    ++k;
+  }
+  k = 0;
+  t.grab_forces.clear();
+  frame.grab_forces.reserve(t.grabs.size());
+  for (const auto& [id, a] : t.grabs) {
+    const Vec3 f = !rolled_back && k < report.attachment_forces.size() ? report.attachment_forces[k] : Vec3::Zero();
+    t.grab_forces[id] = f;
+    frame.grab_forces.emplace_back(id, f);
+    ++k;
+  }
+  report.tools.clear();
+  report.attachment_forces.clear();
+  frame.solver = std::move(report);
+}
+
 void Scene::tick_once(bool scheduled, Clock::time_point due) {
   TickState& t = *ts_;
   const auto start = Clock::now();
@@ -674,7 +687,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   const bool rolled_back = !failure.empty();
   if (rolled_back) {
     t.state = t.last_good;
-    ++t.rollbacks;
+    ++t.counters.rollbacks;
     ++t.consecutive_rollbacks;
     spdlog::warn("scene '{}': tick {}: {}; rolled back to the state of tick {}", id_, t.tick,
                  failure, t.tick - 1);
@@ -700,85 +713,56 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     ++t.slot;
     auto next_due = t.anchor + period * static_cast<int64_t>(t.slot);
     if (end > next_due) {
-      ++t.late_ticks;
+      ++t.counters.late_ticks;
       const auto behind = end - next_due;
       const auto missed = static_cast<uint64_t>(behind / period);
       if (missed > 0) {
         t.slot += missed;
-        t.skipped_ticks += missed;
+        t.counters.skipped_ticks += missed;
       }
     }
   }
   ++t.rate_window_ticks;
   const double window_s = std::chrono::duration<double>(end - t.rate_window_start).count();
   if (window_s >= 1.0) {
-    t.ticks_per_second = t.rate_window_ticks / window_s;
+    t.counters.ticks_per_second = t.rate_window_ticks / window_s;
     t.rate_window_ticks = 0;
     t.rate_window_start = end;
-  } else if (t.ticks_per_second == 0 && window_s > 0.1) {
-    t.ticks_per_second = t.rate_window_ticks / window_s;
+  } else if (t.counters.ticks_per_second == 0 && window_s > 0.1) {
+    t.counters.ticks_per_second = t.rate_window_ticks / window_s;
   }
   t.last_tick_end = end;
 
+  const double step_wall_ms = report.wall_ms;
+  const int volume_corrections = report.volume_corrections, contacts = report.contacts;
   auto frame = std::make_shared<Frame>();
   frame->tick = t.tick;
   frame->sim_time = t.state.time;
   frame->positions.resize(t.state.x.size() * 3);
   for (size_t i = 0; i < t.state.x.size(); ++i)
     for (int k = 0; k < 3; ++k) frame->positions[3 * i + k] = static_cast<float>(t.state.x[i][k]);
-  frame->residuals = std::move(report.residuals);
-  frame->substeps = report.substeps;
-  frame->iterations = report.iterations;
-  frame->residual_initial = report.residual_initial;
-  frame->residual_final = report.residual_final;
-  frame->accelerations_tried = report.accelerations_tried;
-  frame->accelerations_accepted = report.accelerations_accepted;
-  frame->step_wall_ms = report.wall_ms;
-  t.step_wall_ms_sum += report.wall_ms;
+  carry_report(std::move(report), rolled_back, *frame);
+  t.step_wall_ms_sum += step_wall_ms;
   ++t.stepped_ticks;
   frame->step_wall_ms_sum = t.step_wall_ms_sum;
   frame->stepped_ticks = t.stepped_ticks;
-  frame->stopped_by_tolerance = report.stopped_by_tolerance;
-  frame->stopped_by_budget = report.stopped_by_budget;
-  frame->volume_corrections = report.volume_corrections;
-  frame->late_ticks = t.late_ticks;
-  frame->skipped_ticks = t.skipped_ticks;
+  frame->counters = t.counters;
   frame->lateness_ms = lateness_ms;
-  frame->ticks_per_second = t.ticks_per_second;
   frame->rolled_back = rolled_back;
-  frame->rollbacks = t.rollbacks;
   frame->rollback_reason = failure;
   frame->running = t.running && t.mode != TickMode::Lockstep;
   frame->mode = t.mode;
-  // Reactions: none after a rollback (the tick's contacts were undone with it).
-  {
-    size_t k = 0;
-    for (const auto& [id, pt] : t.tools) {
-      FrameTool ft{id, pt.seq, pt.client_ns, {}};
-      if (!rolled_back && k < report.tools.size()) ft.reaction = std::move(report.tools[k]);
-      frame->tools.push_back(std::move(ft));
-      ++k;
-    }
-    k = 0;
-    t.grab_forces.clear();
-    for (const auto& [id, a] : t.grabs) {
-      const Vec3 f = !rolled_back && k < report.attachment_forces.size() ? report.attachment_forces[k] : Vec3::Zero();
-      t.grab_forces[id] = f;
-      frame->grab_forces.emplace_back(id, f);
-      ++k;
-    }
-  }
 
   publish_status();
   // Where the tick time goes, logged at debug level every 10 s: the solver step, the tick's
   // own work around it (state copy, frame, status), the time between tick starts, lateness.
   {
     auto& p = t.profile;
-    p.step_ms += report.wall_ms;
+    p.step_ms += step_wall_ms;
     p.tick_ms += std::chrono::duration<double, std::milli>(Clock::now() - start).count();
     if (p.ticks > 0) p.gap_ms += std::chrono::duration<double, std::milli>(start - p.last_start).count();
     p.late_ms += lateness_ms;
-    p.volume_corrections += report.volume_corrections;
+    p.volume_corrections += volume_corrections;
     p.last_start = start;
     if (++p.ticks == 1) p.window_start = start;
     if (start - p.window_start >= std::chrono::seconds(10)) {
@@ -786,7 +770,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
       spdlog::debug("scene '{}': {} ticks, per tick: step {:.2f} ms, tick {:.2f} ms (outside the step {:.2f} ms), "
                     "{:.2f} ms between starts, late {:.2f} ms, {:.0f} volume corrections, {} contacts",
                     id_, p.ticks, p.step_ms / n, p.tick_ms / n, (p.tick_ms - p.step_ms) / n,
-                    p.gap_ms / std::max(1.0, n - 1), p.late_ms / n, double(p.volume_corrections) / n, report.contacts);
+                    p.gap_ms / std::max(1.0, n - 1), p.late_ms / n, double(p.volume_corrections) / n, contacts);
       p = {};
     }
   }
@@ -805,7 +789,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   if (!t.steps.empty()) {
     auto& job = t.steps.front();
     if (--job.remaining == 0) {
-      job.done->set_value(StepResult{t.tick, t.state.time, t.rollbacks - job.rollbacks_before});
+      job.done->set_value(StepResult{t.tick, t.state.time, t.counters.rollbacks - job.rollbacks_before});
       t.steps.pop_front();
     }
   }

@@ -5,6 +5,7 @@
 
 #include "pliant/server/edge.hpp"
 #include "pliant/server/metrics.hpp"
+#include "pliant/server/stream_proto.hpp"
 
 #include "pliant/mesh_io.hpp"
 #include "pliant/v1/pliant.grpc.pb.h"
@@ -336,7 +337,7 @@ class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
     uint64_t skipped = 0;
     if (have_last_ && !limited) skipped = (frame->seq - last_sent_) / setup_.every - 1;
     msg_.Clear();
-    SceneRegistry::fill_frame(*frame, setup_.selection, scene.surface_vertices(), skipped, &msg_);
+    frame_to_proto(*frame, setup_.selection, scene.surface_vertices(), skipped, &msg_);
     // Keep the decimation's phase when a late reader sends an off-phase frame.
     last_sent_ = have_last_ ? frame->seq - (frame->seq - last_sent_) % setup_.every : frame->seq;
     have_last_ = true;
@@ -407,7 +408,7 @@ class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_Strea
   Error prepare(const v1::StreamFramesRequest& r, FrameStreamReactor::Setup* out) {
     if (Error e = sc_.registry->find(r.scene_id(), &out->scene); !e.ok()) return e;
     if (Error e = sc_.registry->open_stream(out->scene->id(), &out->slot); !e.ok()) return e;
-    if (Error e = SceneRegistry::parse_stream_request(r, &out->selection); !e.ok()) return e;
+    if (Error e = parse_stream_request(r, &out->selection); !e.ok()) return e;
     out->every = r.every_nth_tick() <= 1 ? 1 : r.every_nth_tick();
     out->min_interval = r.max_rate_hz() > 0
         ? std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / r.max_rate_hz()))
@@ -448,7 +449,7 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
     std::shared_ptr<void> slot;
     if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
     RigidTool tool;
-    if (Error e = SceneRegistry::parse_tool_pose(pose, nullptr, &tool); !e.ok()) return e;
+    if (Error e = parse_tool_pose(pose, nullptr, &tool); !e.ok()) return e;
     const uint64_t tool_id = scene->new_tool_id();
     scene->set_tool(tool_id, tool, pose.seq(), pose.client_time_ns());
     spdlog::debug("HapticStream: {} attached tool {} to '{}'", c->peer(), tool_id, scene->id());
@@ -482,28 +483,7 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
         }
         const uint64_t skipped = after > 0 && frame->seq > after + 1 ? frame->seq - after - 1 : 0;
         after = frame->seq;
-        const FrameTool* ft = nullptr;
-        for (const FrameTool& t : frame->tools)
-          if (t.tool_id == tool_id) ft = &t;
-        if (!ft) continue;  // the tool's first pose is not in a tick yet
-        msg.Clear();
-        msg.set_tick(frame->tick);
-        msg.set_sim_time(frame->sim_time);
-        msg.set_pose_seq(ft->pose_seq);
-        msg.set_pose_client_time_ns(ft->pose_client_ns);
-        auto set = [](v1::Vec3* v, const Vec3& x) { v->set_x(x.x()); v->set_y(x.y()); v->set_z(x.z()); };
-        set(msg.mutable_force(), ft->reaction.force);
-        set(msg.mutable_torque(), ft->reaction.torque);
-        for (const ToolContact& tc : ft->reaction.contacts) {
-          auto* cp = msg.add_contacts();
-          cp->set_vertex(tc.vertex);
-          set(cp->mutable_point(), tc.point);
-          set(cp->mutable_normal(), tc.normal);
-          set(cp->mutable_force(), tc.force);
-        }
-        msg.set_skipped_ticks(skipped);
-        msg.set_server_time_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                   std::chrono::system_clock::now().time_since_epoch()).count());
+        if (!tool_feedback_to_proto(*frame, tool_id, skipped, &msg)) continue;  // its first pose is not in a tick yet
         if (!stream->Write(msg)) {
           done = true;
           return;
@@ -519,7 +499,7 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
         break;
       }
       RigidTool next;
-      if (Error e = SceneRegistry::parse_tool_pose(pose, &tool, &next); !e.ok()) {
+      if (Error e = parse_tool_pose(pose, &tool, &next); !e.ok()) {
         result = e;
         break;
       }

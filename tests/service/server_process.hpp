@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // pliant-server (the real binary, PLIANT_SERVER_BIN) in a child process for the service tests
-// that restart or kill it: its log goes to a file, its port is read from the log.
+// that restart or kill it: its log goes to a file, its port is read from the log. With the
+// small scene those tests load it with.
 #pragma once
 
 #include "pliant/client/client.hpp"
@@ -27,6 +28,18 @@ inline std::string read_text(const fs::path& p) {
   std::stringstream ss;
   ss << f.rdbuf();
   return ss.str();
+}
+
+// beam1 clamped at x = 0, 2 substeps x 2 iterations: cheap enough for many scenes at once.
+inline v1::CreateSceneRequest beam1_request(const std::string& id, v1::TickMode mode) {
+  v1::CreateSceneRequest r;
+  r.set_scene_id(id);
+  r.mutable_spec()->mutable_mesh()->set_builtin("beam1");
+  client::clamp_below_x(*r.mutable_spec(), 1e-3);
+  r.mutable_spec()->mutable_solver()->set_substeps(2);
+  r.mutable_spec()->mutable_solver()->set_iterations(2);
+  r.mutable_spec()->mutable_tick()->set_mode(mode);
+  return r;
 }
 
 class ServerProcess {

@@ -8,6 +8,8 @@
 
 #include <grpcpp/generic/generic_stub.h>
 #include <grpcpp/grpcpp.h>
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -20,7 +22,7 @@ using namespace pliant;
 
 namespace {
 
-constexpr int kUnauthenticated = 16;
+using namespace test::grpc_codes;
 
 server::EnvLookup env_of(std::map<std::string, std::string> vars) {
   return [vars](const std::string& name) -> std::optional<std::string> {
@@ -124,32 +126,24 @@ TEST(Auth, ReflectionOptionIsChecked) {
 
 TEST(Auth, WrongTokensOfAnyLengthAreRefused) {
   server::ServerOptions o;
-  o.listen = "127.0.0.1:0";
   o.token = "correct-horse";
-  server::PliantServer srv(o);
-  ASSERT_TRUE(srv.start().ok());
+  test::InProcessServer srv(o);
+  ASSERT_TRUE(srv.started.ok());
   for (const std::string& token : {std::string(""), std::string("c"), std::string("correct-hors"),
                                    std::string("correct-horsE"), std::string("correct-horse-"),
                                    std::string(4000, 'c')}) {
-    client::ConnectOptions c;
-    c.address = "127.0.0.1:" + std::to_string(srv.port());
-    c.token = token;
-    auto r = client::Client(c).list_scenes();
+    auto r = srv.client(token).list_scenes();
     EXPECT_EQ(r.status.code, kUnauthenticated) << token.size() << ": " << r.status.to_string();
   }
-  client::ConnectOptions c;
-  c.address = "127.0.0.1:" + std::to_string(srv.port());
-  c.token = "correct-horse";
-  EXPECT_TRUE(client::Client(c).list_scenes().ok());
+  EXPECT_TRUE(srv.client("correct-horse").list_scenes().ok());
 }
 
 TEST(Auth, ReflectionCanRequireTheToken) {
   server::ServerOptions o;
-  o.listen = "127.0.0.1:0";
   o.token = "t0k";
   o.reflection = "token";
-  server::PliantServer srv(o);
-  ASSERT_TRUE(srv.start().ok());
+  test::InProcessServer srv(o);
+  ASSERT_TRUE(srv.started.ok());
   EXPECT_FALSE(list_services(srv.port(), "").ok());
   EXPECT_FALSE(list_services(srv.port(), "wrong").ok());
   grpc::Status s = list_services(srv.port(), "t0k");
@@ -158,16 +152,15 @@ TEST(Auth, ReflectionCanRequireTheToken) {
 
 TEST(Auth, ReflectionOpenByDefaultAndOffOnRequest) {
   server::ServerOptions o;
-  o.listen = "127.0.0.1:0";
   o.token = "t0k";
   {
-    server::PliantServer srv(o);
-    ASSERT_TRUE(srv.start().ok());
+    test::InProcessServer srv(o);
+    ASSERT_TRUE(srv.started.ok());
     grpc::Status s = list_services(srv.port(), "");
     EXPECT_TRUE(s.ok()) << s.error_message();  // documented: open without the token
   }
   o.reflection = "off";
-  server::PliantServer srv(o);
-  ASSERT_TRUE(srv.start().ok());
+  test::InProcessServer srv(o);
+  ASSERT_TRUE(srv.started.ok());
   EXPECT_FALSE(list_services(srv.port(), "t0k").ok());
 }

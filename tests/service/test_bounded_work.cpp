@@ -9,6 +9,8 @@
 #include "pliant/server/registry.hpp"
 #include "pliant/server/server.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -22,7 +24,7 @@ using client::Client;
 
 namespace {
 
-constexpr int kInvalidArgument = 3, kResourceExhausted = 8;
+using namespace test::grpc_codes;
 
 // A 2,875-tet beam at the sweep limit (2000 substeps x 100 iterations): minutes per tick.
 v1::CreateSceneRequest slow_request(const std::string& id, v1::TickMode mode) {
@@ -52,25 +54,13 @@ v1::CreateSceneRequest small_request(const std::string& id) {
   return r;
 }
 
-struct Server {
-  std::unique_ptr<server::PliantServer> srv;
-  explicit Server(server::ServerOptions o) {
-    o.listen = "127.0.0.1:0";
-    srv = std::make_unique<server::PliantServer>(o);
-    auto e = srv->start();
-    EXPECT_TRUE(e.ok()) << e.message;
-  }
-  Client client() const {
-    client::ConnectOptions c;
-    c.address = "127.0.0.1:" + std::to_string(srv->port());
-    c.timeout = std::chrono::seconds(20);
-    c.step_timeout = std::chrono::seconds(20);
-    return Client(c);
-  }
+struct Server : test::InProcessServer {
+  explicit Server(server::ServerOptions o)
+      : InProcessServer(std::move(o), {std::chrono::seconds(20), std::chrono::seconds(20)}) {}
   // Waits (at most 20 s) until the scene's tick thread is inside a tick.
   bool wait_ticking(const std::string& id) {
     std::shared_ptr<server::Scene> scene;
-    if (!srv->registry().find(id, &scene).ok()) return false;
+    if (!registry().find(id, &scene).ok()) return false;
     for (int i = 0; i < 2000; ++i) {
       if (scene->tick_running_for() > std::chrono::steady_clock::duration::zero()) return true;
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
@@ -166,10 +156,10 @@ TEST(BoundedWork, ShutdownInterruptsALongTickAndSavesTheStateBeforeIt) {
   Client c = s.client();
   ASSERT_TRUE(c.create_scene(slow_request("slow", v1::TICK_MODE_REALTIME)).ok());
   ASSERT_TRUE(s.wait_ticking("slow"));
-  auto done = std::async(std::launch::async, [&] { return s.srv->shutdown(); });
+  auto done = std::async(std::launch::async, [&] { return s.server->shutdown(); });
   ASSERT_EQ(done.wait_for(std::chrono::seconds(30)), std::future_status::ready);
   EXPECT_EQ(done.get(), 1);
-  EXPECT_FALSE(s.srv->save_failed());
+  EXPECT_FALSE(s.server->save_failed());
   v1::Snapshot snap;
   std::ifstream f(data / "scenes" / "slow.snapshot", std::ios::binary);
   ASSERT_TRUE(snap.ParseFromIstream(&f));

@@ -4,6 +4,8 @@
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
 
@@ -16,30 +18,11 @@ using client::Client;
 
 namespace {
 
-const bool quiet_logs = [] {
-  spdlog::set_level(spdlog::level::warn);
-  return true;
-}();
+using namespace test::grpc_codes;
 
-constexpr int kInvalidArgument = 3;
-
-struct ColliderServer {
-  std::unique_ptr<server::PliantServer> server;
-  std::string address;
-  ColliderServer() {
-    server::ServerOptions o;
-    o.listen = "127.0.0.1:0";
-    server = std::make_unique<server::PliantServer>(o);
-    auto e = server->start();
-    EXPECT_TRUE(e.ok()) << e.message;
-    address = "127.0.0.1:" + std::to_string(server->port());
-  }
-  Client client() const {
-    client::ConnectOptions c;
-    c.address = address;
-    c.timeout = std::chrono::seconds(60);
-    return Client(c);
-  }
+// Colliders make ticks slower: clients wait up to 60 s.
+struct ColliderServer : test::InProcessServer {
+  ColliderServer() : InProcessServer({}, {std::chrono::seconds(60)}) {}
 };
 
 void set(v1::Vec3* v, double x, double y, double z) {

@@ -38,17 +38,6 @@ fs::path fresh_dir(const std::string& name) {
   return p;
 }
 
-v1::CreateSceneRequest beam(const std::string& id, v1::TickMode mode) {
-  v1::CreateSceneRequest r;
-  r.set_scene_id(id);
-  r.mutable_spec()->mutable_mesh()->set_builtin("beam1");
-  client::clamp_below_x(*r.mutable_spec(), 1e-3);
-  r.mutable_spec()->mutable_solver()->set_substeps(2);
-  r.mutable_spec()->mutable_solver()->set_iterations(2);
-  r.mutable_spec()->mutable_tick()->set_mode(mode);
-  return r;
-}
-
 // Every file in <data>/scenes/ parses and passes the server's own snapshot checks; their ids.
 std::set<std::string> loadable_scene_files(const fs::path& data) {
   std::set<std::string> ids;
@@ -82,7 +71,7 @@ TEST(CrashRestart, CreatedAndDeletedScenesReachTheDataDirectoryAtOnce) {
   ASSERT_GT(s.port(), 0) << s.log();
   EXPECT_FALSE(fs::exists(dir / "data" / "scenes" / "old.snapshot.tmp.123.0"));
   Client c = s.client();
-  ASSERT_TRUE(c.create_scene(beam("made", v1::TICK_MODE_LOCKSTEP)).ok());
+  ASSERT_TRUE(c.create_scene(test::beam1_request("made", v1::TICK_MODE_LOCKSTEP)).ok());
   // Written on creation, not after the (one-minute) interval.
   int64_t tick = -1;
   for (int i = 0; i < 1000 && tick < 0; ++i) {
@@ -107,9 +96,9 @@ TEST(CrashRestart, KillNineUnderLoadLosesAtMostOneCheckpoint) {
     ASSERT_GT(s.port(), 0) << s.log();
     Client c = s.client();
     if (round == 0) {
-      ASSERT_TRUE(c.create_scene(beam("rt1", v1::TICK_MODE_REALTIME)).ok());
-      ASSERT_TRUE(c.create_scene(beam("rt2", v1::TICK_MODE_AS_FAST_AS_POSSIBLE)).ok());
-      ASSERT_TRUE(c.create_scene(beam("ls", v1::TICK_MODE_LOCKSTEP)).ok());
+      ASSERT_TRUE(c.create_scene(test::beam1_request("rt1", v1::TICK_MODE_REALTIME)).ok());
+      ASSERT_TRUE(c.create_scene(test::beam1_request("rt2", v1::TICK_MODE_AS_FAST_AS_POSSIBLE)).ok());
+      ASSERT_TRUE(c.create_scene(test::beam1_request("ls", v1::TICK_MODE_LOCKSTEP)).ok());
     }
     // Every scene came back, the lockstep one exactly where its last checkpoint had it.
     auto listed = c.list_scenes();
@@ -188,7 +177,7 @@ TEST(CrashRestart, AFailedSaveAtShutdownExitsNonZero) {
   ServerProcess s(dir / "data", dir / "server.log");
   ASSERT_GT(s.port(), 0) << s.log();
   Client c = s.client();
-  ASSERT_TRUE(c.create_scene(beam("doomed", v1::TICK_MODE_LOCKSTEP)).ok());
+  ASSERT_TRUE(c.create_scene(test::beam1_request("doomed", v1::TICK_MODE_LOCKSTEP)).ok());
   EXPECT_EQ(s.terminate(std::chrono::seconds(30)), 1) << s.log();
   EXPECT_NE(s.log().find("shutdown snapshot failed"), std::string::npos) << s.log();
   fs::remove_all(dir);

@@ -6,6 +6,7 @@
 #include "pliant/client/client.hpp"
 #include "pliant/server/options.hpp"
 #include "pliant/server/registry.hpp"
+#include "pliant/server/stream_proto.hpp"
 
 #include <gtest/gtest.h>
 
@@ -102,14 +103,14 @@ TEST(EdgeValidation, StreamRateIsRangeChecked) {
   for (double bad : {1e-300, 1e-3, -1.0, 1e9, double(NAN), double(INFINITY)}) {
     v1::StreamFramesRequest r;
     r.set_max_rate_hz(bad);
-    server::Error e = server::SceneRegistry::parse_stream_request(r, &sel);
+    server::Error e = server::parse_stream_request(r, &sel);
     EXPECT_EQ(e.code, Code::InvalidArgument) << bad;
     EXPECT_NE(e.message.find("max_rate_hz must be 0 (no limit) or in [0.01, 100000] Hz"), std::string::npos) << e.message;
   }
   for (double good : {0.0, 0.01, 60.0, 100000.0}) {
     v1::StreamFramesRequest r;
     r.set_max_rate_hz(good);
-    EXPECT_TRUE(server::SceneRegistry::parse_stream_request(r, &sel).ok()) << good;
+    EXPECT_TRUE(server::parse_stream_request(r, &sel).ok()) << good;
   }
 }
 

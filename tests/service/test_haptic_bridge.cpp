@@ -7,6 +7,8 @@
 #include "pliant/server/server.hpp"
 #include "pliant/test/wait_until.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
 
@@ -15,11 +17,6 @@ using namespace pliant;
 using namespace pliant::haptic;
 
 namespace {
-
-const bool quiet_logs = [] {
-  spdlog::set_level(spdlog::level::warn);
-  return true;
-}();
 
 ServerForce at(uint64_t tick, const Vec3& force, const Vec3& pose) {
   ServerForce s;
@@ -81,10 +78,8 @@ TEST(SimulatedDevice, PressesBelowTheSurfaceAndComesBack) {
 }
 
 TEST(HapticBridge, FeelsTheBeamCutsToZeroWhenTheServerGoesAndReconnects) {
-  server::ServerOptions so;
-  so.listen = "127.0.0.1:0";
-  auto srv = std::make_unique<server::PliantServer>(so);
-  ASSERT_TRUE(srv->start().ok());
+  auto srv = std::make_unique<test::InProcessServer>();
+  ASSERT_TRUE(srv->started.ok());
   const int port = srv->port();
 
   SimulatedDevice::Params dp;
@@ -109,7 +104,7 @@ TEST(HapticBridge, FeelsTheBeamCutsToZeroWhenTheServerGoesAndReconnects) {
   EXPECT_GT(pressed.max_force_n, 0.005);
 
   // The server goes away: the force is zero from the loop period after the loss on.
-  srv->shutdown();
+  srv->server->shutdown();
   srv.reset();
   ASSERT_TRUE(test::wait_until([&] { return !bridge.connected(); }, std::chrono::seconds(10),
                                "the bridge to notice the server is gone"));
@@ -123,13 +118,12 @@ TEST(HapticBridge, FeelsTheBeamCutsToZeroWhenTheServerGoesAndReconnects) {
   EXPECT_EQ(device->last_force(), Vec3::Zero());
 
   // It comes back on the same port (a fresh server: the bridge creates the scene again).
-  so.listen = "127.0.0.1:" + std::to_string(port);
-  srv = std::make_unique<server::PliantServer>(so);
-  ASSERT_TRUE(srv->start().ok());
+  srv = std::make_unique<test::InProcessServer>(server::ServerOptions{}, test::ClientSettings{}, port);
+  ASSERT_TRUE(srv->started.ok());
   ASSERT_TRUE(test::wait_until([&] { return bridge.connected() && device->last_force().y() > 0.005; },
                                std::chrono::seconds(30), "the bridge to reconnect and feel the beam again"))
       << bridge.stats().to_json();
   EXPECT_GE(bridge.stats().reconnects, 1u);
   bridge.stop();
-  srv->shutdown();
+  srv->server->shutdown();
 }

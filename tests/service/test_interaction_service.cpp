@@ -6,6 +6,8 @@
 #include "pliant/server/server.hpp"
 #include "pliant/test/wait_until.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
 
@@ -22,30 +24,9 @@ using client::Client;
 
 namespace {
 
-const bool quiet_logs = [] {
-  spdlog::set_level(spdlog::level::warn);
-  return true;
-}();
+using namespace test::grpc_codes;
 
-constexpr int kInvalidArgument = 3, kNotFound = 5;
-
-struct Server {
-  std::unique_ptr<server::PliantServer> server;
-  std::string address;
-  explicit Server(server::ServerOptions o = {}) {
-    o.listen = "127.0.0.1:0";
-    server = std::make_unique<server::PliantServer>(o);
-    auto e = server->start();
-    EXPECT_TRUE(e.ok()) << e.message;
-    address = "127.0.0.1:" + std::to_string(server->port());
-  }
-  Client client() const {
-    client::ConnectOptions c;
-    c.address = address;
-    c.timeout = std::chrono::seconds(30);
-    return Client(c);
-  }
-};
+using Server = test::InProcessServer;
 
 // beam1 (11.5 x 1 x 1 cm) clamped at x = 0, gravity off so grabs and tools are the only loads.
 v1::CreateSceneRequest beam(const std::string& id) {

@@ -7,6 +7,8 @@
 #include "pliant/server/server.hpp"
 #include "pliant/test/wait_until.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 
 #include <arpa/inet.h>
@@ -97,15 +99,12 @@ v1::CreateSceneRequest realtime_beam(const std::string& id) {
 
 TEST(Metrics, ScrapeHasTheSeriesPerSceneAndCountersGrow) {
   server::ServerOptions o;
-  o.listen = "127.0.0.1:0";
   o.metrics_listen = "127.0.0.1:0";
-  server::PliantServer srv(o);
-  ASSERT_TRUE(srv.start().ok());
+  test::InProcessServer fx(o);
+  ASSERT_TRUE(fx.started.ok());
+  server::PliantServer& srv = *fx.server;
   ASSERT_GT(srv.metrics_port(), 0);
-  client::ConnectOptions co;
-  co.address = "127.0.0.1:" + std::to_string(srv.port());
-  co.timeout = std::chrono::seconds(30);
-  Client c(co);
+  Client c = fx.client();
 
   HttpReply r = http_get(srv.metrics_port(), "/metrics");
   ASSERT_EQ(r.status, 200) << r.headers;

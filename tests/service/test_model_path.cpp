@@ -10,6 +10,8 @@
 #include "pliant/server/registry.hpp"
 #include "pliant/server/server.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -181,13 +183,9 @@ TEST(ModelPath, LongInputIsEchoedCapped) {
 // Over gRPC, input far longer than the 8 KiB metadata limit still gets INVALID_ARGUMENT (the
 // status message carries only its capped echo).
 TEST(ModelPath, HugeInputGetsInvalidArgumentOverGrpc) {
-  server::ServerOptions o;
-  o.listen = "127.0.0.1:0";
-  server::PliantServer srv(o);
-  ASSERT_TRUE(srv.start().ok());
-  client::ConnectOptions c;
-  c.address = "127.0.0.1:" + std::to_string(srv.port());
-  client::Client cl(c);
+  test::InProcessServer srv;
+  ASSERT_TRUE(srv.started.ok());
+  client::Client cl = srv.client();
   for (const std::string& huge : {std::string(9000, 'y'), std::string(20000, '\x01')}) {
     v1::CreateSceneRequest r = model_request("ok.vtk");
     r.set_scene_id(huge);
@@ -198,5 +196,5 @@ TEST(ModelPath, HugeInputGetsInvalidArgumentOverGrpc) {
     auto got = cl.get_scene(huge);
     EXPECT_EQ(got.status.code, 5) << got.status.to_string().substr(0, 300);
   }
-  srv.shutdown();
+  srv.server->shutdown();
 }

@@ -3,6 +3,8 @@
 // The reflection protocol is spoken with a raw generic call to keep its stubs out of the build.
 #include "pliant/server/server.hpp"
 
+#include "in_process_server.hpp"
+
 #include <grpcpp/generic/generic_stub.h>
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
@@ -20,10 +22,8 @@ bool next(grpc::CompletionQueue& cq, void* expected) {
 
 TEST(Reflection, ListsThePliantServices) {
   spdlog::set_level(spdlog::level::warn);
-  pliant::server::ServerOptions o;
-  o.listen = "127.0.0.1:0";
-  pliant::server::PliantServer server(o);
-  ASSERT_TRUE(server.start().ok());
+  pliant::test::InProcessServer server;
+  ASSERT_TRUE(server.started.ok());
   auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(server.port()),
                                      grpc::InsecureChannelCredentials());
   grpc::GenericStub stub(channel);
@@ -61,5 +61,5 @@ TEST(Reflection, ListsThePliantServices) {
   bool ok;
   while (cq.Next(&tag, &ok)) {
   }
-  server.shutdown();
+  server.server->shutdown();
 }

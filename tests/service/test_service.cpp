@@ -9,6 +9,8 @@
 #include "pliant/server/server.hpp"
 #include "pliant/test/wait_until.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
 
@@ -27,34 +29,9 @@ using client::Client;
 
 namespace {
 
-// Keep the test output readable: the server logs warnings and errors only.
-const bool quiet_logs = [] {
-  spdlog::set_level(spdlog::level::warn);
-  return true;
-}();
+using namespace test::grpc_codes;
 
-constexpr int kInvalidArgument = 3, kDeadlineExceeded = 4, kNotFound = 5, kAlreadyExists = 6,
-              kResourceExhausted = 8, kFailedPrecondition = 9, kUnavailable = 14, kUnauthenticated = 16;
-
-struct TestServer {
-  std::unique_ptr<server::PliantServer> server;
-  std::string address;
-
-  explicit TestServer(server::ServerOptions o = {}) {
-    o.listen = "127.0.0.1:0";
-    server = std::make_unique<server::PliantServer>(o);
-    auto e = server->start();
-    EXPECT_TRUE(e.ok()) << e.message;
-    address = "127.0.0.1:" + std::to_string(server->port());
-  }
-  Client client(const std::string& token = "") const {
-    client::ConnectOptions c;
-    c.address = address;
-    c.token = token;
-    c.timeout = std::chrono::seconds(30);
-    return Client(c);
-  }
-};
+using TestServer = test::InProcessServer;
 
 fs::path temp_dir(const std::string& name) {
   fs::path p = fs::temp_directory_path() /

@@ -46,13 +46,7 @@ double soak_seconds() {
 }
 
 v1::CreateSceneRequest scene_request(const std::string& id, v1::TickMode mode) {
-  v1::CreateSceneRequest r;
-  r.set_scene_id(id);
-  r.mutable_spec()->mutable_mesh()->set_builtin("beam1");
-  client::clamp_below_x(*r.mutable_spec(), 1e-3);
-  r.mutable_spec()->mutable_solver()->set_substeps(2);
-  r.mutable_spec()->mutable_solver()->set_iterations(2);
-  r.mutable_spec()->mutable_tick()->set_mode(mode);
+  v1::CreateSceneRequest r = test::beam1_request(id, mode);
   if (mode == v1::TICK_MODE_REALTIME) r.mutable_spec()->mutable_tick()->set_dt(1.0 / 30);
   return r;
 }

@@ -5,6 +5,8 @@
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 
 #include <thread>
@@ -14,7 +16,7 @@ using client::Client;
 
 namespace {
 
-constexpr int kResourceExhausted = 8;
+using namespace test::grpc_codes;
 
 v1::CreateSceneRequest paused_beam(const std::string& id) {
   v1::CreateSceneRequest r;
@@ -37,14 +39,11 @@ std::unique_ptr<client::FrameStream> open(Client& c, const std::string& id) {
 
 TEST(StreamLimits, StreamsPerServerAndPerSceneAreLimited) {
   server::ServerOptions o;
-  o.listen = "127.0.0.1:0";
   o.max_streams = 2;
   o.max_streams_per_scene = 1;
-  server::PliantServer srv(o);
-  ASSERT_TRUE(srv.start().ok());
-  client::ConnectOptions co;
-  co.address = "127.0.0.1:" + std::to_string(srv.port());
-  Client c(co);
+  test::InProcessServer srv(o);
+  ASSERT_TRUE(srv.started.ok());
+  Client c = srv.client();
   for (const char* id : {"a", "b", "c"}) {
     ASSERT_TRUE(c.create_scene(paused_beam(id)).ok());
     ASSERT_TRUE(c.step(id, 1).ok());  // a frame to stream
@@ -78,13 +77,10 @@ TEST(StreamLimits, StreamsPerServerAndPerSceneAreLimited) {
 
 TEST(StreamLimits, GrabsPerSceneAreLimited) {
   server::ServerOptions o;
-  o.listen = "127.0.0.1:0";
   o.max_grabs_per_scene = 2;
-  server::PliantServer srv(o);
-  ASSERT_TRUE(srv.start().ok());
-  client::ConnectOptions co;
-  co.address = "127.0.0.1:" + std::to_string(srv.port());
-  Client c(co);
+  test::InProcessServer srv(o);
+  ASSERT_TRUE(srv.started.ok());
+  Client c = srv.client();
   ASSERT_TRUE(c.create_scene(paused_beam("g")).ok());
   v1::GrabRequest g;
   g.set_scene_id("g");

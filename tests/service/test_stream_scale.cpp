@@ -7,6 +7,8 @@
 #include "pliant/server/server.hpp"
 #include "pliant/test/wait_until.hpp"
 
+#include "in_process_server.hpp"
+
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
 
@@ -19,12 +21,7 @@ using client::Client;
 
 namespace {
 
-constexpr int kNotFound = 5;
-
-const bool quiet_logs = [] {
-  spdlog::set_level(spdlog::level::warn);
-  return true;
-}();
+using namespace test::grpc_codes;
 
 int thread_count() {
   int n = 0;
@@ -32,24 +29,10 @@ int thread_count() {
   return n;
 }
 
-struct Fixture {
-  std::unique_ptr<server::PliantServer> server;
-  std::string address;
-
-  explicit Fixture(server::ServerOptions o = {}) {
-    o.listen = "127.0.0.1:0";
-    server = std::make_unique<server::PliantServer>(o);
-    auto e = server->start();
-    EXPECT_TRUE(e.ok()) << e.message;
-    address = "127.0.0.1:" + std::to_string(server->port());
-  }
-  Client client() const {
-    client::ConnectOptions c;
-    c.address = address;
-    c.timeout = std::chrono::seconds(60);
-    c.step_timeout = std::chrono::seconds(120);
-    return Client(c);
-  }
+// Many streams on a loaded machine: clients wait up to 60 s, a Step up to 120 s.
+struct Fixture : test::InProcessServer {
+  explicit Fixture(server::ServerOptions o = {})
+      : InProcessServer(std::move(o), {std::chrono::seconds(60), std::chrono::seconds(120)}) {}
 };
 
 v1::CreateSceneRequest lockstep_beam(const std::string& id) {

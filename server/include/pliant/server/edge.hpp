@@ -3,7 +3,7 @@
 // error messages, and how a model_path name becomes a file inside the server's model path.
 #pragma once
 
-#include "pliant/server/scene.hpp"
+#include "pliant/server/error.hpp"
 
 #include <cstddef>
 #include <string>

@@ -4,7 +4,7 @@
 // the config file, then defaults.
 #pragma once
 
-#include "pliant/server/scene.hpp"
+#include "pliant/server/error.hpp"
 
 #include <cstdint>
 #include <functional>

@@ -1,10 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
-// The server's scenes by id, and everything between the API messages (pliant.v1) and the
-// scenes: validating requests (errors name the field and value), building models, limits,
-// snapshots in the data directory. Protobuf messages only; the gRPC glue is service.cpp.
+// The server's scenes by id: create (model built, method chosen), look up, delete, the limits
+// (scenes, streams, grabs, tick time) and the background threads (watchdog, checkpoints). Each
+// call takes the API's request message and answers its response; checking and converting the
+// messages is spec_proto / stream_proto, files are snapshot_store. The gRPC glue is service.cpp.
 #pragma once
 
 #include "pliant/server/scene.hpp"
+#include "pliant/server/snapshot_store.hpp"
 #include "pliant/v1/pliant.pb.h"
 
 #include <atomic>
@@ -18,11 +20,6 @@
 #include <vector>
 
 namespace pliant::server {
-
-// The most solver sweeps (substeps x iterations per substep) one tick may ask for.
-constexpr int64_t kMaxSweepsPerTick = 200'000;
-// StreamFramesRequest.max_rate_hz: 0 (no limit) or within these.
-constexpr double kMinRateHz = 0.01, kMaxRateHz = 100'000;
 
 struct RegistryOptions {
   int max_scenes = 16;
@@ -45,14 +42,6 @@ struct RegistryOptions {
   int max_grabs_per_scene = 64;
   // Called by the watchdog when a tick becomes stuck (false) or no tick is stuck any more (true).
   std::function<void(bool serving)> on_health;
-};
-
-// Which parts of a frame a subscriber asked for.
-struct FrameSelection {
-  bool positions = true;
-  bool residuals = true;
-  bool solver_stats = true;
-  bool surface_only = false;
 };
 
 class SceneRegistry {
@@ -79,9 +68,6 @@ class SceneRegistry {
   Error grab(const v1::GrabRequest& request, v1::GrabResponse* out);
   Error move_grab(const v1::MoveGrabRequest& request, v1::MoveGrabResponse* out);
   Error release(const v1::ReleaseRequest& request);
-  // A haptic pose as a tool; `previous` supplies the shape for fields the pose leaves unset
-  // (null on the first pose: server defaults). Errors name the field and the value.
-  static Error parse_tool_pose(const v1::ToolPose& pose, const RigidTool* previous, RigidTool* out);
 
   Error save_snapshot(const v1::SaveSnapshotRequest& request, v1::SaveSnapshotResponse* out);
   Error restore_snapshot(const v1::RestoreSnapshotRequest& request, v1::Scene* out);
@@ -98,11 +84,6 @@ class SceneRegistry {
 
   // The scene with this id, or NotFound.
   Error find(const std::string& id, std::shared_ptr<Scene>* out) const;
-  // Checks a StreamFramesRequest and fills the selection.
-  static Error parse_stream_request(const v1::StreamFramesRequest& request, FrameSelection* out);
-  static void fill_frame(const Frame& frame, const FrameSelection& selection,
-                         const std::vector<int32_t>& surface_vertices, uint64_t skipped,
-                         v1::Frame* out);
 
   // Scenes whose snapshots are in <data-dir>/scenes/ are recreated (on start).
   // Returns how many were restored; unreadable files are logged and skipped.
@@ -122,10 +103,10 @@ class SceneRegistry {
   int failed_saves() const { return failed_saves_; }
 
  private:
-  Error describe(const Scene& scene, v1::Scene* out) const;
+  // Scene limits under mu_: Unavailable when shutting down, AlreadyExists for a taken id
+  // (unless `replacing`), ResourceExhausted at --max-scenes.
+  Error check_room(const std::string& id, bool replacing) const;
   Error add_scene(std::shared_ptr<Scene> scene, bool replace);
-  std::string scene_file(const std::string& id) const;
-  std::string snapshot_file(const std::string& name) const;
   void watchdog_loop();
   void checkpoint_loop();
   void wake_checkpoint();
@@ -146,15 +127,7 @@ class SceneRegistry {
   bool bg_stop_ = false;
   bool checkpoint_requested_ = false;
   std::thread watchdog_, checkpointer_;
-  // Serialises writing and removing files in <data-dir>/scenes/; with what each scene's file
-  // holds (the scene and its generation when written).
-  std::mutex files_mu_;
-  std::map<std::string, std::pair<std::weak_ptr<Scene>, uint64_t>> written_;
+  SnapshotStore store_;
 };
-
-// Conversions (exposed for tests and the snapshot tools).
-Error snapshot_to_proto(const SceneSnapshot& snapshot, v1::Snapshot* out);
-Error snapshot_from_proto(const v1::Snapshot& snapshot, int max_threads, int64_t max_vertices,
-                          SceneSnapshot* out);
 
 }  // namespace pliant::server

@@ -4,11 +4,14 @@
 // latest immutable Frame, published atomically after every tick. No gRPC in here.
 #pragma once
 
+#include "pliant/server/error.hpp"
+
 #include "pliant/colliders.hpp"
 #include "pliant/interaction.hpp"
 #include "pliant/model.hpp"
 #include "pliant/settings.hpp"
 #include "pliant/state.hpp"
+#include "pliant/stepper.hpp"
 
 #include <atomic>
 #include <chrono>
@@ -16,6 +19,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <future>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -25,29 +29,6 @@
 #include <vector>
 
 namespace pliant::server {
-
-// The outcome of an operation at the service's edge: a gRPC-like code and a message naming
-// the field and the value. Ok when code == Ok.
-enum class Code {
-  Ok,
-  InvalidArgument,
-  NotFound,
-  AlreadyExists,
-  ResourceExhausted,
-  FailedPrecondition,
-  Unauthenticated,
-  Unavailable,
-  DeadlineExceeded,
-  Cancelled,
-  Internal,
-};
-
-struct Error {
-  Code code = Code::Ok;
-  std::string message;
-  bool ok() const { return code == Code::Ok; }
-  static Error make(Code c, std::string m) { return Error{c, std::move(m)}; }
-};
 
 enum class TickMode { Realtime, Lockstep, AsFastAsPossible };
 
@@ -75,31 +56,29 @@ struct FrameTool {
   ToolReaction reaction;
 };
 
+// How the scene kept its schedule, counted since it was created or restored in this process.
+// The same counters are in the status and in every frame.
+struct TickCounters {
+  uint64_t late_ticks = 0;
+  uint64_t skipped_ticks = 0;  // missed slots of a realtime schedule, not run
+  uint64_t rollbacks = 0;
+  double ticks_per_second = 0;
+};
+
 // What a tick produced. Immutable once published; shared by every reader.
 struct Frame {
   uint64_t seq = 0;        // publication number (monotonic for the scene's lifetime)
   uint64_t tick = 0;
   double sim_time = 0;
   std::vector<float> positions;  // all vertices, packed xyz
-  std::vector<double> residuals;
-  int substeps = 0;
-  int iterations = 0;
-  double residual_initial = 0;
-  double residual_final = 0;
-  int accelerations_tried = 0;
-  int accelerations_accepted = 0;
-  double step_wall_ms = 0;
-  double step_wall_ms_sum = 0;  // over the ticks this scene ran in this process
+  // The solver's report of the tick as it came from the step (its per-tool reactions and
+  // per-grab forces are in `tools` and `grab_forces`, by id).
+  StepReport solver;
+  double step_wall_ms_sum = 0;  // solver wall time over the ticks this scene ran in this process
   uint64_t stepped_ticks = 0;   // how many ticks that sum holds
-  bool stopped_by_tolerance = false;
-  bool stopped_by_budget = false;
-  int volume_corrections = 0;  // inversion-floor projections in the last substep
-  uint64_t late_ticks = 0;
-  uint64_t skipped_ticks = 0;
+  TickCounters counters;
   double lateness_ms = 0;
-  double ticks_per_second = 0;
   bool rolled_back = false;
-  uint64_t rollbacks = 0;
   std::string rollback_reason;
   int64_t published_unix_ns = 0;
   std::chrono::steady_clock::time_point published;  // for in-process latency figures
@@ -109,15 +88,17 @@ struct Frame {
   std::vector<std::pair<uint64_t, Vec3>> grab_forces;  // force on the body per grab id
 };
 
+// residual_final / residual_initial of the tick's last substep; 0 when nothing was left to solve.
+inline double relative_residual(const StepReport& r) {
+  return r.residual_initial > 0 ? r.residual_final / r.residual_initial : 0.0;
+}
+
 struct SceneStatus {
   bool running = false;  // ticking on its own (realtime / as-fast-as-possible, not paused)
   TickMode mode = TickMode::Realtime;
   uint64_t tick = 0;
   double sim_time = 0;
-  uint64_t late_ticks = 0;
-  uint64_t skipped_ticks = 0;
-  uint64_t rollbacks = 0;
-  double ticks_per_second = 0;
+  TickCounters counters;
   std::string pause_reason;
 };
 
@@ -246,14 +227,33 @@ class Scene {
     uint32_t remaining;
   };
 
-  // Runs `fn` on the tick thread at the next tick boundary. `interrupt`: a tick in progress
-  // stops at its next sweep and is undone, so the command takes effect at once.
-  Error call(std::function<Error()> fn, std::chrono::steady_clock::time_point deadline,
-             bool interrupt = false);
+  // Runs `fn` on the tick thread at the next tick boundary and waits for it until `deadline`.
+  // `fn(T& out)` returns an Error and fills `out`, which is handed to the caller (*out, when not
+  // null) only once the tick thread is done with it: nothing the tick owns is shared with the
+  // caller, and a caller that timed out leaves nothing behind that the command writes to.
+  // `interrupt`: a tick in progress stops at its next sweep and is undone, so the command takes
+  // effect at once.
+  template <class T, class Fn>
+  Error call(Fn fn, T* out, std::chrono::steady_clock::time_point deadline, bool interrupt = false);
+  // A command that returns only its Error.
+  template <class Fn>
+  Error call(Fn fn, std::chrono::steady_clock::time_point deadline, bool interrupt = false) {
+    struct Nothing {};
+    return call<Nothing>([fn = std::move(fn)](Nothing&) mutable { return fn(); }, nullptr, deadline, interrupt);
+  }
+  // Queues a command for call(); Unavailable when the scene is stopping.
+  Error enqueue(Command fn, bool interrupt);
+  Error not_in_time() const;
+  Error stopped_before_running() const;
+  // FailedPrecondition for a scene in lockstep mode (pause and resume do not apply). Tick thread.
+  Error not_in_lockstep() const;
+  // The state at this tick boundary (tick thread, or a stopped scene).
+  SceneSnapshot snapshot_now() const;
   // Queues a command without waiting for it; false when the scene is stopping.
   bool post(Command fn);
   void run();
   void tick_once(bool scheduled, std::chrono::steady_clock::time_point due);
+  void carry_report(StepReport&& report, bool rolled_back, Frame& frame);
   // A tick the cancel flag stopped: undone; with a reason from abort_tick, also pauses.
   void cancelled_tick(const std::string& abort_reason);
   void publish_status();
@@ -305,5 +305,31 @@ class Scene {
   struct TickState;
   std::unique_ptr<TickState> ts_;
 };
+
+template <class T, class Fn>
+Error Scene::call(Fn fn, T* out, std::chrono::steady_clock::time_point deadline, bool interrupt) {
+  struct Outcome {
+    Error error;
+    T value{};
+  };
+  auto done = std::make_shared<std::promise<Outcome>>();
+  auto future = done->get_future();
+  Error queued = enqueue(
+      [done, fn = std::move(fn)]() mutable {
+        Outcome o;
+        o.error = fn(o.value);
+        done->set_value(std::move(o));
+      },
+      interrupt);
+  if (!queued.ok()) return queued;
+  if (future.wait_until(deadline) != std::future_status::ready) return not_in_time();
+  try {
+    Outcome o = future.get();
+    if (o.error.ok() && out) *out = std::move(o.value);
+    return o.error;
+  } catch (const std::future_error&) {  // the command was dropped (scene stopped) or threw
+    return stopped_before_running();
+  }
+}
 
 }  // namespace pliant::server
