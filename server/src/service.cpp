@@ -472,6 +472,10 @@ class HapticStreamReactor final : public grpc::ServerBidiReactor<v1::ToolPose, v
     if (!ok) return end(grpc::Status::OK);  // the client closed its side (or went away)
     const Error e = attached_ ? next_pose() : first_pose();
     if (!e.ok()) return end(to_status(e));
+    {
+      std::lock_guard lk(mu_);
+      if (finished_) return;  // ended meanwhile (scene gone, cancelled): read no more
+    }
     StartRead(&pose_);
   }
 
@@ -506,7 +510,7 @@ class HapticStreamReactor final : public grpc::ServerBidiReactor<v1::ToolPose, v
     if (Error e = SceneRegistry::parse_tool_pose(pose_, nullptr, &tool); !e.ok()) return e;
     {
       std::lock_guard lk(mu_);
-      if (finished_) return {};  // cancelled meanwhile: attach nothing
+      if (finished_) return Error::make(Code::Cancelled, "the call was cancelled");  // attach nothing
       scene_ = scene;
       slot_ = std::move(slot);
       tool_ = tool;
