@@ -4,8 +4,10 @@
 # directory and runs each for a bounded time on a copy of its seed corpus (fuzz/corpus/).
 #   scripts/fuzz.sh [SECONDS]   seconds per harness (default 30)
 #   scripts/fuzz.sh --seeds     rewrites fuzz/corpus/ from fuzz/make_seeds.cpp
-# FUZZ_BUILD_DIR (default build-fuzz), JOBS. Exit status: non-zero if a harness found a crash
-# (the input is left in $FUZZ_BUILD_DIR/findings/<harness>/).
+# FUZZ_BUILD_DIR (default build-fuzz, where everything is instrumented for coverage; CI uses the
+# ASan test build, build-asan from scripts/sanitize.sh, where the harnesses' code is), JOBS.
+# Exit status: non-zero if a harness found a crash, a sanitizer report or a leak (the input is
+# left in $FUZZ_BUILD_DIR/findings/<harness>/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD=${FUZZ_BUILD_DIR:-build-fuzz}

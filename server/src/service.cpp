@@ -24,6 +24,7 @@
 #include <condition_variable>
 #include <deque>
 #include <map>
+#include <optional>
 #include <filesystem>
 #include <fstream>
 #include <future>
@@ -153,9 +154,10 @@ class SceneServiceImpl final : public v1::SceneService::Service {
   ServiceContext sc_;
 };
 
-// A few threads that run the frame streams' work (building a frame message and starting its
-// write) for every open stream, now or at a given time (max_rate_hz). Open streams cost no
-// thread of their own: an idle stream is a registered listener and a reactor.
+// A few threads that run the streams' work (building a frame or feedback message and starting
+// its write) for every open StreamFrames and HapticStream call, now or at a given time
+// (max_rate_hz). Open streams cost no thread of their own: an idle stream is a registered
+// frame listener and a reactor.
 class StreamPump {
  public:
   explicit StreamPump(int threads) {
@@ -203,7 +205,7 @@ class StreamPump {
         try {
           fn();
         } catch (const std::exception& e) {
-          spdlog::error("StreamFrames: internal error: {}", e.what());
+          spdlog::error("stream pump: internal error: {}", e.what());
         }
         fn = nullptr;  // drops what it holds outside the lock
         lk.lock();
@@ -223,19 +225,82 @@ class StreamPump {
   std::vector<std::thread> threads_;
 };
 
-// A call refused before it started streaming.
-class RefusedFrames final : public grpc::ServerWriteReactor<v1::Frame> {
+// A call refused before it started streaming (Reactor: the call's reactor type).
+template <class Reactor>
+class Refused final : public Reactor {
  public:
-  explicit RefusedFrames(grpc::Status s) { Finish(std::move(s)); }
+  explicit Refused(grpc::Status s) { this->Finish(std::move(s)); }
   void OnDone() override { delete this; }
+};
+
+// What StreamFrames and HapticStream share: the scene's tick wakes the stream (a frame
+// listener), and the stream pump then looks at the scene's newest frame, at most one look
+// queued and none while a write is in flight (the write's completion looks again). So a
+// stream holds at most one message, and a reader that falls behind gets the newest frame next.
+class PumpedStream : public std::enable_shared_from_this<PumpedStream> {
+ public:
+  virtual ~PumpedStream() = default;
+
+ protected:
+  explicit PumpedStream(StreamPump& pump) : pump_(pump) {}
+
+  // Keeps the stream alive until release() (from OnDone).
+  void hold(std::shared_ptr<PumpedStream> self) { self_ = std::move(self); }
+  // Registers the frame listener on `scene` (once, after hold()).
+  void listen(const std::shared_ptr<Scene>& scene) {
+    std::weak_ptr<PumpedStream> weak = self_;
+    listener_ = scene->add_frame_listener([weak] {
+      if (auto s = weak.lock()) s->wake();
+    });
+    listened_ = scene;
+  }
+  // From OnDone: no more wake-ups. A look still queued holds its own reference and may outlive
+  // the call, so look() checks finished_ first.
+  std::shared_ptr<PumpedStream> release() {
+    if (listened_) listened_->remove_frame_listener(listener_);
+    listened_.reset();
+    return std::move(self_);
+  }
+
+  // A look now, unless one is queued or a write is in flight.
+  void wake() {
+    std::lock_guard lk(mu_);
+    if (finished_ || writing_ || scheduled_) return;
+    schedule_locked(Clock::time_point{});
+  }
+  // A look at `when` (mu_ held; the caller checked nothing else is queued).
+  void schedule_locked(Clock::time_point when) {
+    scheduled_ = true;
+    auto fn = [s = shared_from_this()] {
+      {
+        std::lock_guard lk2(s->mu_);
+        s->scheduled_ = false;
+      }
+      s->look();
+    };
+    if (when == Clock::time_point{}) pump_.post(std::move(fn));
+    else pump_.post_at(when, std::move(fn));
+  }
+  // Looks at the scene: sends the newest message when one is due, or ends the call.
+  virtual void look() = 0;
+
+  StreamPump& pump_;
+  std::mutex mu_;
+  bool writing_ = false;    // a StartWrite whose OnWriteDone has not run
+  bool scheduled_ = false;  // a look is queued (now or at a later time)
+  bool finished_ = false;   // Finish was called (or is due once the write in flight completes)
+
+ private:
+  std::shared_ptr<Scene> listened_;
+  uint64_t listener_ = 0;
+  std::shared_ptr<PumpedStream> self_;  // alive until OnDone
 };
 
 // One StreamFrames call on gRPC's callback API. It holds at most one frame message: the
 // scene's tick wakes it (a frame listener), and when no write is in flight it sends the
 // scene's newest frame; a frame published while a write is in flight replaces the one waiting,
 // and the write's completion sends the newest with the count of frames skipped in between.
-class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
-                                 public std::enable_shared_from_this<FrameStreamReactor> {
+class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>, public PumpedStream {
  public:
   struct Setup {
     std::shared_ptr<Scene> scene;
@@ -246,7 +311,7 @@ class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
   };
 
   FrameStreamReactor(const ServiceContext& sc, StreamPump& pump, grpc::CallbackServerContext* ctx, Setup setup)
-      : sc_(sc), pump_(pump), peer_(ctx->peer()), setup_(std::move(setup)), next_allowed_(Clock::now()) {
+      : PumpedStream(pump), sc_(sc), peer_(ctx->peer()), setup_(std::move(setup)), next_allowed_(Clock::now()) {
     // Start with the latest frame, so a paused scene's subscriber sees its current state.
     auto latest = setup_.scene->latest_frame();
     after_ = latest ? latest->seq - 1 : 0;
@@ -254,11 +319,8 @@ class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
 
   // Registers the listener and sends the first frame (or waits for it).
   void begin(std::shared_ptr<FrameStreamReactor> self) {
-    self_ = std::move(self);
-    std::weak_ptr<FrameStreamReactor> weak = self_;
-    listener_ = setup_.scene->add_frame_listener([weak] {
-      if (auto s = weak.lock()) s->wake();
-    });
+    hold(std::move(self));
+    listen(setup_.scene);
     spdlog::debug("StreamFrames: {} subscribed to '{}'", peer_, setup_.scene->id());
     wake();
   }
@@ -270,36 +332,20 @@ class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
       if (!ok) finishing_ = true;  // the client went away (or the call was cancelled)
     }
     if (!ok) return finish(grpc::Status::OK);
-    pump();
+    look();
   }
 
   void OnCancel() override { finish(grpc::Status(grpc::StatusCode::CANCELLED, "the call was cancelled")); }
 
   void OnDone() override {
-    setup_.scene->remove_frame_listener(listener_);
+    auto keep = release();  // may destroy this at the end of the scope
     setup_.slot.reset();  // frees the stream's place in the limits
     spdlog::debug("StreamFrames: {} left '{}'", peer_, setup_.scene->id());
-    auto keep = std::move(self_);  // may destroy this at the end of the scope
   }
 
  private:
-  // From the tick (a new frame or the scene stopping): have the pump look at the scene unless
-  // a write or a look is already pending (the write's completion looks again).
-  void wake() {
-    std::lock_guard lk(mu_);
-    if (finished_ || writing_ || scheduled_) return;
-    scheduled_ = true;
-    pump_.post([s = shared_from_this()] {
-      {
-        std::lock_guard lk2(s->mu_);
-        s->scheduled_ = false;
-      }
-      s->pump();
-    });
-  }
-
   // Sends the newest frame when one is due; ends the call when the scene or the server is gone.
-  void pump() {
+  void look() override {
     std::unique_lock lk(mu_);
     if (finished_ || finishing_ || writing_ || scheduled_) return;
     if (sc_.registry->shutting_down()) {
@@ -324,14 +370,7 @@ class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
     const auto now = Clock::now();
     if (limited && now < next_allowed_) {
       // Rate limit: look again when the slot opens, and send whatever is newest then.
-      scheduled_ = true;
-      pump_.post_at(next_allowed_, [s = shared_from_this()] {
-        {
-          std::lock_guard lk2(s->mu_);
-          s->scheduled_ = false;
-        }
-        s->pump();
-      });
+      schedule_locked(next_allowed_);
       return;
     }
     uint64_t skipped = 0;
@@ -363,17 +402,10 @@ class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
   }
 
   const ServiceContext& sc_;
-  StreamPump& pump_;
   const std::string peer_;
   Setup setup_;
-  uint64_t listener_ = 0;
-  std::shared_ptr<FrameStreamReactor> self_;  // alive until OnDone
 
-  std::mutex mu_;
-  bool writing_ = false;    // a StartWrite whose OnWriteDone has not run
-  bool scheduled_ = false;  // a pump is queued (now or at the rate limit's slot)
   bool finishing_ = false;  // the write failed: no more writes
-  bool finished_ = false;   // Finish was called
   v1::Frame msg_;           // the message being written (one per stream)
   uint64_t after_ = 0;      // the newest frame seq looked at
   bool have_last_ = false;
@@ -383,8 +415,7 @@ class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>,
 
 class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_StreamFrames<v1::FrameService::Service> {
  public:
-  // Two pump threads serve every open frame stream.
-  explicit FrameServiceImpl(ServiceContext sc) : sc_(std::move(sc)), pump_(2) {}
+  FrameServiceImpl(ServiceContext sc, StreamPump& pump) : sc_(std::move(sc)), pump_(pump) {}
   grpc::Status GetTopology(grpc::ServerContext* c, const v1::GetTopologyRequest* r, v1::Topology* o) override {
     return guarded(sc_, "GetTopology", c, [&] { return sc_.registry->topology(r->scene_id(), o); });
   }
@@ -393,14 +424,15 @@ class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_Strea
                                                     const v1::StreamFramesRequest* r) override {
     FrameStreamReactor::Setup setup;
     const grpc::Status s = guarded(sc_, "StreamFrames", c, [&] { return prepare(*r, &setup); });
-    if (!s.ok()) return new RefusedFrames(s);
+    if (!s.ok()) return new Refused<grpc::ServerWriteReactor<v1::Frame>>(s);
     try {
       auto reactor = std::make_shared<FrameStreamReactor>(sc_, pump_, c, std::move(setup));
       reactor->begin(reactor);
       return reactor.get();
     } catch (const std::exception& e) {
       spdlog::error("StreamFrames: internal error: {}", e.what());
-      return new RefusedFrames(grpc::Status(grpc::StatusCode::INTERNAL, std::string("StreamFrames: ") + e.what()));
+      return new Refused<grpc::ServerWriteReactor<v1::Frame>>(
+          grpc::Status(grpc::StatusCode::INTERNAL, std::string("StreamFrames: ") + e.what()));
     }
   }
 
@@ -417,12 +449,169 @@ class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_Strea
   }
 
   ServiceContext sc_;
-  StreamPump pump_;
+  StreamPump& pump_;
 };
 
-class InteractionServiceImpl final : public v1::InteractionService::Service {
+// One HapticStream call on gRPC's callback API. Poses are read one at a time and posted to the
+// scene (never waiting for the tick); the tick wakes the stream, which sends one feedback
+// message per published tick that has the tool in it, with at most one write in flight (ticks
+// published meanwhile are counted in the next message's skipped_ticks). The tool lives as long
+// as the stream: it is removed when the stream ends, whatever ends it.
+class HapticStreamReactor final : public grpc::ServerBidiReactor<v1::ToolPose, v1::ToolFeedback>,
+                                  public PumpedStream {
  public:
-  explicit InteractionServiceImpl(ServiceContext sc) : sc_(std::move(sc)) {}
+  HapticStreamReactor(const ServiceContext& sc, StreamPump& pump, grpc::CallbackServerContext* ctx)
+      : PumpedStream(pump), sc_(sc), peer_(ctx->peer()) {}
+
+  // Holds itself until OnDone and waits for the first pose.
+  void begin(std::shared_ptr<HapticStreamReactor> self) {
+    hold(std::move(self));
+    StartRead(&pose_);
+  }
+
+  void OnReadDone(bool ok) override {
+    if (!ok) return end(grpc::Status::OK);  // the client closed its side (or went away)
+    const Error e = attached_ ? next_pose() : first_pose();
+    if (!e.ok()) return end(to_status(e));
+    {
+      std::lock_guard lk(mu_);
+      if (finished_) return;  // ended meanwhile (scene gone, cancelled): read no more
+    }
+    StartRead(&pose_);
+  }
+
+  void OnWriteDone(bool ok) override {
+    std::optional<grpc::Status> due;
+    {
+      std::lock_guard lk(mu_);
+      writing_ = false;
+      if (finished_) due = std::move(due_);
+    }
+    if (due) return finish_call(std::move(*due));
+    if (!ok) return end(grpc::Status::OK);  // the client went away
+    look();
+  }
+
+  void OnCancel() override { end(grpc::Status(grpc::StatusCode::CANCELLED, "the call was cancelled")); }
+
+  void OnDone() override {
+    auto keep = release();  // may destroy this at the end of the scope
+    slot_.reset();          // frees the stream's place in the limits
+  }
+
+ private:
+  // The first pose names the scene and attaches the tool. Runs in OnReadDone (reads are
+  // serial); mu_ only guards what the pump and OnCancel read too.
+  Error first_pose() {
+    std::shared_ptr<Scene> scene;
+    if (Error e = sc_.registry->find(pose_.scene_id(), &scene); !e.ok()) return e;
+    std::shared_ptr<void> slot;
+    if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
+    RigidTool tool;
+    if (Error e = parse_tool_pose(pose_, nullptr, &tool); !e.ok()) return e;
+    {
+      std::lock_guard lk(mu_);
+      if (finished_) return Error::make(Code::Cancelled, "the call was cancelled");  // attach nothing
+      scene_ = scene;
+      slot_ = std::move(slot);
+      tool_ = tool;
+      tool_id_ = scene->new_tool_id();
+      scene->set_tool(tool_id_, tool_, pose_.seq(), pose_.client_time_ns());
+      auto latest = scene->latest_frame();
+      after_ = latest ? latest->seq : 0;
+    }
+    attached_ = true;
+    spdlog::debug("HapticStream: {} attached tool {} to '{}'", peer_, tool_id_, scene->id());
+    listen(scene);
+    wake();  // a scene stopped meanwhile ends the stream now
+    return {};
+  }
+
+  Error next_pose() {
+    if (!pose_.scene_id().empty() && pose_.scene_id() != scene_->id())
+      return Error::make(Code::InvalidArgument, fmt::format("scene_id {} differs from the stream's scene '{}'",
+                                                            echo(pose_.scene_id()), scene_->id()));
+    RigidTool next;
+    if (Error e = parse_tool_pose(pose_, &tool_, &next); !e.ok()) return e;
+    tool_ = next;
+    std::lock_guard lk(mu_);
+    if (!finished_) scene_->set_tool(tool_id_, tool_, pose_.seq(), pose_.client_time_ns());
+    return {};
+  }
+
+  // Sends the feedback of the newest tick when there is one; ends the call when the scene or
+  // the server is gone.
+  void look() override {
+    std::unique_lock lk(mu_);
+    if (finished_ || writing_ || scheduled_ || !scene_) return;
+    if (sc_.registry->shutting_down()) {
+      lk.unlock();
+      return end(to_status(Error::make(Code::Unavailable, "the server is shutting down")));
+    }
+    auto frame = scene_->latest_frame();
+    if (!frame || frame->seq <= after_) {
+      if (scene_->stopped()) {
+        const std::string id = scene_->id();
+        lk.unlock();
+        return end(to_status(Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", id))));
+      }
+      return;
+    }
+    const uint64_t skipped = after_ > 0 && frame->seq > after_ + 1 ? frame->seq - after_ - 1 : 0;
+    after_ = frame->seq;
+    if (!tool_feedback_to_proto(*frame, tool_id_, skipped, &msg_)) return;  // its first pose is not in a tick yet
+    writing_ = true;
+    lk.unlock();
+    StartWrite(&msg_);
+  }
+
+  // Ends the call with `s`: removes the tool at once, and finishes now or, with a write in
+  // flight, when it completes (no write starts after this).
+  void end(grpc::Status s) {
+    bool now = false;
+    std::shared_ptr<Scene> scene;
+    uint64_t tool_id = 0;
+    {
+      std::lock_guard lk(mu_);
+      if (finished_) return;
+      finished_ = true;
+      now = !writing_;
+      if (!now) due_ = s;
+      scene = scene_;
+      tool_id = tool_id_;
+    }
+    if (scene) {
+      scene->remove_tool(tool_id);
+      spdlog::debug("HapticStream: {} detached tool {} from '{}'", peer_, tool_id, scene->id());
+    }
+    if (now) finish_call(std::move(s));
+  }
+
+  void finish_call(grpc::Status s) {
+    if (!s.ok() && s.error_code() != grpc::StatusCode::CANCELLED)
+      spdlog::debug("HapticStream from {}: {}", peer_, s.error_message());
+    Finish(std::move(s));
+  }
+
+  const ServiceContext& sc_;
+  const std::string peer_;
+  v1::ToolPose pose_;      // the read in flight (reads are serial)
+  bool attached_ = false;  // the first pose was taken (read side only)
+  RigidTool tool_;         // the last pose's tool (read side only)
+
+  // Under mu_:
+  std::shared_ptr<Scene> scene_;
+  std::shared_ptr<void> slot_;
+  uint64_t tool_id_ = 0;
+  uint64_t after_ = 0;                // the newest frame seq looked at
+  std::optional<grpc::Status> due_;   // the status to finish with once the write completes
+  v1::ToolFeedback msg_;              // the message being written (one per stream)
+};
+
+class InteractionServiceImpl final
+    : public v1::InteractionService::WithCallbackMethod_HapticStream<v1::InteractionService::Service> {
+ public:
+  InteractionServiceImpl(ServiceContext sc, StreamPump& pump) : sc_(std::move(sc)), pump_(pump) {}
   grpc::Status Grab(grpc::ServerContext* c, const v1::GrabRequest* r, v1::GrabResponse* o) override {
     return guarded(sc_, "Grab", c, [&] { return sc_.registry->grab(*r, o); });
   }
@@ -432,92 +621,26 @@ class InteractionServiceImpl final : public v1::InteractionService::Service {
   grpc::Status Release(grpc::ServerContext* c, const v1::ReleaseRequest* r, v1::ReleaseResponse*) override {
     return guarded(sc_, "Release", c, [&] { return sc_.registry->release(*r); });
   }
-  grpc::Status HapticStream(grpc::ServerContext* c,
-                            grpc::ServerReaderWriter<v1::ToolFeedback, v1::ToolPose>* stream) override {
-    return guarded(sc_, "HapticStream", c, [&] { return haptic(c, stream); });
+
+  grpc::ServerBidiReactor<v1::ToolPose, v1::ToolFeedback>* HapticStream(grpc::CallbackServerContext* c) override {
+    using Reactor = grpc::ServerBidiReactor<v1::ToolPose, v1::ToolFeedback>;
+    if (grpc::Status s = sc_.check(c); !s.ok()) {
+      spdlog::warn("HapticStream from {}: {}", c->peer(), s.error_message());
+      return new Refused<Reactor>(s);
+    }
+    try {
+      auto reactor = std::make_shared<HapticStreamReactor>(sc_, pump_, c);
+      reactor->begin(reactor);
+      return reactor.get();
+    } catch (const std::exception& e) {
+      spdlog::error("HapticStream: internal error: {}", e.what());
+      return new Refused<Reactor>(grpc::Status(grpc::StatusCode::INTERNAL, std::string("HapticStream: ") + e.what()));
+    }
   }
 
  private:
-  // The handler thread reads poses and posts them to the scene (never waiting for the tick);
-  // a writer thread sends one feedback message per published tick. The tool lives as long
-  // as the stream.
-  Error haptic(grpc::ServerContext* c, grpc::ServerReaderWriter<v1::ToolFeedback, v1::ToolPose>* stream) {
-    v1::ToolPose pose;
-    if (!stream->Read(&pose)) return {};
-    std::shared_ptr<Scene> scene;
-    if (Error e = sc_.registry->find(pose.scene_id(), &scene); !e.ok()) return e;
-    std::shared_ptr<void> slot;
-    if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
-    RigidTool tool;
-    if (Error e = parse_tool_pose(pose, nullptr, &tool); !e.ok()) return e;
-    const uint64_t tool_id = scene->new_tool_id();
-    scene->set_tool(tool_id, tool, pose.seq(), pose.client_time_ns());
-    spdlog::debug("HapticStream: {} attached tool {} to '{}'", c->peer(), tool_id, scene->id());
-
-    std::atomic<bool> done{false};
-    std::mutex err_mu;
-    Error writer_error;
-    std::promise<void> writer_exited;
-    std::thread writer([&] {
-      struct Exit {
-        std::promise<void>& p;
-        ~Exit() { p.set_value(); }
-      } on_exit{writer_exited};
-      auto latest = scene->latest_frame();
-      uint64_t after = latest ? latest->seq : 0;
-      v1::ToolFeedback msg;
-      while (!done.load()) {
-        auto frame = scene->wait_frame(after, Clock::now() + std::chrono::milliseconds(50));
-        if (!frame) {
-          Error e;
-          if (sc_.registry->shutting_down()) e = Error::make(Code::Unavailable, "the server is shutting down");
-          else if (scene->stopped()) e = Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", scene->id()));
-          if (!e.ok()) {
-            std::lock_guard lk(err_mu);
-            writer_error = e;
-            done = true;
-            c->TryCancel();  // wakes the reader; the client sees the stream end
-            return;
-          }
-          continue;
-        }
-        const uint64_t skipped = after > 0 && frame->seq > after + 1 ? frame->seq - after - 1 : 0;
-        after = frame->seq;
-        if (!tool_feedback_to_proto(*frame, tool_id, skipped, &msg)) continue;  // its first pose is not in a tick yet
-        if (!stream->Write(msg)) {
-          done = true;
-          return;
-        }
-      }
-    });
-
-    Error result;
-    while (!done.load() && stream->Read(&pose)) {
-      if (!pose.scene_id().empty() && pose.scene_id() != scene->id()) {
-        result = Error::make(Code::InvalidArgument, fmt::format("scene_id {} differs from the stream's scene '{}'",
-                                                                echo(pose.scene_id()), scene->id()));
-        break;
-      }
-      RigidTool next;
-      if (Error e = parse_tool_pose(pose, &tool, &next); !e.ok()) {
-        result = e;
-        break;
-      }
-      tool = next;
-      scene->set_tool(tool_id, tool, pose.seq(), pose.client_time_ns());
-    }
-    done = true;
-    // A client that stops reading leaves the writer blocked in Write: cancel the call then.
-    if (writer_exited.get_future().wait_for(std::chrono::seconds(1)) != std::future_status::ready) c->TryCancel();
-    writer.join();
-    scene->remove_tool(tool_id);
-    spdlog::debug("HapticStream: {} detached tool {} from '{}'", c->peer(), tool_id, scene->id());
-    std::lock_guard lk(err_mu);
-    if (!writer_error.ok()) return writer_error;
-    return result;
-  }
-
   ServiceContext sc_;
+  StreamPump& pump_;
 };
 
 class SnapshotServiceImpl final : public v1::SnapshotService::Service {
@@ -604,6 +727,8 @@ struct PliantServer::Impl {
   std::unique_ptr<FrameServiceImpl> frames;
   std::unique_ptr<SnapshotServiceImpl> snapshots;
   std::unique_ptr<InteractionServiceImpl> interaction;
+  // Two threads serve every open stream; destroyed (joined) before the services.
+  std::unique_ptr<StreamPump> pump;
   std::unique_ptr<grpc::Server> server;
   std::unique_ptr<MetricsEndpoint> metrics;  // --metrics-listen
   int port = 0;
@@ -686,9 +811,10 @@ Error PliantServer::start() {
   ServiceContext sc{impl_->registry.get(), !o.token.empty(), sha256("Bearer " + o.token)};
   impl_->context = std::make_unique<ServiceContext>(sc);
   impl_->scenes = std::make_unique<SceneServiceImpl>(sc);
-  impl_->frames = std::make_unique<FrameServiceImpl>(sc);
+  impl_->pump = std::make_unique<StreamPump>(2);
+  impl_->frames = std::make_unique<FrameServiceImpl>(sc, *impl_->pump);
   impl_->snapshots = std::make_unique<SnapshotServiceImpl>(sc);
-  impl_->interaction = std::make_unique<InteractionServiceImpl>(sc);
+  impl_->interaction = std::make_unique<InteractionServiceImpl>(sc, *impl_->pump);
   grpc::ServerBuilder builder;
   if (o.reflection != "open") {
     std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> gates;

@@ -12,6 +12,19 @@
 #                    [DEPENDS <target>...])     built before the tests run (tools they start)
 set(PLIANT_TEST_LABELS unit physics slow service browser deploy)
 
+# Sanitizer builds run the same tests several times slower: their build directories set
+# PLIANT_TEST_TIMEOUT_SCALE (scripts/sanitize.sh) and every per-test timeout is multiplied by it.
+set(PLIANT_TEST_TIMEOUT_SCALE 1 CACHE STRING "Factor applied to every test's timeout (sanitizer builds)")
+if(NOT PLIANT_TEST_TIMEOUT_SCALE MATCHES "^[1-9][0-9]*$")
+  message(FATAL_ERROR "PLIANT_TEST_TIMEOUT_SCALE must be a whole number >= 1, got '${PLIANT_TEST_TIMEOUT_SCALE}'")
+endif()
+
+# pliant_test_timeout(<var> <seconds>): <seconds> times PLIANT_TEST_TIMEOUT_SCALE, into <var>.
+function(pliant_test_timeout var seconds)
+  math(EXPR scaled "${seconds} * ${PLIANT_TEST_TIMEOUT_SCALE}")
+  set(${var} ${scaled} PARENT_SCOPE)
+endfunction()
+
 # Fails the configure step for a label outside the documented set (a typo would hide a test
 # from `ctest -L`).
 function(pliant_check_test_labels where)
@@ -53,6 +66,8 @@ function(pliant_add_gtest)
   if(arg_DEPENDS)
     add_dependencies(${arg_NAME} ${arg_DEPENDS})
   endif()
-  gtest_discover_tests(${arg_NAME} DISCOVERY_TIMEOUT 60
-                       PROPERTIES LABELS ${arg_LABELS} TIMEOUT ${arg_TIMEOUT})
+  pliant_test_timeout(timeout ${arg_TIMEOUT})
+  pliant_test_timeout(discovery 60)
+  gtest_discover_tests(${arg_NAME} DISCOVERY_TIMEOUT ${discovery}
+                       PROPERTIES LABELS ${arg_LABELS} TIMEOUT ${timeout})
 endfunction()

@@ -6,13 +6,16 @@
 # built against it, the installed pliant-server started on a free port, and the consumer run
 # against it (create a scene, list, stream a frame). Also checks that the installed programs
 # find the installed model set and page (share/pliant/{meshes,web}) relative to themselves.
-#   package_test.sh BUILD_DIR SOURCE_DIR [CXX_COMPILER] [COMPILER_LAUNCHER]
+#   package_test.sh BUILD_DIR SOURCE_DIR [CXX_COMPILER] [COMPILER_LAUNCHER] [CXX_FLAGS]
+# CXX_FLAGS: the build's CMAKE_CXX_FLAGS, also used to compile and link the consumer (a
+# sanitizer build's static libraries need the sanitizer runtime in the program that links them).
 # Exit status 0 passed; anything else failed, with the step and the log that says why.
 set -euo pipefail
 BUILD=$(cd "$1" && pwd)
 SRC=$(cd "$2" && pwd)
 CXX=${3:-}
 LAUNCHER=${4:-}
+CXX_FLAGS=${5:-}
 SCRATCH=$(mktemp -d "${TMPDIR:-/tmp}/pliant-package.XXXXXX")
 SERVER_PID=""
 cleanup() {
@@ -51,6 +54,7 @@ GEN=(); command -v ninja >/dev/null && GEN=(-G Ninja)
 CONF=(-DCMAKE_PREFIX_PATH="$PREFIX" -DCMAKE_BUILD_TYPE=Release)
 [ -n "$CXX" ] && CONF+=(-DCMAKE_CXX_COMPILER="$CXX")
 [ -n "$LAUNCHER" ] && CONF+=(-DCMAKE_CXX_COMPILER_LAUNCHER="$LAUNCHER")
+[ -n "$CXX_FLAGS" ] && CONF+=(-DCMAKE_CXX_FLAGS="$CXX_FLAGS" -DCMAKE_EXE_LINKER_FLAGS="$CXX_FLAGS")
 step "configure examples/consumer against $PREFIX"
 cmake -S "$SRC/examples/consumer" -B "$SCRATCH/consumer" "${GEN[@]}" "${CONF[@]}" >"$SCRATCH/configure.log" 2>&1 \
   || { cat "$SCRATCH/configure.log" >&2; fail "configuring the consumer (find_package(Pliant)) failed"; }

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// Frame streams at scale and under slow readers: open streams cost no thread each (the server
+// Frame and haptic streams at scale and under slow readers: open streams cost no thread each (the server
 // counts its threads in /proc/self/task), a reader that stops reading gets the newest frame
 // when it reads again (after at most the one frame its transport held), told how many it
 // skipped, and idle streams end when their scene is deleted.
@@ -133,4 +133,64 @@ TEST(StreamScale, ThousandIdleStreamsCostFewThreadsAndEndWithTheirScene) {
     if (s->finish().code == kNotFound) ++not_found;
   }
   EXPECT_EQ(not_found, kStreams);
+}
+
+// The same for haptic streams: a thousand open HapticStream calls, each with its tool attached
+// (its first pose taken) and no tick to answer, add fewer than 20 threads, and all end with
+// NOT_FOUND when their scene is deleted.
+TEST(StreamScale, ThousandIdleHapticStreamsCostFewThreadsAndEndWithTheirScene) {
+  constexpr int kStreams = 1000, kChannels = 4;
+  server::ServerOptions o;
+  o.max_streams = kStreams + 10;
+  o.max_streams_per_scene = kStreams + 10;
+  Fixture fx(o);
+  std::vector<Client> clients;
+  for (int i = 0; i < kChannels; ++i) clients.push_back(fx.client());
+  ASSERT_TRUE(clients[0].create_scene(lockstep_beam("idle")).ok());
+  ASSERT_TRUE(clients[0].step("idle", 1).ok());
+  v1::ToolPose pose;
+  pose.set_scene_id("idle");
+  pose.set_shape(v1::TOOL_SHAPE_SPHERE);
+  pose.set_radius(0.01);
+  pose.mutable_position()->set_x(5);  // far from the beam
+  auto open_streams = [&] {
+    int total = 0;
+    fx.server->registry().stream_counts(&total);
+    return total;
+  };
+  {  // warm up every channel (connections, gRPC's own threads)
+    for (auto& c : clients) {
+      auto s = c.haptic_stream();
+      ASSERT_TRUE(s->send(pose));
+      ASSERT_TRUE(test::wait_until([&] { return open_streams() == 1; }, test::kPatience, "the warm-up stream"));
+      ASSERT_TRUE(s->finish().ok());
+      ASSERT_TRUE(test::wait_until([&] { return open_streams() == 0; }, test::kPatience, "the warm-up stream's end"));
+    }
+  }
+  const int before = thread_count();
+  std::vector<std::unique_ptr<client::HapticStream>> streams;
+  for (int i = 0; i < kStreams; ++i) {
+    streams.push_back(clients[i % kChannels].haptic_stream());
+    pose.set_seq(1);
+    ASSERT_TRUE(streams.back()->send(pose)) << "stream " << i;
+  }
+  ASSERT_TRUE(test::wait_until([&] { return open_streams() == kStreams; }, test::kPatience,
+                               std::to_string(kStreams) + " attached haptic streams"));
+  const int after = thread_count();
+  std::cout << "[ idle haptic streams ] " << kStreams << " open streams: threads " << before << " -> " << after
+            << " (+" << after - before << ")\n";
+  RecordProperty("threads_added", after - before);
+  EXPECT_LT(after - before, 20);
+
+  // They all end with NOT_FOUND when the scene goes, and free their places in the limits.
+  ASSERT_TRUE(clients[0].delete_scene("idle").ok());
+  int not_found = 0;
+  v1::ToolFeedback f;
+  for (auto& s : streams) {
+    while (s->next(&f)) {
+    }
+    if (s->finish().code == kNotFound) ++not_found;
+  }
+  EXPECT_EQ(not_found, kStreams);
+  EXPECT_TRUE(test::wait_until([&] { return open_streams() == 0; }, test::kPatience, "every stream's place freed"));
 }
