@@ -16,27 +16,29 @@ inline v4d splat(double a) { return v4d{a, a, a, a}; }
 
 }  // namespace
 
-void ensure_packed(PackedModel& pm, const BodyModel& m) {
-  if (pm.model_id == m.id && m.id != 0) return;
-  pm.model_id = m.id;
-  pm.packs.clear();
-  pm.colour_begin.assign(1, 0);
-  pm.tet_slot.assign(m.tets.size(), 0);
-  for (const auto& unsorted : m.colours) {
+void compile_solve_order(BodyModel& m) {
+  auto pm = std::make_shared<PackedModel>();
+  pm->colour_begin.assign(1, 0);
+  m.tet_slot.assign(m.tets.size(), 0);
+  m.tet_colour.assign(m.tets.size(), 0);
+  for (size_t c = 0; c < m.colours.size(); ++c) {
     // Within a colour the order is free: sort by lowest vertex index so that neighbouring packs
     // touch nearby memory (the thesis armadillo's numbering is otherwise scattered).
-    std::vector<int32_t> colour = unsorted;
+    std::vector<int32_t> colour = m.colours[c];
     auto lowest = [&](int32_t t) { return *std::min_element(m.tets[t].v.begin(), m.tets[t].v.end()); };
     std::sort(colour.begin(), colour.end(), [&](int32_t a, int32_t b) { return lowest(a) < lowest(b); });
     for (size_t start = 0; start < colour.size(); start += 4) {
       TetPack p{};
       p.lanes = int(std::min<size_t>(4, colour.size() - start));
-      p.slot = int32_t(4 * pm.packs.size());
+      p.slot = int32_t(4 * pm->packs.size());
       for (int l = 0; l < 4; ++l) {
         const int32_t t = colour[start + std::min(l, p.lanes - 1)];
         const TetRest& tr = m.tets[t];
         p.tet[l] = t;
-        if (l < p.lanes) pm.tet_slot[t] = p.slot + l;
+        if (l < p.lanes) {
+          m.tet_slot[t] = p.slot + l;
+          m.tet_colour[t] = int32_t(c);
+        }
         for (int k = 0; k < 4; ++k) {
           p.v[k][l] = tr.v[k];
           p.w[k][l] = m.inv_mass[tr.v[k]];
@@ -59,10 +61,14 @@ void ensure_packed(PackedModel& pm, const BodyModel& m) {
         p.Q[4][l] = Q[0][2];
         p.Q[5][l] = Q[1][2];
       }
-      pm.packs.push_back(p);
+      pm->packs.push_back(p);
     }
-    pm.colour_begin.push_back(pm.packs.size());
+    pm->colour_begin.push_back(pm->packs.size());
   }
+  pm->vertex_slot_entry.resize(m.vertex_tet_entry.size());
+  for (size_t a = 0; a < m.vertex_tet_entry.size(); ++a)
+    pm->vertex_slot_entry[a] = 4 * m.tet_slot[m.vertex_tet_entry[a] / 4] + m.vertex_tet_entry[a] % 4;
+  m.packed = std::move(pm);
 }
 
 namespace {

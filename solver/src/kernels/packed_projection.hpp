@@ -7,8 +7,8 @@
 //
 // The multipliers (lambda, dlambda) the packed kernels read and write are in SLOT order: pack
 // i owns slots 4i..4i+3, one per lane, so a sweep walks them contiguously. Indexed by tet (the
-// mesh's order, scattered within a colour) they cost a cache miss per tet on large meshes; the
-// Stepper keeps them in slots while it solves and hands them out per tet (tet_slot).
+// mesh's order, scattered within a colour) they would cost a cache miss per tet on large
+// meshes; BodyState keeps them in slots and the model maps them per tet for I/O (tet_slot).
 #pragma once
 
 #include "pliant/model.hpp"
@@ -33,15 +33,19 @@ struct alignas(32) TetPack {
 };
 
 struct PackedModel {
-  uint64_t model_id = 0;  // BodyModel::id the packs were built from
   std::vector<TetPack> packs;
   std::vector<size_t> colour_begin;  // packs of colour c: [colour_begin[c], colour_begin[c+1])
-  std::vector<int32_t> tet_slot;     // multiplier slot of each tet
+  // BodyModel::vertex_tet_entry addressed by slot (4 x slot + corner): the Jacobi gather.
+  std::vector<int32_t> vertex_slot_entry;
   size_t slot_count() const { return 4 * packs.size(); }  // padding lanes' slots stay zero
 };
 
-// (Re)builds the packs when `model` differs from the one they were built for.
-void ensure_packed(PackedModel& packed, const BodyModel& model);
+// Compiles the solve order of a model whose tets, colours, adjacency and inverse masses are
+// set: BodyModel::tet_slot, tet_colour and packed (build_model and its variants call this).
+void compile_solve_order(BodyModel& model);
+
+// The model's packs (compiled with it).
+inline const PackedModel& packed(const BodyModel& model) { return *model.packed; }
 
 // Gauss-Seidel projection of one pack: x, lambda and dlambda (slot order) updated for the real
 // lanes.

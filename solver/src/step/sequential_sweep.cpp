@@ -3,12 +3,12 @@
 
 namespace pliant::detail {
 
-int sweep_sequential(const BodyModel& m, const PackedModel& packed, std::vector<Vec3>& x,
+int sweep_sequential(const BodyModel& m, std::vector<Vec3>& x,
                      std::vector<Vec6>& lambda, std::vector<Vec6>& dlambda, const ProjectionParams& params) {
   int floor_hits = 0;
   for (size_t t = 0; t < m.tets.size(); ++t) {
     const TetRest& tet = m.tets[t];
-    const int32_t slot = packed.tet_slot[t];
+    const int32_t slot = m.tet_slot[t];
     const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
     const double w[4] = {m.inv_mass[tet.v[0]], m.inv_mass[tet.v[1]], m.inv_mass[tet.v[2]], m.inv_mass[tet.v[3]]};
     Vec3 dx[4];

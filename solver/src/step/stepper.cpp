@@ -42,21 +42,15 @@ struct Stepper::Impl {
   IterationHook hook;
   std::unique_ptr<detail::SolverFamily> vbd, newton;  // made on first use
 
-  uint64_t adjacency_model = 0;  // the model adj_* and jacobi_entry were built for
-  // Colours cut into SIMD packs for the Gauss-Seidel sweep and the residual.
-  detail::PackedModel packed;
-  std::vector<int32_t> adj_start, adj_entry;
-
-  // The strain multipliers of the substep being solved and the last sweep's increment, in
-  // slot order (packed_projection.hpp): contiguous per pack, so the sweep reads them in order.
-  std::vector<Vec6> lam, dlambda;
-  uint64_t dlambda_model = 0;  // the packs dlambda was zeroed for
+  // The last sweep's multiplier increments, in the model's solve order (the accelerators'
+  // input); padding slots stay zero.
+  std::vector<Vec6> dlambda;
+  uint64_t dlambda_model = 0;  // the model dlambda was zeroed for
 
   // Scratch.
   std::vector<Vec3> x_before, x_saved, v_prev;
   std::vector<Vec6> lambda_saved;
   std::vector<Vec3> jacobi_dx;  // 4 per slot
-  std::vector<int32_t> jacobi_entry;  // adj_entry in slots: 4 x slot + corner
   std::vector<double> partial;  // per-thread sums
   std::vector<std::vector<int32_t>> floor_hit_chunks;  // per-thread tets corrected by a floor pass
   std::vector<int32_t> floor_hit, floor_candidates;
@@ -70,28 +64,9 @@ struct Stepper::Impl {
     return *pool;
   }
 
-  // Vertex -> (tet, corner) adjacency, and the same entries addressed by slot for the Jacobi
-  // gather (4 x slot + corner), rebuilt when the model changes.
-  void ensure_adjacency(const BodyModel& m) {
-    if (adjacency_model == m.id && m.id != 0) return;
-    adjacency_model = m.id;
-    detail::ensure_packed(packed, m);
-    adj_start.assign(m.vertex_count() + 1, 0);
-    for (const TetRest& t : m.tets)
-      for (int k = 0; k < 4; ++k) adj_start[t.v[k] + 1]++;
-    for (size_t i = 0; i < m.vertex_count(); ++i) adj_start[i + 1] += adj_start[i];
-    adj_entry.assign(adj_start.back(), 0);
-    std::vector<int32_t> fill(adj_start.begin(), adj_start.end() - 1);
-    for (size_t t = 0; t < m.tets.size(); ++t)
-      for (int k = 0; k < 4; ++k) adj_entry[fill[m.tets[t].v[k]]++] = int32_t(4 * t + k);
-    jacobi_entry.resize(adj_entry.size());
-    for (size_t a = 0; a < adj_entry.size(); ++a)
-      jacobi_entry[a] = 4 * packed.tet_slot[adj_entry[a] / 4] + adj_entry[a] % 4;
-  }
-
   double residual(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
                   const Mat6& alpha_tilde, ThreadPool& tp) {
-    detail::ensure_packed(packed, m);
+    const detail::PackedModel& packed = detail::packed(m);
     partial.assign(tp.size(), 0.0);
     tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
       double s = 0;
@@ -108,7 +83,7 @@ struct Stepper::Impl {
   // the thread count).
   int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                          const detail::ProjectionParams& params, ThreadPool& tp) {
-    detail::ensure_packed(packed, m);
+    const detail::PackedModel& packed = detail::packed(m);
     std::vector<int> floor_hits(tp.size(), 0);
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
@@ -132,7 +107,7 @@ struct Stepper::Impl {
   // conserved and lambda stays consistent with the positions.
   int sweep_jacobi(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                    const detail::ProjectionParams& params, double relaxation, ThreadPool& tp) {
-    ensure_adjacency(m);
+    const detail::PackedModel& packed = detail::packed(m);
     jacobi_dx.resize(4 * packed.slot_count());
     // Tets in slot order, so that the multipliers and the corrections are walked in order.
     tp.parallel_for(packed.packs.size(), [&](int, size_t b, size_t e) {
@@ -163,7 +138,8 @@ struct Stepper::Impl {
     tp.parallel_for(m.vertex_count(), [&](int, size_t b, size_t e) {
       for (size_t v = b; v < e; ++v) {
         Vec3 sum = Vec3::Zero();
-        for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) sum += jacobi_dx[jacobi_entry[a]];
+        for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a)
+          sum += jacobi_dx[packed.vertex_slot_entry[a]];
         x[v] += sum;
       }
     });
@@ -173,7 +149,7 @@ struct Stepper::Impl {
   // One pass of the inversion floor over every tet, in colour order. The tets it corrected are
   // left in floor_hit, sorted (the same list for any thread count).
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp) {
-    detail::ensure_packed(packed, m);
+    const detail::PackedModel& packed = detail::packed(m);
     floor_hit_chunks.resize(tp.size());
     for (auto& h : floor_hit_chunks) h.clear();
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
@@ -194,14 +170,13 @@ struct Stepper::Impl {
   // once, on this thread (there are few), in the order they are found from floor_hit (the same
   // for any thread count). Leaves this pass's corrections in floor_hit.
   int volume_pass_around_hits(const BodyModel& m, std::vector<Vec3>& x, double floor) {
-    ensure_adjacency(m);
     floor_queued.resize(m.tets.size(), 0);
     floor_candidates.clear();
     for (int32_t t : floor_hit)
       for (int k = 0; k < 4; ++k) {
         const int32_t v = m.tets[t].v[k];
-        for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) {
-          const int32_t n = adj_entry[a] / 4;
+        for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
+          const int32_t n = m.vertex_tet_entry[a] / 4;
           if (!floor_queued[n]) {
             floor_queued[n] = 1;
             floor_candidates.push_back(n);
@@ -215,19 +190,8 @@ struct Stepper::Impl {
     return int(floor_hit.size());
   }
 
-  // Multipliers per tet <-> slots. Tets missing from `lambda` count as zero.
-  void multipliers_to_slots(const BodyModel& m, const std::vector<Vec6>& lambda) {
-    detail::ensure_packed(packed, m);
-    lam.assign(packed.slot_count(), Vec6::Zero());
-    for (size_t t = 0; t < std::min(lambda.size(), m.tets.size()); ++t) lam[packed.tet_slot[t]] = lambda[t];
-  }
-  void multipliers_from_slots(const BodyModel& m, std::vector<Vec6>& lambda) const {
-    lambda.resize(m.tets.size());
-    for (size_t t = 0; t < m.tets.size(); ++t) lambda[t] = lam[packed.tet_slot[t]];
-  }
-
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
-    detail::ensure_packed(packed, m);
+    const detail::PackedModel& packed = detail::packed(m);
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int, size_t b, size_t e) {
@@ -346,24 +310,24 @@ void Stepper::set_iteration_hook(IterationHook hook) { impl_->hook = std::move(h
 StepReport Stepper::solve_substep(const BodyModel& m, const std::vector<Vec3>& x_prev,
                                   std::vector<Vec3>& x, std::vector<Vec6>& lambda, double h,
                                   const SolverSettings& s, const StepInputs& inputs) {
-  impl_->multipliers_to_slots(m, lambda);
-  StepReport rep = solve_in_slots(m, x_prev, x, h, s, inputs, 0.0);
-  impl_->multipliers_from_slots(m, lambda);
-  return rep;
+  if (lambda.empty()) lambda.assign(m.slot_count(), Vec6::Zero());
+  if (lambda.size() != m.slot_count())
+    throw std::invalid_argument("lambda: " + std::to_string(lambda.size()) + " multipliers, expected " +
+                                std::to_string(m.slot_count()) + " (the model's solve slots) or none");
+  return solve_in_slots(m, x_prev, x, lambda, h, s, inputs, 0.0);
 }
 
 StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x,
-                                   double h, const SolverSettings& s, const StepInputs& inputs,
-                                   double budget_ms) {
+                                   std::vector<Vec6>& lambda, double h, const SolverSettings& s,
+                                   const StepInputs& inputs, double budget_ms) {
   Impl& I = *impl_;
-  std::vector<Vec6>& lambda = I.lam;
+  const detail::PackedModel& packed = detail::packed(m);
   const auto t_start = Clock::now();
   StepReport rep;
   rep.substeps = 1;
   ThreadPool& tp = I.threads(s.threads);
   auto accel = detail::make_accelerator(s);
-  detail::ensure_packed(I.packed, m);
-  accel->begin_substep(m.vertex_count(), I.packed.slot_count());
+  accel->begin_substep(m.vertex_count(), packed.slot_count());
   detail::ProjectionParams params;
   params.model = m.material.model;
   params.alpha_tilde = m.compliance / (h * h);
@@ -371,9 +335,9 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
   params.inversion_floor = s.inversion_floor;
   params.line_search = s.line_search;
   // Every real slot is written by each sweep; padding slots must read zero for the accelerators.
-  if (I.dlambda_model != I.packed.model_id || I.dlambda.size() != I.packed.slot_count()) {
-    I.dlambda.assign(I.packed.slot_count(), Vec6::Zero());
-    I.dlambda_model = I.packed.model_id;
+  if (I.dlambda_model != m.id || I.dlambda.size() != packed.slot_count()) {
+    I.dlambda.assign(packed.slot_count(), Vec6::Zero());
+    I.dlambda_model = m.id;
   }
   const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();
   if (interacting) I.begin_interaction(m.vertex_count(), inputs);
@@ -407,7 +371,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
           rep.volume_corrections = I.sweep_jacobi(m, x, lambda, params, s.jacobi_relaxation, tp);
           break;
         case Sweep::Sequential:
-          rep.volume_corrections = detail::sweep_sequential(m, I.packed, x, lambda, I.dlambda, params);
+          rep.volume_corrections = detail::sweep_sequential(m, x, lambda, I.dlambda, params);
           break;
       }
     }
@@ -546,8 +510,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   for (int sub = 0; sub < n; ++sub) {
     const auto t_other = Clock::now();
     detail::predict(m, state, s, inputs, h, I.v_prev);
-    detail::ensure_packed(I.packed, m);
-    I.lam.assign(I.packed.slot_count(), Vec6::Zero());
+    state.lambda.assign(m.slot_count(), Vec6::Zero());
     state.lambda_h = h;
     total.times.other_ms += ms_since(t_other);
 
@@ -556,7 +519,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     // The report carries the residual history of the last substep only; earlier substeps
     // compute residuals only when the method or a tolerance needs them.
     I.tool_time_offset = (sub + 1 - n) * h;
-    StepReport r = solve_in_slots(m, I.v_prev, state.x, h, sub + 1 == n ? s : quiet, inputs,
+    StepReport r = solve_in_slots(m, I.v_prev, state.x, state.lambda, h, sub + 1 == n ? s : quiet, inputs,
                                   s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
 
     const auto t_vel = Clock::now();
@@ -584,8 +547,6 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     }
   }
   I.tool_time_offset = 0;  // solve_substep on its own: tools at their pose
-  // The last substep's multipliers, per tet (the constraint forces of the step).
-  I.multipliers_from_slots(m, state.lambda);
   if (interacting) {
     // Averages over the substeps: the impulse delivered during the step divided by dt.
     for (size_t t = 0; t < total.tools.size(); ++t) {
@@ -664,7 +625,11 @@ double residual_norm(const BodyModel& m, const std::vector<Vec3>& x, const std::
                      double h) {
   const Mat6 at = m.compliance / (h * h);
   double sum = 0;
-  for (size_t t = 0; t < m.tets.size(); ++t) sum += detail::residual_squared(m.tets[t], x, lambda[t], at, m.material.model);
+  if (lambda.size() != m.slot_count())
+    throw std::invalid_argument("lambda: " + std::to_string(lambda.size()) + " multipliers, expected " +
+                                std::to_string(m.slot_count()) + " (the model's solve slots)");
+  for (size_t t = 0; t < m.tets.size(); ++t)
+    sum += detail::residual_squared(m.tets[t], x, lambda[m.tet_slot[t]], at, m.material.model);
   return std::sqrt(sum);
 }
 
