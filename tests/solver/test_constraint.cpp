@@ -5,7 +5,7 @@
 #include "pliant/material.hpp"
 #include "pliant/model.hpp"
 #include "pliant/strain_constraint.hpp"
-#include "kernels/packed_projection.hpp"
+#include "kernels/strain_kernel.hpp"
 #include "kernels/projection.hpp"
 
 #include <Eigen/Dense>

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "pliant/model.hpp"
 
-#include "kernels/packed_projection.hpp"
+#include "kernels/strain_kernel.hpp"
 
 #include <Eigen/Dense>
 

@@ -1,11 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
 // The thesis's sweep: Gauss-Seidel over the tets one at a time in mesh order, on the calling
-// thread, with the scalar kernel (kernels/projection.hpp). The multipliers stay in the model's
+// thread, with the kernel on one lane (kernels/strain_kernel.hpp). The multipliers stay in the model's
 // solve order (BodyModel::tet_slot), so the residual and the accelerators, which work on slots,
 // see the same layout whichever sweep ran.
 #pragma once
 
 #include "kernels/projection.hpp"
+#include "kernels/strain_kernel.hpp"
 
 #include <vector>
 

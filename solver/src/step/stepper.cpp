@@ -2,8 +2,8 @@
 #include "pliant/stepper.hpp"
 
 #include "accelerators/accelerators.hpp"
-#include "kernels/packed_projection.hpp"
 #include "kernels/projection.hpp"
+#include "kernels/strain_kernel.hpp"
 #include "step/family.hpp"
 #include "step/sequential_sweep.hpp"
 #include "step/stages.hpp"
@@ -70,7 +70,7 @@ struct Stepper::Impl {
     partial.assign(tp.size(), 0.0);
     tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
       double s = 0;
-      for (size_t i = b; i < e; ++i) s += detail::pack_residual_squared(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
+      for (size_t i = b; i < e; ++i) s += detail::residual_squared_lanes(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
       partial[chunk] = s;
     }, 32);
     double sum = 0;
@@ -115,23 +115,24 @@ struct Stepper::Impl {
         const detail::TetPack& pack = packed.packs[i];
         for (int l = 0; l < pack.lanes; ++l) {
           // The tet's rest data from the pack (read in order, unlike m.tets[pack.tet[l]]).
-          TetRest tet;
-          for (int k = 0; k < 4; ++k) tet.v[k] = pack.v[k][l];
-          for (int k = 0; k < 3; ++k)
-            for (int c = 0; c < 3; ++c) tet.dm_inv(k, c) = pack.B[3 * k + c][l];
-          tet.volume = pack.volume[l];
-          tet.sqrt_volume = pack.sqrt_volume[l];
-          const int32_t slot = pack.slot + l;
-          const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-          const double w[4] = {pack.w[0][l], pack.w[1][l], pack.w[2][l], pack.w[3][l]};
+          const detail::TetOne tet = detail::lane_of(pack, l);
+          const int32_t slot = tet.slot;
+          double lam[6];
+          for (int r = 0; r < 6; ++r) lam[r] = lambda[slot][r];
+          detail::StrainStep<double> st;
+          detail::strain_step(tet, x, lam, params.model, params.alpha_tilde, params.lambda_scale, params.line_search, st);
           Vec3* dx = &jacobi_dx[4 * size_t(slot)];
-          detail::strain_increment(tet, p, w, lambda[slot], params, dlambda[slot], dx);
+          if (!(st.ok & 1)) {  // not positive definite (cannot happen with alpha~ > 0): no move
+            dlambda[slot].setZero();
+            for (int k = 0; k < 4; ++k) dx[k].setZero();
+            continue;
+          }
           int most = 1;
-          for (int k = 0; k < 4; ++k) most = std::max(most, int(m.vertex_tet_count[tet.v[k]]));
+          for (int k = 0; k < 4; ++k) most = std::max(most, int(m.vertex_tet_count[tet.v[k][0]]));
           const double scale = relaxation / most;
-          dlambda[slot] *= scale;
+          for (int r = 0; r < 6; ++r) dlambda[slot][r] = st.dlambda[r] * scale;
           lambda[slot] += dlambda[slot];
-          for (int k = 0; k < 4; ++k) dx[k] *= scale;
+          for (int k = 0; k < 4; ++k) dx[k] = Vec3(st.dx[k][0], st.dx[k][1], st.dx[k][2]) * scale;
         }
       }
     }, 16);
@@ -156,7 +157,7 @@ struct Stepper::Impl {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
         for (size_t i = b; i < e; ++i)
-          detail::pack_volume_floor(packed.packs[first + i], x, m, floor, &floor_hit_chunks[chunk]);
+          detail::volume_floor_lanes(packed.packs[first + i], x, m, floor, &floor_hit_chunks[chunk]);
       }, 32);
     }
     floor_hit.clear();
@@ -195,7 +196,7 @@ struct Stepper::Impl {
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int, size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) detail::pack_apply_increment(packed.packs[first + i], x, dl, m.material.model);
+        for (size_t i = b; i < e; ++i) detail::apply_increment_lanes(packed.packs[first + i], x, dl, m.material.model);
       }, 32);
     }
   }
@@ -628,8 +629,8 @@ double residual_norm(const BodyModel& m, const std::vector<Vec3>& x, const std::
   if (lambda.size() != m.slot_count())
     throw std::invalid_argument("lambda: " + std::to_string(lambda.size()) + " multipliers, expected " +
                                 std::to_string(m.slot_count()) + " (the model's solve slots)");
-  for (size_t t = 0; t < m.tets.size(); ++t)
-    sum += detail::residual_squared(m.tets[t], x, lambda[m.tet_slot[t]], at, m.material.model);
+  for (const detail::TetPack& p : detail::packed(m).packs)
+    sum += detail::residual_squared_lanes(p, x, lambda, at, m.material.model);
   return std::sqrt(sum);
 }
 
