@@ -10,6 +10,7 @@
 #include "step/thread_pool.hpp"
 
 #include <Eigen/Dense>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <chrono>
@@ -24,8 +25,13 @@ using detail::ms_since;
 namespace {
 
 // End-of-substep passes of the inversion floor: the first visits every tet, the later ones only
-// the tets around what the previous pass corrected (nothing else moved).
+// the tets around what the previous pass corrected (nothing else moved), at most
+// kVolumePassVisits x the tet count of visits in all. On a body the iteration budget leaves
+// tangled, the later passes would otherwise revisit most of it every pass, on the tick's
+// deadline; what they leave below the floor, the next sweep and pass take up (docs/solver.md,
+// "The floor pass").
 constexpr int kVolumePasses = 20;
+constexpr double kVolumePassVisits = 4.0;
 
 // Adds the elapsed time of a scope to a counter.
 struct PhaseTimer {
@@ -168,14 +174,14 @@ struct Stepper::Impl {
 
   // A later pass: a tet's det F can only have changed if one of its corners was moved by the
   // previous pass, so only the tets sharing a vertex with a tet in floor_hit are visited, each
-  // once, on this thread (there are few), in the order they are found from floor_hit (the same
-  // for any thread count). Leaves this pass's corrections in floor_hit.
-  int volume_pass_around_hits(const BodyModel& m, std::vector<Vec3>& x, double floor) {
+  // once, on this thread, in the order they are found from floor_hit (the same for any thread
+  // count), at most `budget` of them (taken off it). Leaves this pass's corrections in floor_hit.
+  int volume_pass_around_hits(const BodyModel& m, std::vector<Vec3>& x, double floor, size_t& budget) {
     floor_queued.resize(m.tets.size(), 0);
     floor_candidates.clear();
-    for (int32_t t : floor_hit)
+    for (size_t h = 0; h < floor_hit.size() && floor_candidates.size() < budget; ++h)
       for (int k = 0; k < 4; ++k) {
-        const int32_t v = m.tets[t].v[k];
+        const int32_t v = m.tets[floor_hit[h]].v[k];
         for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
           const int32_t n = m.vertex_tet_entry[a] / 4;
           if (!floor_queued[n]) {
@@ -185,6 +191,8 @@ struct Stepper::Impl {
         }
       }
     for (int32_t n : floor_candidates) floor_queued[n] = 0;
+    if (floor_candidates.size() > budget) floor_candidates.resize(budget);
+    budget -= floor_candidates.size();
     floor_hit.clear();
     for (int32_t t : floor_candidates)
       if (detail::enforce_volume_floor(m.tets[t], x, m.inv_mass, floor)) floor_hit.push_back(t);
@@ -469,10 +477,14 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     PhaseTimer t{rep.times.other_ms};
     int hits = I.volume_pass(m, x, s.inversion_floor, tp);
     rep.volume_corrections += hits;
-    for (int pass = 1; pass < kVolumePasses && hits > 0; ++pass) {
-      hits = I.volume_pass_around_hits(m, x, s.inversion_floor);
+    size_t visits = size_t(kVolumePassVisits * double(m.tet_count()));
+    int pass = 1;
+    for (; pass < kVolumePasses && hits > 0 && visits > 0; ++pass) {
+      hits = I.volume_pass_around_hits(m, x, s.inversion_floor, visits);
       rep.volume_corrections += hits;
     }
+    if (hits > 0 && visits == 0)
+      spdlog::trace("inversion floor: visit budget spent after {} passes, {} corrections in the last", pass, hits);
   }
   if (interacting) I.finish_interaction(x, inputs, h, rep);
   rep.wall_ms = ms_since(t_start) - hook_ms;
