@@ -9,7 +9,10 @@
 // armadillo scene), E 1 MPa, under gravity, above a floor plane, 1 substep of 1/60 s, after
 // kWarmTicks ticks from rest; every timed step starts from that same state. s_per_tet_iter is
 // wall time / (tets x substeps x iterations); floor_corrections the last step's inversion-floor
-// corrections. Public API only, so that the same file builds against an older library.
+// corrections. Public API only (and the flop count where the library has it), so that the
+// same file builds against an older library for before/after runs.
+// flops_per_tet / flop_per_s (gs_*, jacobi_*): the projection's arithmetic, counted by the
+// kernel itself (detail::mean_projection_flops), and the rate the solve achieved with it.
 // vbd_* (vertex block descent): s_per_vertex_iter is wall time / (iterations x vertices) of one
 // step of one substep from the bent beam at rest, and residual_ratio the gradient norm after
 // the 20 iterations over the initial one (lower converges better), per Hessian choice
@@ -19,6 +22,10 @@
 #include "pliant/mesh_io.hpp"
 #include "pliant/stepper.hpp"
 #include "vbd/vbd.hpp"
+#if __has_include("kernels/strain_kernel.hpp")  // the flop count (absent from older libraries)
+#include "kernels/strain_kernel.hpp"
+#define PLIANT_BENCH_FLOPS 1
+#endif
 
 #include <benchmark/benchmark.h>
 
@@ -76,6 +83,16 @@ void run(benchmark::State& state, const std::string& mesh, Method method, Sweep 
     benchmark::DoNotOptimize(x.data());
   }
   state.counters["tets"] = double(su.model->tet_count());
+#ifdef PLIANT_BENCH_FLOPS
+  // Arithmetic of one projection counted by running the kernel on a counting number type, mean
+  // over the tets at the start of the solve; flop_per_s: what the solve achieved with it (the
+  // roofline's numerator; docs/solver.md gives this machine's peak).
+  const double flops = detail::mean_projection_flops(*su.model, su.x0, std::vector<Vec6>(su.model->slot_count(), Vec6::Zero()),
+                                                     su.model->compliance * 3600.0, line_search);
+  state.counters["flops_per_tet"] = flops;
+  state.counters["flop_per_s"] =
+      benchmark::Counter(flops * double(iterations) * double(su.model->tet_count()), benchmark::Counter::kIsRate);
+#endif
   // Seconds per tet-iteration (printed with an SI prefix: "57n" is 57 ns).
   state.counters["s_per_tet_iter"] = benchmark::Counter(
       double(iterations) * double(su.model->tet_count()), benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
