@@ -18,7 +18,7 @@ namespace pliant {
 using Mat3 = Eigen::Matrix3d;
 
 namespace detail {
-struct PackedModel;  // the sweeps' packs (solver-internal, kernels/packed_projection.hpp)
+struct PackedModel;  // the sweeps' packs (solver-internal, kernels/strain_kernel.hpp)
 }
 
 // Rest data of one strain constraint, laid out flat for the projection loop.
