@@ -4,6 +4,15 @@
 //   build/bench/bench_solver --benchmark_counters_tabular=true
 //   PLIANT_BENCH_MESHES=a.node:b.node build/bench/bench_solver ...   (more meshes)
 // The counter s_per_tet_iter is wall time / (iterations x tets) of one substep solve.
+// step_* (the whole step: prediction, sweeps, floor contacts, inversion floor, velocities) is
+// the armadillo standing on its feet (vertices with y <= -0.040 fixed, as the service's
+// armadillo scene), E 1 MPa, under gravity, above a floor plane, 1 substep of 1/60 s, after
+// kWarmTicks ticks from rest; every timed step starts from that same state. s_per_tet_iter is
+// wall time / (tets x substeps x iterations); floor_corrections the last step's inversion-floor
+// corrections. Public API only (and the flop count where the library has it), so that the
+// same file builds against an older library for before/after runs.
+// flops_per_tet / flop_per_s (gs_*, jacobi_*): the projection's arithmetic, counted by the
+// kernel itself (detail::mean_projection_flops), and the rate the solve achieved with it.
 // vbd_* (vertex block descent): s_per_vertex_iter is wall time / (iterations x vertices) of one
 // step of one substep from the bent beam at rest, and residual_ratio the gradient norm after
 // the 20 iterations over the initial one (lower converges better), per Hessian choice
@@ -13,6 +22,10 @@
 #include "pliant/mesh_io.hpp"
 #include "pliant/stepper.hpp"
 #include "vbd/vbd.hpp"
+#if __has_include("kernels/strain_kernel.hpp")  // the flop count (absent from older libraries)
+#include "kernels/strain_kernel.hpp"
+#define PLIANT_BENCH_FLOPS 1
+#endif
 
 #include <benchmark/benchmark.h>
 
@@ -57,19 +70,29 @@ void run(benchmark::State& state, const std::string& mesh, Method method, Sweep 
   s.record_residuals = residuals || method == Method::AndersonSor || method == Method::Anderson;
   Stepper stepper;
   std::vector<Vec3> x;
-  std::vector<Vec6> lambda(su.model->tet_count(), Vec6::Zero());
+  std::vector<Vec6> lambda;  // empty: every solve starts from zero multipliers
   long iterations = 0;
   StepReport last;
   for (auto _ : state) {
     state.PauseTiming();
     x = su.x0;
-    std::fill(lambda.begin(), lambda.end(), Vec6::Zero());
+    lambda.clear();
     state.ResumeTiming();
     last = stepper.solve_substep(*su.model, su.x0, x, lambda, 1.0 / 60, s);
     iterations += last.iterations;
     benchmark::DoNotOptimize(x.data());
   }
   state.counters["tets"] = double(su.model->tet_count());
+#ifdef PLIANT_BENCH_FLOPS
+  // Arithmetic of one projection counted by running the kernel on a counting number type, mean
+  // over the tets at the start of the solve; flop_per_s: what the solve achieved with it (the
+  // roofline's numerator; docs/solver.md gives this machine's peak).
+  const double flops = detail::mean_projection_flops(*su.model, su.x0, std::vector<Vec6>(su.model->slot_count(), Vec6::Zero()),
+                                                     su.model->compliance * 3600.0, line_search);
+  state.counters["flops_per_tet"] = flops;
+  state.counters["flop_per_s"] =
+      benchmark::Counter(flops * double(iterations) * double(su.model->tet_count()), benchmark::Counter::kIsRate);
+#endif
   // Seconds per tet-iteration (printed with an SI prefix: "57n" is 57 ns).
   state.counters["s_per_tet_iter"] = benchmark::Counter(
       double(iterations) * double(su.model->tet_count()), benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
@@ -80,6 +103,65 @@ void run(benchmark::State& state, const std::string& mesh, Method method, Sweep 
     state.counters["share_update"] = last.times.update_ms / total;
     state.counters["share_residual"] = last.times.residual_ms / total;
   }
+}
+
+// Ticks the whole-step benchmarks run from rest before timing (the body swinging, tangled
+// where the budget under-resolves it: what a running scene steps).
+constexpr int kWarmTicks = 30;
+
+struct StepSetup {
+  std::shared_ptr<const BodyModel> model;
+  BodyState start;
+  StepInputs inputs;
+};
+
+SolverSettings scene_settings(int iterations, int threads) {
+  SolverSettings s;
+  s.substeps = 1;
+  s.iterations = iterations;
+  s.threads = threads;
+  s.record_residuals = false;
+  return s;
+}
+
+const StepSetup& step_setup(const std::string& mesh, int iterations) {
+  static std::map<std::pair<std::string, int>, StepSetup> cache;
+  auto it = cache.find({mesh, iterations});
+  if (it != cache.end()) return it->second;
+  const TetMesh m = resolve_mesh(mesh);
+  StepSetup su;
+  const auto box = bounding_box(m.vertices);
+  FixedSelection fixed;
+  fixed.boxes.push_back({Vec3(-1, -1, -1), Vec3(1, -0.040, 1)});  // the service scene's --fix-box
+  su.model = build_model(m, Material{1e6, 0.4, 1000}, fixed);
+  su.inputs.colliders.push_back(Collider::plane(Vec3(0, box.min.y(), 0), Vec3(0, 1, 0)));
+  su.start = rest_state(*su.model);
+  Stepper stepper;
+  const SolverSettings s = scene_settings(iterations, 1);
+  for (int t = 0; t < kWarmTicks; ++t) stepper.step(*su.model, su.start, s, su.inputs);
+  return cache.emplace(std::make_pair(mesh, iterations), std::move(su)).first->second;
+}
+
+void run_step(benchmark::State& state, const std::string& mesh, int iterations) {
+  const StepSetup& su = step_setup(mesh, iterations);
+  const SolverSettings s = scene_settings(iterations, int(state.range(0)));
+  Stepper stepper;
+  BodyState body = su.start;
+  long tet_iterations = 0;
+  StepReport last;
+  for (auto _ : state) {
+    state.PauseTiming();
+    body = su.start;
+    state.ResumeTiming();
+    last = stepper.step(*su.model, body, s, su.inputs);
+    tet_iterations += long(last.iterations) * long(su.model->tet_count());
+    benchmark::DoNotOptimize(body.x.data());
+  }
+  state.counters["tets"] = double(su.model->tet_count());
+  state.counters["s_per_tet_iter"] =
+      benchmark::Counter(double(tet_iterations), benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+  state.counters["floor_corrections"] = double(last.volume_corrections);
+  state.counters["inverted"] = double(count_inverted(*su.model, body.x));
 }
 
 void run_vbd(benchmark::State& state, const std::string& mesh, ElasticModel elastic, detail::VbdHessian hessian,
@@ -127,6 +209,10 @@ void register_all() {
       at = end + 1;
     }
   }
+  for (const int iterations : {1, 4})
+    benchmark::RegisterBenchmark(("step_xpbd_1x" + std::to_string(iterations) + "/armadillo").c_str(),
+                                 [=](benchmark::State& st) { run_step(st, "armadillo", iterations); })
+        ->Arg(1)->Arg(2)->ArgName("threads")->Unit(benchmark::kMillisecond)->UseRealTime();
   for (const std::string& mesh : meshes) {
     struct Variant {
       const char* name;

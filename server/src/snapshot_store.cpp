@@ -97,7 +97,7 @@ Error snapshot_to_proto(const SceneSnapshot& s, v1::Snapshot* out) {
     for (int k = 0; k < 3; ++k) out->add_x(p[k]);
   for (const auto& p : s.state.v)
     for (int k = 0; k < 3; ++k) out->add_v(p[k]);
-  for (const auto& l : s.state.lambda)
+  for (const auto& l : multipliers_per_tet(m, s.state.lambda))  // the state keeps them in solve order
     for (int k = 0; k < 6; ++k) out->add_lambda(l[k]);
   out->set_sim_time(s.state.time);
   out->set_tick(s.tick);
@@ -169,6 +169,7 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
   if (!is_finite(st)) return invalid("snapshot.x/v contain non-finite values");
   for (size_t t = 0; t < nt; ++t)
     if (!st.lambda[t].allFinite()) return invalid(fmt::format("snapshot.lambda: tet {} has a non-finite value", t));
+  st.lambda = multipliers_in_slots(*model, st.lambda);  // per tet -> the model's solve order
   if (!std::isfinite(p.sim_time()) || p.sim_time() < 0)
     return invalid(fmt::format("snapshot.sim_time must be a finite value >= 0 s, got {}", p.sim_time()));
   if (p.tick() > kMaxTick)

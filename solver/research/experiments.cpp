@@ -58,7 +58,7 @@ ConvergenceRun run_convergence(const BodyModel& model, const std::vector<Vec3>& 
     }
   });
   std::vector<Vec3> x = x0;
-  std::vector<Vec6> lambda(model.tet_count(), Vec6::Zero());
+  std::vector<Vec6> lambda(model.slot_count(), Vec6::Zero());
   SolverSettings s = settings;
   s.substeps = 1;
   s.record_residuals = true;

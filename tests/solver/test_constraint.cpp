@@ -5,7 +5,7 @@
 #include "pliant/material.hpp"
 #include "pliant/model.hpp"
 #include "pliant/strain_constraint.hpp"
-#include "kernels/packed_projection.hpp"
+#include "kernels/strain_kernel.hpp"
 #include "kernels/projection.hpp"
 
 #include <Eigen/Dense>
@@ -268,8 +268,7 @@ TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
   const TetMesh mesh = disjoint_tets({random_tet(rng), random_tet(rng), random_tet(rng)});
   auto model = build_model(mesh, Material{2e5, 0.35, 900});
   ASSERT_EQ(model->colours.size(), 1u);
-  detail::PackedModel packed;
-  detail::ensure_packed(packed, *model);
+  const detail::PackedModel& packed = detail::packed(*model);
   ASSERT_EQ(packed.packs.size(), 1u);
   EXPECT_EQ(packed.packs[0].lanes, 3);
   std::vector<Vec3> x = mesh.vertices;
@@ -306,8 +305,7 @@ TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
   const std::array<Vec3, 4> X = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1)};
   const TetMesh mesh = disjoint_tets({X, X, X});
   auto model = build_model(mesh, Material{1e9, 0.3, 1000});  // stiff: the constraint dominates
-  detail::PackedModel packed;
-  detail::ensure_packed(packed, *model);
+  const detail::PackedModel& packed = detail::packed(*model);
   ASSERT_EQ(packed.packs.size(), 1u);
   std::vector<Vec3> x = mesh.vertices;
   for (int t = 0; t < 3; ++t)
@@ -526,8 +524,7 @@ TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
   Material mat{2e5, 0.35, 900};
   mat.model = ElasticModel::Corotated;
   auto model = build_model(mesh, mat);
-  detail::PackedModel packed;
-  detail::ensure_packed(packed, *model);
+  const detail::PackedModel& packed = detail::packed(*model);
   ASSERT_EQ(packed.packs.size(), 1u);
   std::vector<Vec3> x = mesh.vertices;
   for (auto& p : x) p += 0.2 * Vec3(std::sin(7 * p.x()), std::cos(5 * p.y()), std::sin(3 * p.z()));
@@ -588,8 +585,7 @@ TEST(Corotated, LineSearchShortensStepsThatWouldRaiseTheResidual) {
     Material mat{1e9, 0.3, 1000};
     mat.model = ElasticModel::Corotated;
     auto model = build_model(mesh, mat);
-    detail::PackedModel packed;
-    detail::ensure_packed(packed, *model);
+    const detail::PackedModel& packed = detail::packed(*model);
     std::vector<Vec3> x = mesh.vertices;
     std::uniform_real_distribution<double> u(-0.05, 0.05);
     for (auto& p : x) p += draw3(u, rng);

@@ -191,9 +191,10 @@ TEST(ToolContact, AtRestTheToolForceIsTheExternalLoadThatHoldsTheSameShape) {
   // (minus the contact force on the body) is M_free g - f_c.
   Vec3 f_clamp = Vec3::Zero(), weight_free = Vec3::Zero();
   const double h2 = a.state.lambda_h * a.state.lambda_h;
+  const std::vector<Vec6> lambda = multipliers_per_tet(*m, a.state.lambda);
   for (size_t t = 0; t < m->tet_count(); ++t) {
     const TetRest& tet = m->tets[t];
-    const Vec12 g = strain_jacobian(tet, gather(a.state.x, tet.v)).transpose() * a.state.lambda[t];
+    const Vec12 g = strain_jacobian(tet, gather(a.state.x, tet.v)).transpose() * lambda[t];
     for (int k = 0; k < 4; ++k)
       if (m->fixed[tet.v[k]]) f_clamp += g.segment<3>(3 * k) / h2;
   }

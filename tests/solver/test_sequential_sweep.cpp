@@ -48,7 +48,7 @@ double max_distance(const std::vector<Vec3>& a, const std::vector<Vec3>& b) {
 // One step of length h from the bent beam at rest (the convergence experiment).
 std::vector<Vec3> one_step(const BodyModel& model, const std::vector<Vec3>& x0, const SolverSettings& s) {
   std::vector<Vec3> x = x0;
-  std::vector<Vec6> lambda(model.tet_count(), Vec6::Zero());
+  std::vector<Vec6> lambda(model.slot_count(), Vec6::Zero());
   Stepper stepper;
   stepper.solve_substep(model, x0, x, lambda, s.dt, s);
   return x;

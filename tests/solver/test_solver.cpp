@@ -58,7 +58,7 @@ TEST(Sweep, ConservesLinearAndAngularMomentumWithoutExternalForces) {
       SolverSettings s = convergence_settings(Method::Xpbd, 1);
       s.sweep = sweep;
       std::vector<Vec3> x = x0;
-      std::vector<Vec6> lambda(model->tet_count(), Vec6::Zero());
+      std::vector<Vec6> lambda(model->slot_count(), Vec6::Zero());
       Stepper stepper;
       stepper.solve_substep(*model, x0, x, lambda, 1.0 / 60, s);
       double total = 0;
@@ -199,17 +199,27 @@ TEST(StopRules, ToleranceAndTimeBudgetEndIterationsEarly) {
 }
 
 TEST(Multipliers, AreHandedOutPerTetWhateverTheMeshNumbering) {
-  // The sweeps keep the multipliers in their own (pack) order while they solve and hand them
-  // out per tet. Check the hand-out against the stepper's own residual: ||C(x) + alpha~ lambda||
-  // recomputed tet by tet from the returned lambda must be the residual the solver reported,
-  // on a beam whose tets are numbered at random (as in the thesis armadillo), for both sweeps,
-  // for solve_substep and for a full step.
+  // The state keeps the multipliers in the model's solve order (packs of a colour) and the
+  // model maps them per tet. Check the mapping against the stepper's own residual:
+  // ||C(x) + alpha~ lambda|| recomputed tet by tet from the reference constraint and the
+  // per-tet multipliers must be the residual the solver reported, on a beam whose tets are
+  // numbered at random (as in the thesis armadillo), for both sweeps, for solve_substep and
+  // for a full step; and per tet -> slots -> per tet is the identity.
   TetMesh mesh = *builtin_mesh("beam1");
   std::mt19937 rng(11);
   std::shuffle(mesh.tets.begin(), mesh.tets.end(), rng);
   auto model = build_model(mesh, Material{1e5, 0.4, 1000}, clamp_below_x(default_clamp_x(mesh.vertices)));
   const auto x0 = cantilever_bend(*model, default_clamp_x(model->rest_positions), 0.01);
   const double h = 1.0 / 60;
+  auto residual_per_tet = [&](const std::vector<Vec3>& x, const std::vector<Vec6>& per_tet, double hs) {
+    const Mat6 at = model->compliance / (hs * hs);
+    double sum = 0;
+    for (size_t t = 0; t < model->tet_count(); ++t) {
+      const TetRest& tet = model->tets[t];
+      sum += (strain_constraint(tet, gather(x, tet.v)) + at * per_tet[t]).squaredNorm();
+    }
+    return std::sqrt(sum);
+  };
   for (Sweep sweep : {Sweep::GaussSeidel, Sweep::Jacobi}) {
     SolverSettings s = convergence_settings(Method::Xpbd, 7);
     s.sweep = sweep;
@@ -218,9 +228,13 @@ TEST(Multipliers, AreHandedOutPerTetWhateverTheMeshNumbering) {
     std::vector<Vec6> lambda;  // empty: starts at zero
     Stepper stepper;
     const StepReport r = stepper.solve_substep(*model, x0, x, lambda, h, s);
-    ASSERT_EQ(lambda.size(), model->tet_count());
+    ASSERT_EQ(lambda.size(), model->slot_count());
     ASSERT_GT(r.residual_final, 0);
+    const std::vector<Vec6> per_tet = multipliers_per_tet(*model, lambda);
+    ASSERT_EQ(per_tet.size(), model->tet_count());
+    EXPECT_NEAR(residual_per_tet(x, per_tet, h), r.residual_final, 1e-9 * r.residual_final) << to_string(sweep);
     EXPECT_NEAR(residual_norm(*model, x, lambda, h), r.residual_final, 1e-9 * r.residual_final) << to_string(sweep);
+    EXPECT_EQ(multipliers_per_tet(*model, multipliers_in_slots(*model, per_tet)), per_tet);
 
     // A step with gravity: the multipliers of its last substep, with that substep's length.
     BodyState state = rest_state(*model);
@@ -231,8 +245,9 @@ TEST(Multipliers, AreHandedOutPerTetWhateverTheMeshNumbering) {
     st.record_residuals = true;
     st.inversion_floor = 0;  // a floor correction after the last iteration would move x
     const StepReport rs = stepper.step(*model, state, st);
-    ASSERT_EQ(state.lambda.size(), model->tet_count());
-    EXPECT_NEAR(residual_norm(*model, state.x, state.lambda, state.lambda_h), rs.residual_final,
-                1e-9 * rs.residual_final) << to_string(sweep);
+    ASSERT_EQ(state.lambda.size(), model->slot_count());
+    EXPECT_NEAR(residual_per_tet(state.x, multipliers_per_tet(*model, state.lambda), state.lambda_h),
+                rs.residual_final, 1e-9 * rs.residual_final) << to_string(sweep);
   }
+  EXPECT_THROW(multipliers_in_slots(*model, std::vector<Vec6>(model->tet_count() + 1)), std::invalid_argument);
 }

@@ -17,6 +17,10 @@ namespace pliant {
 
 using Mat3 = Eigen::Matrix3d;
 
+namespace detail {
+struct PackedModel;  // the sweeps' packs (solver-internal, kernels/strain_kernel.hpp)
+}
+
 // Rest data of one strain constraint, laid out flat for the projection loop.
 struct TetRest {
   Tet v;               // vertex indices
@@ -34,8 +38,10 @@ struct FixedSelection {
   std::vector<HalfSpace> half_spaces;      // every vertex with (x - point).normal <= 0
 };
 
+// Compiled once with the model (build_model, with_material, with_fixed): everything the solver
+// families read besides the rest data, so that no step rebuilds or remaps anything.
 struct BodyModel {
-  uint64_t id = 0;  // unique per built model (caches in the solver key on it)
+  uint64_t id = 0;  // unique per built model
   std::string name;
   std::vector<Vec3> rest_positions;
   std::vector<TetRest> tets;
@@ -60,9 +66,16 @@ struct BodyModel {
   // Vertices grouped so that no two vertices of a colour share a tet: vertex block descent
   // updates a colour in parallel with the same result as sequentially.
   std::vector<std::vector<int32_t>> vertex_colours;
+  // Solve order: the colours cut into packs of 4 tets (padding lanes at a colour's end), one
+  // multiplier slot per lane. BodyState::lambda is kept in this order; tet t's multipliers are
+  // at slot tet_slot[t] (multipliers_per_tet maps them for snapshots and other I/O).
+  std::vector<int32_t> tet_slot;
+  std::vector<int32_t> tet_colour;  // colour of each tet (index into colours)
+  std::shared_ptr<const detail::PackedModel> packed;
 
   size_t vertex_count() const { return rest_positions.size(); }
   size_t tet_count() const { return tets.size(); }
+  size_t slot_count() const;  // multiplier slots (4 x packs >= tet_count)
   double total_mass() const;
   // Inertia the floor adds to free vertices, as a fraction of the total mass, and how many
   // free vertices it raises.
@@ -80,6 +93,13 @@ std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Mat
 
 // Same geometry and material, a new set of fixed vertices.
 std::shared_ptr<const BodyModel> with_fixed(const BodyModel& model, const FixedSelection& fixed);
+
+// Multipliers in solve order (slot_count() entries) -> one per tet, in the mesh's order.
+std::vector<Vec6> multipliers_per_tet(const BodyModel& model, const std::vector<Vec6>& slots);
+
+// One per tet -> solve order (padding slots zero). Throws std::invalid_argument unless
+// per_tet has tet_count() entries.
+std::vector<Vec6> multipliers_in_slots(const BodyModel& model, const std::vector<Vec6>& per_tet);
 
 // Speed of pressure waves in the body's material: sqrt((lambda + 2 mu) / rho).
 double pressure_wave_speed(const BodyModel& model);

@@ -14,7 +14,8 @@ namespace pliant {
 struct BodyState {
   std::vector<Vec3> x;       // positions, m
   std::vector<Vec3> v;       // velocities, m/s
-  std::vector<Vec6> lambda;  // strain multipliers of the last substep (one 6-vector per tet)
+  std::vector<Vec6> lambda;  // strain multipliers of the last substep, in the model's solve order
+                             // (model.slot_count() 6-vectors; multipliers_per_tet maps them)
   double lambda_h = 0;       // the substep length lambda belongs to (lambda scales with h^2)
   double time = 0.0;         // simulated seconds
   uint64_t steps = 0;        // steps taken

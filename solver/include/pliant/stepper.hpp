@@ -93,8 +93,9 @@ class Stepper {
                   const StepInputs& inputs = {});
 
   // One substep of length h from a given predicted start, exposed for the convergence
-  // experiment: x = x_pred on entry, lambda = 0, runs up to settings.iterations; the report
-  // holds the full residual history. `x_prev` is the position at the start of the substep.
+  // experiment: x = x_pred on entry, runs up to settings.iterations; the report holds the full
+  // residual history. `x_prev` is the position at the start of the substep. lambda is in the
+  // model's solve order (model.slot_count() entries; empty: starts at zero).
   StepReport solve_substep(const BodyModel& model, const std::vector<Vec3>& x_prev,
                            std::vector<Vec3>& x, std::vector<Vec6>& lambda, double h,
                            const SolverSettings& settings, const StepInputs& inputs = {});
@@ -107,11 +108,10 @@ class Stepper {
   void set_iteration_hook(IterationHook hook);
 
  private:
-  // The substep solve on the stepper's own multipliers (kept in the packed sweep's slot order
-  // between substeps; step() hands them out per tet once, at the end).
+  // The substep solve (multipliers in solve order) under a time budget (0: none).
   StepReport solve_in_slots(const BodyModel& model, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x,
-                            double h, const SolverSettings& settings, const StepInputs& inputs,
-                            double budget_ms);
+                            std::vector<Vec6>& lambda, double h, const SolverSettings& settings,
+                            const StepInputs& inputs, double budget_ms);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
@@ -123,7 +123,8 @@ int effective_substeps(const BodyModel& model, const SolverSettings& settings);
 // Velocity damping of one substep of length h (settings.damping).
 void apply_damping(const BodyModel& model, BodyState& state, const SolverSettings& settings, double h);
 
-// ||r|| with r = C(x) + alpha~ lambda stacked over all tets (thesis eq. 2.18), alpha~ = alpha/h^2.
+// ||r|| with r = C(x) + alpha~ lambda stacked over all tets (thesis eq. 2.18), alpha~ = alpha/h^2;
+// lambda in the model's solve order (BodyState::lambda).
 double residual_norm(const BodyModel& model, const std::vector<Vec3>& x,
                      const std::vector<Vec6>& lambda, double h);
 

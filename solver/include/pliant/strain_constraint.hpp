@@ -6,7 +6,7 @@
 // With ElasticModel::Corotated the strain is S - I instead (F = R S, the polar decomposition with
 // a proper rotation R), same Voigt order and engineering shears 2 S_ij, same stiffness K.
 // These are the reference (readable) versions used by tests and the Newton solver; the solver's
-// hot loop uses an algebraically equal fused form in projection.cpp.
+// hot loop uses an algebraically equal fused form in src/kernels/strain_kernel.cpp.
 #pragma once
 
 #include "pliant/material.hpp"

@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "pliant/model.hpp"
 
+#include "kernels/strain_kernel.hpp"
+
 #include <Eigen/Dense>
 
 #include <algorithm>
@@ -58,6 +60,30 @@ std::vector<double> supported_mass(const BodyModel& m) {
   for (size_t i = 0; i < nv; ++i)
     if (distance[i] > 0 && m.mass[i] > 0) carried[i] = beyond[distance[i]] / count[distance[i]];
   return carried;
+}
+
+size_t BodyModel::slot_count() const { return packed ? packed->slot_count() : 0; }
+
+std::vector<Vec6> multipliers_per_tet(const BodyModel& m, const std::vector<Vec6>& slots) {
+  if (slots.size() != m.slot_count()) {
+    std::ostringstream os;
+    os << "lambda: " << slots.size() << " multiplier slots, the model has " << m.slot_count();
+    throw std::invalid_argument(os.str());
+  }
+  std::vector<Vec6> per_tet(m.tet_count());
+  for (size_t t = 0; t < m.tet_count(); ++t) per_tet[t] = slots[m.tet_slot[t]];
+  return per_tet;
+}
+
+std::vector<Vec6> multipliers_in_slots(const BodyModel& m, const std::vector<Vec6>& per_tet) {
+  if (per_tet.size() != m.tet_count()) {
+    std::ostringstream os;
+    os << "lambda: " << per_tet.size() << " tets' multipliers, the model has " << m.tet_count() << " tets";
+    throw std::invalid_argument(os.str());
+  }
+  std::vector<Vec6> slots(m.slot_count(), Vec6::Zero());
+  for (size_t t = 0; t < m.tet_count(); ++t) slots[m.tet_slot[t]] = per_tet[t];
+  return slots;
 }
 
 double BodyModel::total_mass() const {
@@ -250,6 +276,7 @@ std::shared_ptr<const BodyModel> build_model(const TetMesh& mesh, const Material
   m->colours = colour_tets(m->tets, nv);
   vertex_tet_adjacency(m->tets, nv, m->vertex_tet_start, m->vertex_tet_entry);
   m->vertex_colours = colour_vertices(m->tets, m->vertex_tet_start, m->vertex_tet_entry);
+  detail::compile_solve_order(*m);
   return m;
 }
 
@@ -258,6 +285,7 @@ std::shared_ptr<const BodyModel> with_material(const BodyModel& model, const Mat
   m->id = next_model_id();
   set_material(*m, material);
   set_inertia(*m);
+  detail::compile_solve_order(*m);  // the packs carry inverse masses
   return m;
 }
 
@@ -266,6 +294,7 @@ std::shared_ptr<const BodyModel> with_fixed(const BodyModel& model, const FixedS
   m->id = next_model_id();
   set_fixed(*m, fixed);
   set_inertia(*m);
+  detail::compile_solve_order(*m);
   return m;
 }
 

@@ -12,7 +12,7 @@ BodyState rest_state(const BodyModel& model) {
   BodyState s;
   s.x = model.rest_positions;
   s.v.assign(model.vertex_count(), Vec3::Zero());
-  s.lambda.assign(model.tet_count(), Vec6::Zero());
+  s.lambda.assign(model.slot_count(), Vec6::Zero());
   return s;
 }
 

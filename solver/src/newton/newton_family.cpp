@@ -817,7 +817,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
   for (Vec3& f : total.attachment_forces) f /= n;
   total.substeps = n;
   // The multipliers belong to the constraint-projection family: none here.
-  state.lambda.assign(m.tet_count(), Vec6::Zero());
+  state.lambda.assign(m.slot_count(), Vec6::Zero());
   state.lambda_h = h;
   state.time += total.cancelled ? n * h : s.dt;
   state.steps++;

@@ -2,14 +2,15 @@
 #include "pliant/stepper.hpp"
 
 #include "accelerators/accelerators.hpp"
-#include "kernels/packed_projection.hpp"
 #include "kernels/projection.hpp"
+#include "kernels/strain_kernel.hpp"
 #include "step/family.hpp"
 #include "step/sequential_sweep.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
 
 #include <Eigen/Dense>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <chrono>
@@ -24,8 +25,13 @@ using detail::ms_since;
 namespace {
 
 // End-of-substep passes of the inversion floor: the first visits every tet, the later ones only
-// the tets around what the previous pass corrected (nothing else moved).
+// the tets around what the previous pass corrected (nothing else moved), at most
+// kVolumePassVisits x the tet count of visits in all. On a body the iteration budget leaves
+// tangled, the later passes would otherwise revisit most of it every pass, on the tick's
+// deadline; what they leave below the floor, the next sweep and pass take up (docs/solver.md,
+// "The floor pass").
 constexpr int kVolumePasses = 20;
+constexpr double kVolumePassVisits = 4.0;
 
 // Adds the elapsed time of a scope to a counter.
 struct PhaseTimer {
@@ -42,21 +48,15 @@ struct Stepper::Impl {
   IterationHook hook;
   std::unique_ptr<detail::SolverFamily> vbd, newton;  // made on first use
 
-  uint64_t adjacency_model = 0;  // the model adj_* and jacobi_entry were built for
-  // Colours cut into SIMD packs for the Gauss-Seidel sweep and the residual.
-  detail::PackedModel packed;
-  std::vector<int32_t> adj_start, adj_entry;
-
-  // The strain multipliers of the substep being solved and the last sweep's increment, in
-  // slot order (packed_projection.hpp): contiguous per pack, so the sweep reads them in order.
-  std::vector<Vec6> lam, dlambda;
-  uint64_t dlambda_model = 0;  // the packs dlambda was zeroed for
+  // The last sweep's multiplier increments, in the model's solve order (the accelerators'
+  // input); padding slots stay zero.
+  std::vector<Vec6> dlambda;
+  uint64_t dlambda_model = 0;  // the model dlambda was zeroed for
 
   // Scratch.
   std::vector<Vec3> x_before, x_saved, v_prev;
   std::vector<Vec6> lambda_saved;
   std::vector<Vec3> jacobi_dx;  // 4 per slot
-  std::vector<int32_t> jacobi_entry;  // adj_entry in slots: 4 x slot + corner
   std::vector<double> partial;  // per-thread sums
   std::vector<std::vector<int32_t>> floor_hit_chunks;  // per-thread tets corrected by a floor pass
   std::vector<int32_t> floor_hit, floor_candidates;
@@ -70,32 +70,13 @@ struct Stepper::Impl {
     return *pool;
   }
 
-  // Vertex -> (tet, corner) adjacency, and the same entries addressed by slot for the Jacobi
-  // gather (4 x slot + corner), rebuilt when the model changes.
-  void ensure_adjacency(const BodyModel& m) {
-    if (adjacency_model == m.id && m.id != 0) return;
-    adjacency_model = m.id;
-    detail::ensure_packed(packed, m);
-    adj_start.assign(m.vertex_count() + 1, 0);
-    for (const TetRest& t : m.tets)
-      for (int k = 0; k < 4; ++k) adj_start[t.v[k] + 1]++;
-    for (size_t i = 0; i < m.vertex_count(); ++i) adj_start[i + 1] += adj_start[i];
-    adj_entry.assign(adj_start.back(), 0);
-    std::vector<int32_t> fill(adj_start.begin(), adj_start.end() - 1);
-    for (size_t t = 0; t < m.tets.size(); ++t)
-      for (int k = 0; k < 4; ++k) adj_entry[fill[m.tets[t].v[k]]++] = int32_t(4 * t + k);
-    jacobi_entry.resize(adj_entry.size());
-    for (size_t a = 0; a < adj_entry.size(); ++a)
-      jacobi_entry[a] = 4 * packed.tet_slot[adj_entry[a] / 4] + adj_entry[a] % 4;
-  }
-
   double residual(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
                   const Mat6& alpha_tilde, ThreadPool& tp) {
-    detail::ensure_packed(packed, m);
+    const detail::PackedModel& packed = detail::packed(m);
     partial.assign(tp.size(), 0.0);
     tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
       double s = 0;
-      for (size_t i = b; i < e; ++i) s += detail::pack_residual_squared(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
+      for (size_t i = b; i < e; ++i) s += detail::residual_squared_lanes(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
       partial[chunk] = s;
     }, 32);
     double sum = 0;
@@ -108,7 +89,7 @@ struct Stepper::Impl {
   // the thread count).
   int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                          const detail::ProjectionParams& params, ThreadPool& tp) {
-    detail::ensure_packed(packed, m);
+    const detail::PackedModel& packed = detail::packed(m);
     std::vector<int> floor_hits(tp.size(), 0);
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
@@ -132,7 +113,7 @@ struct Stepper::Impl {
   // conserved and lambda stays consistent with the positions.
   int sweep_jacobi(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                    const detail::ProjectionParams& params, double relaxation, ThreadPool& tp) {
-    ensure_adjacency(m);
+    const detail::PackedModel& packed = detail::packed(m);
     jacobi_dx.resize(4 * packed.slot_count());
     // Tets in slot order, so that the multipliers and the corrections are walked in order.
     tp.parallel_for(packed.packs.size(), [&](int, size_t b, size_t e) {
@@ -140,30 +121,32 @@ struct Stepper::Impl {
         const detail::TetPack& pack = packed.packs[i];
         for (int l = 0; l < pack.lanes; ++l) {
           // The tet's rest data from the pack (read in order, unlike m.tets[pack.tet[l]]).
-          TetRest tet;
-          for (int k = 0; k < 4; ++k) tet.v[k] = pack.v[k][l];
-          for (int k = 0; k < 3; ++k)
-            for (int c = 0; c < 3; ++c) tet.dm_inv(k, c) = pack.B[3 * k + c][l];
-          tet.volume = pack.volume[l];
-          tet.sqrt_volume = pack.sqrt_volume[l];
-          const int32_t slot = pack.slot + l;
-          const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
-          const double w[4] = {pack.w[0][l], pack.w[1][l], pack.w[2][l], pack.w[3][l]};
+          const detail::TetOne tet = detail::lane_of(pack, l);
+          const int32_t slot = tet.slot;
+          double lam[6];
+          for (int r = 0; r < 6; ++r) lam[r] = lambda[slot][r];
+          detail::StrainStep<double> st;
+          detail::strain_step(tet, x, lam, params.model, params.alpha_tilde, params.lambda_scale, params.line_search, st);
           Vec3* dx = &jacobi_dx[4 * size_t(slot)];
-          detail::strain_increment(tet, p, w, lambda[slot], params, dlambda[slot], dx);
+          if (!(st.ok & 1)) {  // not positive definite (cannot happen with alpha~ > 0): no move
+            dlambda[slot].setZero();
+            for (int k = 0; k < 4; ++k) dx[k].setZero();
+            continue;
+          }
           int most = 1;
-          for (int k = 0; k < 4; ++k) most = std::max(most, int(m.vertex_tet_count[tet.v[k]]));
+          for (int k = 0; k < 4; ++k) most = std::max(most, int(m.vertex_tet_count[tet.v[k][0]]));
           const double scale = relaxation / most;
-          dlambda[slot] *= scale;
+          for (int r = 0; r < 6; ++r) dlambda[slot][r] = st.dlambda[r] * scale;
           lambda[slot] += dlambda[slot];
-          for (int k = 0; k < 4; ++k) dx[k] *= scale;
+          for (int k = 0; k < 4; ++k) dx[k] = Vec3(st.dx[k][0], st.dx[k][1], st.dx[k][2]) * scale;
         }
       }
     }, 16);
     tp.parallel_for(m.vertex_count(), [&](int, size_t b, size_t e) {
       for (size_t v = b; v < e; ++v) {
         Vec3 sum = Vec3::Zero();
-        for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) sum += jacobi_dx[jacobi_entry[a]];
+        for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a)
+          sum += jacobi_dx[packed.vertex_slot_entry[a]];
         x[v] += sum;
       }
     });
@@ -173,14 +156,14 @@ struct Stepper::Impl {
   // One pass of the inversion floor over every tet, in colour order. The tets it corrected are
   // left in floor_hit, sorted (the same list for any thread count).
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp) {
-    detail::ensure_packed(packed, m);
+    const detail::PackedModel& packed = detail::packed(m);
     floor_hit_chunks.resize(tp.size());
     for (auto& h : floor_hit_chunks) h.clear();
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
         for (size_t i = b; i < e; ++i)
-          detail::pack_volume_floor(packed.packs[first + i], x, m, floor, &floor_hit_chunks[chunk]);
+          detail::volume_floor_lanes(packed.packs[first + i], x, m, floor, &floor_hit_chunks[chunk]);
       }, 32);
     }
     floor_hit.clear();
@@ -191,17 +174,16 @@ struct Stepper::Impl {
 
   // A later pass: a tet's det F can only have changed if one of its corners was moved by the
   // previous pass, so only the tets sharing a vertex with a tet in floor_hit are visited, each
-  // once, on this thread (there are few), in the order they are found from floor_hit (the same
-  // for any thread count). Leaves this pass's corrections in floor_hit.
-  int volume_pass_around_hits(const BodyModel& m, std::vector<Vec3>& x, double floor) {
-    ensure_adjacency(m);
+  // once, on this thread, in the order they are found from floor_hit (the same for any thread
+  // count), at most `budget` of them (taken off it). Leaves this pass's corrections in floor_hit.
+  int volume_pass_around_hits(const BodyModel& m, std::vector<Vec3>& x, double floor, size_t& budget) {
     floor_queued.resize(m.tets.size(), 0);
     floor_candidates.clear();
-    for (int32_t t : floor_hit)
+    for (size_t h = 0; h < floor_hit.size() && floor_candidates.size() < budget; ++h)
       for (int k = 0; k < 4; ++k) {
-        const int32_t v = m.tets[t].v[k];
-        for (int32_t a = adj_start[v]; a < adj_start[v + 1]; ++a) {
-          const int32_t n = adj_entry[a] / 4;
+        const int32_t v = m.tets[floor_hit[h]].v[k];
+        for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
+          const int32_t n = m.vertex_tet_entry[a] / 4;
           if (!floor_queued[n]) {
             floor_queued[n] = 1;
             floor_candidates.push_back(n);
@@ -209,29 +191,20 @@ struct Stepper::Impl {
         }
       }
     for (int32_t n : floor_candidates) floor_queued[n] = 0;
+    if (floor_candidates.size() > budget) floor_candidates.resize(budget);
+    budget -= floor_candidates.size();
     floor_hit.clear();
     for (int32_t t : floor_candidates)
       if (detail::enforce_volume_floor(m.tets[t], x, m.inv_mass, floor)) floor_hit.push_back(t);
     return int(floor_hit.size());
   }
 
-  // Multipliers per tet <-> slots. Tets missing from `lambda` count as zero.
-  void multipliers_to_slots(const BodyModel& m, const std::vector<Vec6>& lambda) {
-    detail::ensure_packed(packed, m);
-    lam.assign(packed.slot_count(), Vec6::Zero());
-    for (size_t t = 0; t < std::min(lambda.size(), m.tets.size()); ++t) lam[packed.tet_slot[t]] = lambda[t];
-  }
-  void multipliers_from_slots(const BodyModel& m, std::vector<Vec6>& lambda) const {
-    lambda.resize(m.tets.size());
-    for (size_t t = 0; t < m.tets.size(); ++t) lambda[t] = lam[packed.tet_slot[t]];
-  }
-
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
-    detail::ensure_packed(packed, m);
+    const detail::PackedModel& packed = detail::packed(m);
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int, size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) detail::pack_apply_increment(packed.packs[first + i], x, dl, m.material.model);
+        for (size_t i = b; i < e; ++i) detail::apply_increment_lanes(packed.packs[first + i], x, dl, m.material.model);
       }, 32);
     }
   }
@@ -346,24 +319,24 @@ void Stepper::set_iteration_hook(IterationHook hook) { impl_->hook = std::move(h
 StepReport Stepper::solve_substep(const BodyModel& m, const std::vector<Vec3>& x_prev,
                                   std::vector<Vec3>& x, std::vector<Vec6>& lambda, double h,
                                   const SolverSettings& s, const StepInputs& inputs) {
-  impl_->multipliers_to_slots(m, lambda);
-  StepReport rep = solve_in_slots(m, x_prev, x, h, s, inputs, 0.0);
-  impl_->multipliers_from_slots(m, lambda);
-  return rep;
+  if (lambda.empty()) lambda.assign(m.slot_count(), Vec6::Zero());
+  if (lambda.size() != m.slot_count())
+    throw std::invalid_argument("lambda: " + std::to_string(lambda.size()) + " multipliers, expected " +
+                                std::to_string(m.slot_count()) + " (the model's solve slots) or none");
+  return solve_in_slots(m, x_prev, x, lambda, h, s, inputs, 0.0);
 }
 
 StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x,
-                                   double h, const SolverSettings& s, const StepInputs& inputs,
-                                   double budget_ms) {
+                                   std::vector<Vec6>& lambda, double h, const SolverSettings& s,
+                                   const StepInputs& inputs, double budget_ms) {
   Impl& I = *impl_;
-  std::vector<Vec6>& lambda = I.lam;
+  const detail::PackedModel& packed = detail::packed(m);
   const auto t_start = Clock::now();
   StepReport rep;
   rep.substeps = 1;
   ThreadPool& tp = I.threads(s.threads);
   auto accel = detail::make_accelerator(s);
-  detail::ensure_packed(I.packed, m);
-  accel->begin_substep(m.vertex_count(), I.packed.slot_count());
+  accel->begin_substep(m.vertex_count(), packed.slot_count());
   detail::ProjectionParams params;
   params.model = m.material.model;
   params.alpha_tilde = m.compliance / (h * h);
@@ -371,9 +344,9 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
   params.inversion_floor = s.inversion_floor;
   params.line_search = s.line_search;
   // Every real slot is written by each sweep; padding slots must read zero for the accelerators.
-  if (I.dlambda_model != I.packed.model_id || I.dlambda.size() != I.packed.slot_count()) {
-    I.dlambda.assign(I.packed.slot_count(), Vec6::Zero());
-    I.dlambda_model = I.packed.model_id;
+  if (I.dlambda_model != m.id || I.dlambda.size() != packed.slot_count()) {
+    I.dlambda.assign(packed.slot_count(), Vec6::Zero());
+    I.dlambda_model = m.id;
   }
   const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();
   if (interacting) I.begin_interaction(m.vertex_count(), inputs);
@@ -407,7 +380,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
           rep.volume_corrections = I.sweep_jacobi(m, x, lambda, params, s.jacobi_relaxation, tp);
           break;
         case Sweep::Sequential:
-          rep.volume_corrections = detail::sweep_sequential(m, I.packed, x, lambda, I.dlambda, params);
+          rep.volume_corrections = detail::sweep_sequential(m, x, lambda, I.dlambda, params);
           break;
       }
     }
@@ -504,10 +477,14 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     PhaseTimer t{rep.times.other_ms};
     int hits = I.volume_pass(m, x, s.inversion_floor, tp);
     rep.volume_corrections += hits;
-    for (int pass = 1; pass < kVolumePasses && hits > 0; ++pass) {
-      hits = I.volume_pass_around_hits(m, x, s.inversion_floor);
+    size_t visits = size_t(kVolumePassVisits * double(m.tet_count()));
+    int pass = 1;
+    for (; pass < kVolumePasses && hits > 0 && visits > 0; ++pass) {
+      hits = I.volume_pass_around_hits(m, x, s.inversion_floor, visits);
       rep.volume_corrections += hits;
     }
+    if (hits > 0 && visits == 0)
+      spdlog::trace("inversion floor: visit budget spent after {} passes, {} corrections in the last", pass, hits);
   }
   if (interacting) I.finish_interaction(x, inputs, h, rep);
   rep.wall_ms = ms_since(t_start) - hook_ms;
@@ -546,8 +523,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   for (int sub = 0; sub < n; ++sub) {
     const auto t_other = Clock::now();
     detail::predict(m, state, s, inputs, h, I.v_prev);
-    detail::ensure_packed(I.packed, m);
-    I.lam.assign(I.packed.slot_count(), Vec6::Zero());
+    state.lambda.assign(m.slot_count(), Vec6::Zero());
     state.lambda_h = h;
     total.times.other_ms += ms_since(t_other);
 
@@ -556,7 +532,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     // The report carries the residual history of the last substep only; earlier substeps
     // compute residuals only when the method or a tolerance needs them.
     I.tool_time_offset = (sub + 1 - n) * h;
-    StepReport r = solve_in_slots(m, I.v_prev, state.x, h, sub + 1 == n ? s : quiet, inputs,
+    StepReport r = solve_in_slots(m, I.v_prev, state.x, state.lambda, h, sub + 1 == n ? s : quiet, inputs,
                                   s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
 
     const auto t_vel = Clock::now();
@@ -584,8 +560,6 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     }
   }
   I.tool_time_offset = 0;  // solve_substep on its own: tools at their pose
-  // The last substep's multipliers, per tet (the constraint forces of the step).
-  I.multipliers_from_slots(m, state.lambda);
   if (interacting) {
     // Averages over the substeps: the impulse delivered during the step divided by dt.
     for (size_t t = 0; t < total.tools.size(); ++t) {
@@ -664,7 +638,11 @@ double residual_norm(const BodyModel& m, const std::vector<Vec3>& x, const std::
                      double h) {
   const Mat6 at = m.compliance / (h * h);
   double sum = 0;
-  for (size_t t = 0; t < m.tets.size(); ++t) sum += detail::residual_squared(m.tets[t], x, lambda[t], at, m.material.model);
+  if (lambda.size() != m.slot_count())
+    throw std::invalid_argument("lambda: " + std::to_string(lambda.size()) + " multipliers, expected " +
+                                std::to_string(m.slot_count()) + " (the model's solve slots)");
+  for (const detail::TetPack& p : detail::packed(m).packs)
+    sum += detail::residual_squared_lanes(p, x, lambda, at, m.material.model);
   return std::sqrt(sum);
 }
 

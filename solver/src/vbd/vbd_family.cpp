@@ -497,9 +497,9 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
   for (Vec3& f : total.attachment_forces) f /= n;
   // The constraint multipliers a converged XPBD step would hold, lambda = -h^2 K C(x), so that
   // state.lambda keeps its meaning (the strain forces of the last substep) for every family.
-  state.lambda.resize(m.tet_count());
+  state.lambda.assign(m.slot_count(), Vec6::Zero());
   for (size_t t = 0; t < m.tet_count(); ++t)
-    state.lambda[t] = -(h * h) * (m.stiffness * strain_constraint(m.tets[t], gather(state.x, m.tets[t].v), m.material.model));
+    state.lambda[m.tet_slot[t]] = -(h * h) * (m.stiffness * strain_constraint(m.tets[t], gather(state.x, m.tets[t].v), m.material.model));
   state.lambda_h = h;
   total.substeps = n;
   state.time += total.cancelled || total.diverged ? n * h : s.dt;

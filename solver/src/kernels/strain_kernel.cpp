@@ -1,0 +1,671 @@
+// SPDX-License-Identifier: Apache-2.0
+#include "kernels/strain_kernel.hpp"
+
+#include "kernels/projection.hpp"
+
+#include "pliant/strain_constraint.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace pliant::detail {
+
+TetOne lane_of(const TetPack& p, int l) {
+  TetOne t;
+  for (int i = 0; i < 9; ++i) t.B[i] = p.B[i][l];
+  t.volume = p.volume[l];
+  t.sqrt_volume = p.sqrt_volume[l];
+  for (int i = 0; i < 6; ++i) t.Q[i] = p.Q[i][l];
+  for (int k = 0; k < 4; ++k) {
+    t.w[k] = p.w[k][l];
+    t.v[k][0] = p.v[k][l];
+  }
+  t.tet[0] = p.tet[l];
+  t.lanes = 1;
+  t.slot = p.slot + l;
+  return t;
+}
+
+namespace {
+
+// Rest data of one tet into lane l of p.
+template <class T>
+void fill_lane(TetLanes<T>& p, int l, int32_t t, const TetRest& tr, const double w[4]) {
+  p.tet[l] = t;
+  for (int k = 0; k < 4; ++k) {
+    p.v[k][l] = tr.v[k];
+    set_lane(p.w[k], l, w[k]);
+  }
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 3; ++i) set_lane(p.B[3 * k + i], l, tr.dm_inv(k, i));
+  set_lane(p.volume, l, tr.volume);
+  set_lane(p.sqrt_volume, l, tr.sqrt_volume);
+  Vec3 b[4];
+  for (int k = 0; k < 3; ++k) b[k] = tr.dm_inv.row(k).transpose();
+  b[3] = -(b[0] + b[1] + b[2]);
+  double Q[3][3] = {};
+  for (int k = 0; k < 4; ++k)
+    for (int i = 0; i < 3; ++i)
+      for (int j = i; j < 3; ++j) Q[i][j] += w[k] * b[k][i] * b[k][j];
+  set_lane(p.Q[0], l, Q[0][0]);
+  set_lane(p.Q[1], l, Q[1][1]);
+  set_lane(p.Q[2], l, Q[2][2]);
+  set_lane(p.Q[3], l, Q[1][2]);
+  set_lane(p.Q[4], l, Q[0][2]);
+  set_lane(p.Q[5], l, Q[0][1]);
+}
+
+}  // namespace
+
+TetOne tet_lanes(const TetRest& tet, const double w[4]) {
+  TetOne t{};
+  fill_lane(t, 0, 0, tet, w);
+  t.lanes = 1;
+  t.slot = 0;
+  return t;
+}
+
+void compile_solve_order(BodyModel& m) {
+  auto pm = std::make_shared<PackedModel>();
+  pm->colour_begin.assign(1, 0);
+  m.tet_slot.assign(m.tets.size(), 0);
+  m.tet_colour.assign(m.tets.size(), 0);
+  for (size_t c = 0; c < m.colours.size(); ++c) {
+    // Within a colour the order is free: sort by lowest vertex index so that neighbouring packs
+    // touch nearby memory (the thesis armadillo's numbering is otherwise scattered).
+    std::vector<int32_t> colour = m.colours[c];
+    auto lowest = [&](int32_t t) { return *std::min_element(m.tets[t].v.begin(), m.tets[t].v.end()); };
+    std::sort(colour.begin(), colour.end(), [&](int32_t a, int32_t b) { return lowest(a) < lowest(b); });
+    for (size_t start = 0; start < colour.size(); start += 4) {
+      TetPack p{};
+      p.lanes = int(std::min<size_t>(4, colour.size() - start));
+      p.slot = int32_t(4 * pm->packs.size());
+      for (int l = 0; l < 4; ++l) {
+        const int32_t t = colour[start + std::min(l, p.lanes - 1)];
+        const TetRest& tr = m.tets[t];
+        if (l < p.lanes) {
+          m.tet_slot[t] = p.slot + l;
+          m.tet_colour[t] = int32_t(c);
+        }
+        const double w[4] = {m.inv_mass[tr.v[0]], m.inv_mass[tr.v[1]], m.inv_mass[tr.v[2]], m.inv_mass[tr.v[3]]};
+        fill_lane(p, l, t, tr, w);
+      }
+      pm->packs.push_back(p);
+    }
+    pm->colour_begin.push_back(pm->packs.size());
+  }
+  pm->vertex_slot_entry.resize(m.vertex_tet_entry.size());
+  for (size_t a = 0; a < m.vertex_tet_entry.size(); ++a)
+    pm->vertex_slot_entry[a] = 4 * m.tet_slot[m.vertex_tet_entry[a] / 4] + m.vertex_tet_entry[a] % 4;
+  m.packed = std::move(pm);
+}
+
+namespace {
+
+template <class T>
+struct Geometry {
+  T f[3][3];  // f[i][c]: component c of column i of F
+  T r[3][3];  // Corotated: R's columns, same layout
+  T S[6];  // StVK: F^T F (what its 6x6 system is built from)
+  T stretch[6];  // Corotated: S = sym(R^T F) (what its system is built from)
+  T c[6];  // strain vector (no sqrt(V0))
+};
+
+template <class T>
+inline T column_dot(const T a[3], const T b[3]) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+// Green strain from g.f (StVK): S = F^T F, c = ((S_ii - 1) / 2, S_12, S_02, S_01).
+template <class T>
+inline void green_strain(Geometry<T>& g) {
+  g.S[0] = column_dot(g.f[0], g.f[0]);
+  g.S[1] = column_dot(g.f[1], g.f[1]);
+  g.S[2] = column_dot(g.f[2], g.f[2]);
+  g.S[3] = column_dot(g.f[1], g.f[2]);
+  g.S[4] = column_dot(g.f[0], g.f[2]);
+  g.S[5] = column_dot(g.f[0], g.f[1]);
+  g.c[0] = 0.5 * g.S[0] - 0.5;
+  g.c[1] = 0.5 * g.S[1] - 0.5;
+  g.c[2] = 0.5 * g.S[2] - 0.5;
+  g.c[3] = g.S[3];
+  g.c[4] = g.S[4];
+  g.c[5] = g.S[5];
+}
+
+template <class T>
+inline T det3(const T f[3][3]) {
+  return f[0][0] * (f[1][1] * f[2][2] - f[1][2] * f[2][1]) - f[0][1] * (f[1][0] * f[2][2] - f[1][2] * f[2][0]) +
+         f[0][2] * (f[1][0] * f[2][1] - f[1][1] * f[2][0]);
+}
+
+template <class T>
+inline void cross(const T a[3], const T b[3], T out[3]) {
+  out[0] = a[1] * b[2] - a[2] * b[1];
+  out[1] = a[2] * b[0] - a[0] * b[2];
+  out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+// The rotation of F = R S for every lane at once: the scaled Newton iteration of polar_rotation
+// (strain_constraint.cpp), same steps and stopping test per lane, iterated until every lane has
+// converged (a converged lane stays put). Lanes with det F <= 0 or that do not converge take the
+// scalar polar_rotation (SVD); they are rare (inverted or degenerate tets).
+template <class T>
+inline void rotation(const T f[3][3], T r[3][3]) {
+  constexpr int W = kLanes<T>;
+  T X[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) X[i][c] = f[i][c];
+  int pending = (1 << W) - 1, failed = 0;
+  for (int it = 0; it < kMaxPolarIterations && pending; ++it) {
+    T cof[3][3];
+    cross(X[1], X[2], cof[0]);
+    cross(X[2], X[0], cof[1]);
+    cross(X[0], X[1], cof[2]);
+    const T det = column_dot(X[0], cof[0]);
+    T nx = splat<T>(0.0), nc = splat<T>(0.0);
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) {
+        nx += X[i][c] * X[i][c];
+        nc += cof[i][c] * cof[i][c];
+      }
+    T g, inv;  // g and 1 / (g det) per lane
+    for (int l = 0; l < W; ++l) {
+      const double d = get_lane(det, l);
+      if (!(d > 0)) {  // inverted or degenerate: the SVD handles this lane
+        failed |= pending & (1 << l);
+        pending &= ~(1 << l);
+        set_lane(g, l, 1.0);
+        set_lane(inv, l, 0.0);
+        continue;
+      }
+      const double x2 = get_lane(nx, l);
+      const double gl = std::abs(x2 - 3.0) > kPolarScalingBand ? std::sqrt(std::sqrt(get_lane(nc, l) / (d * d) / x2)) : 1.0;
+      set_lane(g, l, gl);
+      set_lane(inv, l, 1.0 / (gl * d));
+    }
+    T change = splat<T>(0.0);
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) {
+        const T next = 0.5 * (g * X[i][c] + inv * cof[i][c]);
+        const T d = next - X[i][c];
+        change += d * d;
+        X[i][c] = next;
+      }
+    for (int l = 0; l < W; ++l)
+      if ((pending & (1 << l)) && get_lane(change, l) < kPolarConverged) pending &= ~(1 << l);
+  }
+  failed |= pending;
+  for (int l = 0; l < W; ++l) {
+    if (failed & (1 << l)) {
+      Mat3 F;
+      for (int i = 0; i < 3; ++i)
+        for (int c = 0; c < 3; ++c) F(c, i) = get_lane(f[i][c], l);
+      const Mat3 R = polar_rotation(F);
+      for (int i = 0; i < 3; ++i)
+        for (int c = 0; c < 3; ++c) set_lane(X[i][c], l, R(c, i));
+    }
+  }
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) r[i][c] = X[i][c];
+}
+
+// Corotated strain from g.f: R's columns in g.r, the stretch S = sym(R^T F) in g.stretch, and
+// c = (S_ii - 1, 2 S_ac).
+template <class T>
+inline void corotated_strain(Geometry<T>& g) {
+  rotation(g.f, g.r);
+  T* S = g.stretch;
+  for (int i = 0; i < 3; ++i) S[i] = column_dot(g.r[i], g.f[i]);
+  S[3] = 0.5 * (column_dot(g.r[1], g.f[2]) + column_dot(g.r[2], g.f[1]));
+  S[4] = 0.5 * (column_dot(g.r[0], g.f[2]) + column_dot(g.r[2], g.f[0]));
+  S[5] = 0.5 * (column_dot(g.r[0], g.f[1]) + column_dot(g.r[1], g.f[0]));
+  for (int i = 0; i < 3; ++i) g.c[i] = S[i] - 1.0;
+  for (int i = 3; i < 6; ++i) g.c[i] = 2.0 * S[i];
+}
+
+template <class T>
+inline void strain(Geometry<T>& g, ElasticModel model) {
+  if (model == ElasticModel::Corotated) corotated_strain(g);
+  else green_strain(g);
+}
+
+// F's columns of the lanes' tets at x.
+template <class T>
+inline void deformation(const TetLanes<T>& p, const std::vector<Vec3>& x, T f[3][3]) {
+  T px[4][3];
+  for (int k = 0; k < 4; ++k)
+    for (int l = 0; l < kLanes<T>; ++l) {
+      const Vec3& q = x[p.v[k][l]];
+      set_lane(px[k][0], l, q[0]);
+      set_lane(px[k][1], l, q[1]);
+      set_lane(px[k][2], l, q[2]);
+    }
+  T d[3][3];
+  for (int k = 0; k < 3; ++k)
+    for (int c = 0; c < 3; ++c) d[k][c] = px[k][c] - px[3][c];
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) f[i][c] = d[0][c] * p.B[i] + d[1][c] * p.B[3 + i] + d[2][c] * p.B[6 + i];
+}
+
+template <class T>
+inline void geometry(const TetLanes<T>& p, const std::vector<Vec3>& x, Geometry<T>& g, ElasticModel model) {
+  deformation(p, x, g.f);
+  strain(g, model);
+}
+
+template <class T>
+inline void constraint(const TetLanes<T>& p, const Geometry<T>& g, T C[6]) {
+  for (int r = 0; r < 6; ++r) C[r] = p.sqrt_volume * g.c[r];
+}
+
+template <class T>
+inline void gather_slots(const TetLanes<T>& p, const std::vector<Vec6>& lambda, T lam[6]) {
+  for (int l = 0; l < kLanes<T>; ++l) {
+    const Vec6& a = lambda[p.slot + l];
+    for (int r = 0; r < 6; ++r) set_lane(lam[r], l, a[r]);
+  }
+}
+
+// dx_k = w_k sqrt(V0) (G P) b_k for a 3x3 P (P[m][i]) and G's columns.
+template <class T>
+inline void move_corners(const TetLanes<T>& p, const T G[3][3], const T P[3][3], T dx[4][3]) {
+  T M[3][3];  // M[i][c]: component c of column i of G P
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) M[i][c] = G[0][c] * P[0][i] + G[1][c] * P[1][i] + G[2][c] * P[2][i];
+  T b[4][3];
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
+  for (int i = 0; i < 3; ++i) b[3][i] = -(b[0][i] + b[1][i] + b[2][i]);
+  for (int k = 0; k < 4; ++k) {
+    const T s = p.w[k] * p.sqrt_volume;
+    for (int c = 0; c < 3; ++c) dx[k][c] = s * (M[0][c] * b[k][0] + M[1][c] * b[k][1] + M[2][c] * b[k][2]);
+  }
+}
+
+// The symmetric 3x3 of a Voigt 6-vector with engineering shears y (y_3 on 12, ...).
+template <class T>
+inline void symmetric_of(const T y[6], T P[3][3]) {
+  P[0][0] = y[0], P[0][1] = y[5], P[0][2] = y[4];
+  P[1][0] = y[5], P[1][1] = y[1], P[1][2] = y[3];
+  P[2][0] = y[4], P[2][1] = y[3], P[2][2] = y[2];
+}
+
+// StVK: dx_k = w_k sqrt(V0) (F P) b_k, P the symmetric 3x3 of the increment y.
+template <class T>
+inline void stvk_corrections(const TetLanes<T>& p, const Geometry<T>& g, const T y[6], T dx[4][3]) {
+  T P[3][3];
+  symmetric_of(y, P);
+  move_corners(p, g.f, P, dx);
+}
+
+// ||C + alpha~ lambda||^2 per lane.
+template <class T>
+inline T lane_residual_squared(const T C[6], const T lam[6], const Mat6& at) {
+  T sum = splat<T>(0.0);
+  for (int r = 0; r < 6; ++r) {
+    T s = C[r];
+    for (int c = 0; c < 6; ++c) s += at(r, c) * lam[c];
+    sum += s * s;
+  }
+  return sum;
+}
+
+// Step length along the projection's increment (y for lambda, dx for the corners), per lane:
+// see kMaxHalvings in projection.hpp.
+template <class T>
+T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geometry<T>& g, const T C[6], const T lam[6],
+                           const T y[6], const T dx[4][3], const Mat6& at) {
+  const T before = lane_residual_squared(C, lam, at);
+  // dF[i][c]: change of column i, component c of F for the full step.
+  T dd[3][3];
+  for (int k = 0; k < 3; ++k)
+    for (int c = 0; c < 3; ++c) dd[k][c] = dx[k][c] - dx[3][c];
+  T dF[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int c = 0; c < 3; ++c) dF[i][c] = dd[0][c] * p.B[i] + dd[1][c] * p.B[3 + i] + dd[2][c] * p.B[6 + i];
+  T step = splat<T>(1.0);
+  T trial = splat<T>(1.0);
+  // Lanes whose full step changes F by less than kSmallStep keep it.
+  int pending = 0;
+  for (int l = 0; l < p.lanes; ++l) {
+    double n2 = 0;
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) n2 += get_lane(dF[i][c], l) * get_lane(dF[i][c], l);
+    if (n2 > kSmallStep * kSmallStep) pending |= 1 << l;
+  }
+  for (int h = 0; h <= kMaxHalvings && pending; ++h) {
+    Geometry<T> n;
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) n.f[i][c] = g.f[i][c] + trial * dF[i][c];
+    strain(n, model);
+    T Cn[6], ln[6];
+    constraint(p, n, Cn);
+    for (int r = 0; r < 6; ++r) ln[r] = lam[r] + trial * y[r];
+    const T after = lane_residual_squared(Cn, ln, at);
+    for (int l = 0; l < p.lanes; ++l) {
+      if (!(pending & (1 << l))) continue;
+      set_lane(step, l, get_lane(trial, l));
+      if (get_lane(after, l) <= get_lane(before, l)) pending &= ~(1 << l);
+    }
+    trial *= 0.5;
+  }
+  return step;
+}
+
+// Solves A y = rhs lane-wise (LDL^T with reciprocal pivots: 6 divisions, no square roots; lower
+// triangle of A), y scaled by lambda_scale; D gets the pivots (a lane with a non-positive pivot
+// is not positive definite).
+template <class T>
+inline void ldlt_solve(const T A[6][6], const T rhs[6], double lambda_scale, T D[6], T y[6]) {
+  T L[6][6], invD[6];
+  for (int j = 0; j < 6; ++j) {
+    T d = A[j][j];
+    for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k] * D[k];
+    D[j] = d;
+    invD[j] = 1.0 / d;
+    for (int i = j + 1; i < 6; ++i) {
+      T s = A[i][j];
+      for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k] * D[k];
+      L[i][j] = s * invD[j];
+    }
+  }
+  T z[6];
+  for (int i = 0; i < 6; ++i) {
+    T s = rhs[i];
+    for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
+    z[i] = s;
+  }
+  for (int i = 5; i >= 0; --i) {
+    T s = z[i] * invD[i];
+    for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
+    y[i] = lambda_scale * s;
+  }
+}
+
+// The StVK 6x6 system, lower triangle: A = V0 (bilinear terms in S = F^T F and Q) + alpha~.
+template <class T>
+inline void stvk_system(const T S[6], const T Q[6], const T& V, const Mat6& at, T A[6][6]) {
+  const T &S00 = S[0], &S11 = S[1], &S22 = S[2], &S12 = S[3], &S02 = S[4], &S01 = S[5];
+  const T &Q00 = Q[0], &Q11 = Q[1], &Q22 = Q[2], &Q12 = Q[3], &Q02 = Q[4], &Q01 = Q[5];
+  A[0][0] = V * (S00 * Q00) + at(0, 0);
+  A[1][0] = V * (S01 * Q01) + at(1, 0);
+  A[1][1] = V * (S11 * Q11) + at(1, 1);
+  A[2][0] = V * (S02 * Q02) + at(2, 0);
+  A[2][1] = V * (S12 * Q12) + at(2, 1);
+  A[2][2] = V * (S22 * Q22) + at(2, 2);
+  A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
+  A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
+  A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
+  A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
+  A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
+  A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
+  A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
+  A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
+  A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
+  A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
+  A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
+  A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
+  A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
+  A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
+  A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
+}
+
+// The corotated constraint (corotated_rows in projection.hpp gives the rows
+// Y_ik = E_i b_k - 2 u_i x b_k): from the stretch S = sym(R^T F) in g, Ginv per lane, the
+// rotation axes u_i, and the lower triangle of A = V0 sum_k w_k Y_ik . Y_jk + alpha~ summed over
+// the corners in closed form with Q = sum_k w_k b_k b_k^T:
+//   sum_k w_k Y_ik . Y_jk = tr(E_i E_j Q) - 2 (u_j . v_i + u_i . v_j) + 4 ((u_i . u_j) tr Q - u_i^T Q u_j),
+// v_i = sum_k w_k b_k x (E_i b_k) = 2 axial(skew(E_i Q)).
+template <class T>
+inline void corotated_axes_of(const Geometry<T>& g, T u[6][3]) {
+  const T* S = g.stretch;
+  // Ginv = (tr(S) I - S)^-1 by cofactors, zero in the lanes where corotated_rotation_inverse
+  // gives zero (same test).
+  const T G00 = S[1] + S[2], G11 = S[0] + S[2], G22 = S[0] + S[1], G12 = -S[3], G02 = -S[4], G01 = -S[5];
+  T Ginv[6] = {G11 * G22 - G12 * G12, G00 * G22 - G02 * G02, G00 * G11 - G01 * G01,
+               G02 * G01 - G00 * G12, G01 * G12 - G11 * G02, G02 * G12 - G22 * G01};
+  const T det = G00 * Ginv[0] + G01 * Ginv[5] + G02 * Ginv[4];
+  const T third = (G00 + G11 + G22) * (1.0 / 3.0);
+  for (int l = 0; l < kLanes<T>; ++l) {
+    const double t3 = get_lane(third, l), d = get_lane(det, l);
+    const bool ok = d > kRotationConditionLimit * t3 * t3 * t3;
+    const double inv = ok ? 1.0 / d : 0.0;
+    for (int i = 0; i < 6; ++i) set_lane(Ginv[i], l, get_lane(Ginv[i], l) * inv);
+  }
+  corotated_axes(S, Ginv, u);
+}
+
+template <class T>
+inline void corotated_system(const TetLanes<T>& p, const Geometry<T>& g, const Mat6& at, T A[6][6], T u[6][3]) {
+  corotated_axes_of(g, u);
+  const T &Q00 = p.Q[0], &Q11 = p.Q[1], &Q22 = p.Q[2], &Q12 = p.Q[3], &Q02 = p.Q[4], &Q01 = p.Q[5];
+  T v[6][3];
+  corotated_axials(p.Q, v);  // half of v_i
+  const T trQ = Q00 + Q11 + Q22;
+  T Qu[6][3];
+  for (int i = 0; i < 6; ++i) {
+    Qu[i][0] = Q00 * u[i][0] + Q01 * u[i][1] + Q02 * u[i][2];
+    Qu[i][1] = Q01 * u[i][0] + Q11 * u[i][1] + Q12 * u[i][2];
+    Qu[i][2] = Q02 * u[i][0] + Q12 * u[i][1] + Q22 * u[i][2];
+  }
+  // tr(E_i E_j Q): the StVK system's Q terms with F^T F = I.
+  const T zero = splat<T>(0.0);
+  const T A0[6][6] = {
+      {Q00, zero, zero, zero, zero, zero},
+      {zero, Q11, zero, zero, zero, zero},
+      {zero, zero, Q22, zero, zero, zero},
+      {zero, Q12, Q12, Q11 + Q22, zero, zero},
+      {Q02, zero, Q02, Q01, Q00 + Q22, zero},
+      {Q01, Q01, zero, Q02, Q12, Q00 + Q11}};
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j <= i; ++j) {
+      // v holds half of v_i: -2 (u_j . v_i + u_i . v_j) = -4 (u_j . v~_i + u_i . v~_j).
+      const T cross_terms = column_dot(u[j], v[i]) + column_dot(u[i], v[j]);
+      const T rot = column_dot(u[i], u[j]) * trQ - column_dot(u[i], Qu[j]);
+      A[i][j] = p.volume * (A0[i][j] - 4.0 * cross_terms + 4.0 * rot) + at(i, j);
+    }
+}
+
+// dx_k = w_k sqrt(V0) R (P - 2 [U]x) b_k, P the symmetric 3x3 of the increment y, U = sum_i y_i u_i
+// (= w_k sqrt(V0) R sum_i y_i Y_ik).
+template <class T>
+inline void corotated_corrections(const TetLanes<T>& p, const Geometry<T>& g, const T u[6][3], const T y[6],
+                                  T dx[4][3]) {
+  T U[3];
+  for (int c = 0; c < 3; ++c) {
+    U[c] = y[0] * u[0][c];
+    for (int i = 1; i < 6; ++i) U[c] += y[i] * u[i][c];
+  }
+  const T two = splat<T>(2.0);
+  const T P[3][3] = {{y[0], y[5] + two * U[2], y[4] - two * U[1]},
+                     {y[5] - two * U[2], y[1], y[3] + two * U[0]},
+                     {y[4] + two * U[1], y[3] - two * U[0], y[2]}};
+  move_corners(p, g.r, P, dx);
+}
+
+}  // namespace
+
+template <class T>
+void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6], ElasticModel elastic,
+                 const Mat6& at, double lambda_scale, bool line_search, StrainStep<T>& out) {
+  Geometry<T> g;
+  geometry(p, x, g, elastic);
+  T C[6];
+  constraint(p, g, C);
+  T A[6][6];
+  T u[6][3];  // corotated only: the rotation axes of the rows
+  if (elastic == ElasticModel::Corotated) corotated_system(p, g, at, A, u);
+  else stvk_system(g.S, p.Q, p.volume, at, A);
+  T rhs[6];
+  for (int r = 0; r < 6; ++r) {
+    T s = -C[r];
+    for (int c = 0; c < 6; ++c) s -= at(r, c) * lam[c];
+    rhs[r] = s;
+  }
+  T D[6], y[6];
+  ldlt_solve(A, rhs, lambda_scale, D, y);
+  T dx[4][3];
+  if (elastic == ElasticModel::Corotated) corotated_corrections(p, g, u, y, dx);
+  else stvk_corrections(p, g, y, dx);
+  T step = splat<T>(1.0);
+  if (line_search) step = residual_decreasing_step(elastic, p, g, C, lam, y, dx, at);
+  out.det = det3(g.f);
+  out.ok = 0;
+  for (int l = 0; l < p.lanes; ++l) {
+    bool ok = true;
+    for (int r = 0; r < 6; ++r) ok &= std::isfinite(get_lane(y[r], l)) && get_lane(D[r], l) > 0;
+    if (ok) out.ok |= 1 << l;
+  }
+  for (int r = 0; r < 6; ++r) out.dlambda[r] = step * y[r];
+  for (int k = 0; k < 4; ++k)
+    for (int c = 0; c < 3; ++c) out.dx[k][c] = step * dx[k][c];
+}
+
+template <class T>
+int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda, std::vector<Vec6>& dlambda,
+                  const BodyModel& model, const Mat6& at, double lambda_scale, double inversion_floor, bool line_search) {
+  T lam[6];
+  gather_slots(p, lambda, lam);
+  StrainStep<T> st;
+  strain_step(p, x, lam, model.material.model, at, lambda_scale, line_search, st);
+  int floor_hits = 0;
+  for (int l = 0; l < p.lanes; ++l) {
+    Vec6& dl = dlambda[p.slot + l];
+    if (!(st.ok & (1 << l))) {  // not positive definite (cannot happen with alpha~ > 0): skip the tet
+      dl.setZero();
+      continue;
+    }
+    for (int r = 0; r < 6; ++r) dl[r] = get_lane(st.dlambda[r], l);
+    lambda[p.slot + l] += dl;
+    for (int k = 0; k < 4; ++k) {
+      Vec3& q = x[p.v[k][l]];
+      q[0] += get_lane(st.dx[k][0], l);
+      q[1] += get_lane(st.dx[k][1], l);
+      q[2] += get_lane(st.dx[k][2], l);
+    }
+    if (inversion_floor > 0 && get_lane(st.det, l) < inversion_floor)
+      floor_hits += enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, inversion_floor);
+  }
+  return floor_hits;
+}
+
+template <class T>
+void apply_increment_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ElasticModel model) {
+  Geometry<T> g;
+  geometry(p, x, g, model);
+  T y[6];
+  gather_slots(p, dl, y);
+  T dx[4][3];
+  if (model == ElasticModel::Corotated) {
+    T u[6][3];
+    corotated_axes_of(g, u);
+    corotated_corrections(p, g, u, y, dx);
+  } else {
+    stvk_corrections(p, g, y, dx);
+  }
+  for (int l = 0; l < p.lanes; ++l)
+    for (int k = 0; k < 4; ++k) {
+      Vec3& q = x[p.v[k][l]];
+      q[0] += get_lane(dx[k][0], l);
+      q[1] += get_lane(dx[k][1], l);
+      q[2] += get_lane(dx[k][2], l);
+    }
+}
+
+template <class T>
+T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x) {
+  T f[3][3];
+  deformation(p, x, f);
+  return det3(f);
+}
+
+template <class T>
+int volume_floor_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
+                       std::vector<int32_t>* hit) {
+  const T det = volume_ratio_lanes(p, x);
+  int hits = 0;
+  for (int l = 0; l < p.lanes; ++l)
+    if (get_lane(det, l) < floor && enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, floor)) {
+      ++hits;
+      if (hit) hit->push_back(int32_t(p.tet[l]));
+    }
+  return hits;
+}
+
+template <class T>
+double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
+                              const Mat6& at, ElasticModel model) {
+  Geometry<T> g;
+  geometry(p, x, g, model);
+  T C[6], lam[6];
+  constraint(p, g, C);
+  gather_slots(p, lambda, lam);
+  const T sum = lane_residual_squared(C, lam, at);
+  double total = 0;
+  for (int l = 0; l < p.lanes; ++l) total += get_lane(sum, l);
+  return total;
+}
+
+#define PLIANT_STRAIN_KERNEL(T)                                                                                    \
+  template void strain_step(const TetLanes<T>&, const std::vector<Vec3>&, const T[6], ElasticModel, const Mat6&,   \
+                            double, bool, StrainStep<T>&);                                                         \
+  template int project_lanes(const TetLanes<T>&, std::vector<Vec3>&, std::vector<Vec6>&, std::vector<Vec6>&,       \
+                             const BodyModel&, const Mat6&, double, double, bool);                                 \
+  template void apply_increment_lanes(const TetLanes<T>&, std::vector<Vec3>&, const std::vector<Vec6>&,            \
+                                      ElasticModel);                                                               \
+  template T volume_ratio_lanes(const TetLanes<T>&, const std::vector<Vec3>&);                                     \
+  template int volume_floor_lanes(const TetLanes<T>&, std::vector<Vec3>&, const BodyModel&, double,                \
+                                  std::vector<int32_t>*);                                                          \
+  template double residual_squared_lanes(const TetLanes<T>&, const std::vector<Vec3>&, const std::vector<Vec6>&,   \
+                                         const Mat6&, ElasticModel);
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wignored-attributes"  // see strain_kernel.hpp
+PLIANT_STRAIN_KERNEL(double)
+PLIANT_STRAIN_KERNEL(v4d)
+#pragma GCC diagnostic pop
+#undef PLIANT_STRAIN_KERNEL
+
+namespace {
+
+// A number that counts the arithmetic done on it (+, -, *, /: one flop each; negation is free),
+// so that the kernel's flop count comes from the kernel's own code.
+struct Counted {
+  double v = 0;
+  Counted() = default;
+  Counted(double a) : v(a) {}  // NOLINT: constants mix in as in the kernel's arithmetic
+  static inline thread_local int64_t flops = 0;
+};
+inline Counted operator+(Counted a, Counted b) { ++Counted::flops; return a.v + b.v; }
+inline Counted operator-(Counted a, Counted b) { ++Counted::flops; return a.v - b.v; }
+inline Counted operator*(Counted a, Counted b) { ++Counted::flops; return a.v * b.v; }
+inline Counted operator/(Counted a, Counted b) { ++Counted::flops; return a.v / b.v; }
+inline Counted operator-(Counted a) { return -a.v; }
+inline Counted& operator+=(Counted& a, Counted b) { return a = a + b; }
+inline Counted& operator-=(Counted& a, Counted b) { return a = a - b; }
+inline Counted& operator*=(Counted& a, Counted b) { return a = a * b; }
+inline double get_lane(const Counted& a, int) { return a.v; }  // found by argument lookup
+inline void set_lane(Counted& a, int, double value) { a.v = value; }
+
+}  // namespace
+
+double mean_projection_flops(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
+                             const Mat6& alpha_tilde, bool line_search) {
+  if (m.tets.empty()) return 0;
+  const int64_t before = Counted::flops;
+  for (size_t t = 0; t < m.tets.size(); ++t) {
+    const TetRest& tr = m.tets[t];
+    const double w[4] = {m.inv_mass[tr.v[0]], m.inv_mass[tr.v[1]], m.inv_mass[tr.v[2]], m.inv_mass[tr.v[3]]};
+    TetLanes<Counted> p{};
+    fill_lane(p, 0, int32_t(t), tr, w);
+    p.lanes = 1;
+    p.slot = m.tet_slot[t];
+    Counted lam[6];
+    for (int r = 0; r < 6; ++r) lam[r] = lambda[p.slot][r];
+    StrainStep<Counted> st;
+    strain_step(p, x, lam, m.material.model, alpha_tilde, 1.0, line_search, st);
+  }
+  return double(Counted::flops - before) / double(m.tets.size());
+}
+
+}  // namespace pliant::detail

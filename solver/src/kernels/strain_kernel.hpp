@@ -1,0 +1,149 @@
+// SPDX-License-Identifier: Apache-2.0
+// The strain constraint's projection, written once for a lane type T: double (one tet: the
+// sequential and Jacobi sweeps, the tests' scalar calls) or v4d (a pack of four tets of one
+// colour: the Gauss-Seidel sweep; GCC vector extensions, one AVX2 instruction per operation
+// with -march supporting it, two SSE2 halves otherwise). Algebraically equal to the readable
+// forms in strain_constraint.cpp (tests compare them), written on the deformation gradient's
+// columns: with S = F^T F and Q = sum_k w_k b_k b_k^T the 6x6 system matrix is
+// V0 (bilinear terms in S and Q) + alpha~, and the position update is dx_k = w_k sqrt(V0) F P b_k
+// with P the symmetric 3x3 of the increment. Symmetric 3x3 matrices are stored in the strain
+// vector's Voigt order: 00 11 22 12 02 01.
+//
+// Tets of one colour share no vertex, so a colour is cut into packs of 4 whose rest data is
+// stored lane by lane (structure of arrays); padding lanes of a colour's last pack repeat a real
+// tet and are never written back. The multipliers (lambda, dlambda) the kernels read and write
+// are in SLOT order: pack i owns slots 4i..4i+3, one per lane, so a sweep walks them
+// contiguously; BodyState keeps them so and the model maps them per tet for I/O (tet_slot).
+#pragma once
+
+#include "pliant/model.hpp"
+
+#include <cstdint>
+#include <vector>
+
+// v4d as a template argument: GCC warns that it drops the vector type's attributes there, but
+// the type (4 doubles, 32-byte aligned by its size) is what the templates see.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wignored-attributes"
+
+namespace pliant::detail {
+
+typedef double v4d __attribute__((vector_size(32)));  // 32-byte aligned by its size
+
+// Lanes of a lane type, and per-lane access.
+template <class T>
+inline constexpr int kLanes = 1;
+template <>
+inline constexpr int kLanes<v4d> = 4;
+
+inline double get_lane(double a, int) { return a; }
+inline double get_lane(const v4d& a, int l) { return a[l]; }
+inline void set_lane(double& a, int, double value) { a = value; }
+inline void set_lane(v4d& a, int l, double value) { a[l] = value; }
+template <class T>
+inline T splat(double a) {
+  if constexpr (kLanes<T> == 1) return a;
+  else return T{a, a, a, a};
+}
+
+// Rest data of kLanes<T> tets, lane by lane.
+template <class T>
+struct alignas(sizeof(T)) TetLanes {
+  T B[9];  // D_m^-1, row major: B[3 * k + i] = B(k, i)
+  T volume;  // V0
+  T sqrt_volume;
+  T Q[6];  // sum_k w_k b_k b_k^T (Voigt order)
+  T w[4];  // inverse masses of the corners
+  int32_t tet[kLanes<T>];
+  int32_t v[4][kLanes<T>];  // v[corner][lane]
+  int lanes;  // real lanes (1..kLanes)
+  int32_t slot;  // multiplier slot of lane 0; lane l has slot + l
+};
+using TetPack = TetLanes<v4d>;
+using TetOne = TetLanes<double>;
+
+// Lane l of a pack as one tet.
+TetOne lane_of(const TetPack& pack, int lane);
+
+// One tet's rest data with the given corner inverse masses; slot 0.
+TetOne tet_lanes(const TetRest& tet, const double w[4]);
+
+// The model's packs, compiled with it (compile_solve_order).
+struct PackedModel {
+  std::vector<TetPack> packs;
+  std::vector<size_t> colour_begin;  // packs of colour c: [colour_begin[c], colour_begin[c+1])
+  // BodyModel::vertex_tet_entry addressed by slot (4 x slot + corner): the Jacobi gather.
+  std::vector<int32_t> vertex_slot_entry;
+  size_t slot_count() const { return 4 * packs.size(); }  // padding lanes' slots stay zero
+};
+
+// Compiles the solve order of a model whose tets, colours, adjacency and inverse masses are
+// set: BodyModel::tet_slot, tet_colour and packed (build_model and its variants call this).
+void compile_solve_order(BodyModel& model);
+
+// The model's packs (compiled with it).
+inline const PackedModel& packed(const BodyModel& model) { return *model.packed; }
+
+// One projection's result per lane, before it is applied: the multiplier increment and the
+// corner moves (line-search step and lambda_scale included), det F before the projection, and
+// the lanes whose 6x6 system was positive definite (bit l; the others must be skipped).
+template <class T>
+struct StrainStep {
+  T dlambda[6];
+  T dx[4][3];
+  T det;
+  int ok = 0;
+};
+
+// The projection of the lanes' tets at x: solves [grad C W grad C^T + alpha~] dl =
+// -C - alpha~ lambda (LDL^T), dx = W grad C^T dl; with line_search each lane's step is shortened
+// until its own residual does not grow (projection.hpp). lambda_t: the lanes' multipliers.
+template <class T>
+void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lambda_t[6], ElasticModel model,
+                 const Mat6& alpha_tilde, double lambda_scale, bool line_search, StrainStep<T>& out);
+
+// Gauss-Seidel projection of the real lanes: x, lambda and dlambda (slot order) updated; a lane
+// whose system is not positive definite is skipped (dlambda zero). Then the inversion floor for
+// the lanes whose det F was below it before the projection; returns how many it corrected.
+template <class T>
+int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
+                  std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
+                  double lambda_scale, double inversion_floor, bool line_search);
+
+// x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update; dl in slots).
+template <class T>
+void apply_increment_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl,
+                           ElasticModel model);
+
+// det F of each lane at x.
+template <class T>
+T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x);
+
+// Enforces the inversion floor on the real lanes whose det(F) is below it; returns how many.
+// The tets it corrected are appended to hit when given.
+template <class T>
+int volume_floor_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
+                       std::vector<int32_t>* hit = nullptr);
+
+// Sum over the real lanes of ||C + alpha~ lambda||^2 (lambda in slots).
+template <class T>
+double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
+                              const Mat6& alpha_tilde, ElasticModel model);
+
+// Arithmetic operations (+, -, *, /) of one projection (strain_step of one tet), averaged over
+// the model's tets at x with multipliers lambda (slots): the kernel's own code run on a number
+// type that counts them. The rotation's per-lane scaling and SVD fallback (corotated) and the
+// line search's bookkeeping are scalar code outside the count.
+double mean_projection_flops(const BodyModel& model, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
+                             const Mat6& alpha_tilde, bool line_search);
+
+// The pack-of-four names the sweeps use.
+inline int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
+                        std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
+                        double lambda_scale, double inversion_floor, bool line_search) {
+  return project_lanes(p, x, lambda, dlambda, model, alpha_tilde, lambda_scale, inversion_floor, line_search);
+}
+
+}  // namespace pliant::detail
+
+#pragma GCC diagnostic pop
