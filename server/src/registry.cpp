@@ -4,6 +4,7 @@
 #include "pliant/server/registry.hpp"
 
 #include "pliant/server/edge.hpp"
+#include "fixed_groups.hpp"
 
 #include "pliant/proto/enums.hpp"
 
@@ -440,6 +441,7 @@ void fill_spec(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec* sp
   m->set_model(model.material.model == ElasticModel::Corotated ? v1::ELASTIC_MODEL_COROTATED : v1::ELASTIC_MODEL_STVK);
   auto* f = spec->mutable_fixed();
   for (int32_t i : cfg.fixed.indices) f->add_indices(i);
+  for (const std::string& g : cfg.fixed_groups) f->add_groups(g);
   for (const auto& b : cfg.fixed.boxes) {
     auto* pb = f->add_boxes();
     to_proto(b.min, pb->mutable_min());
@@ -622,6 +624,7 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
     if (Error e = merge_gravity(spec.gravity(), "snapshot.spec.gravity", cfg.settings); !e.ok()) return e;
   if (Error e = check_solver(cfg.settings, "snapshot.spec.solver"); !e.ok()) return e;
   if (Error e = fixed_from(spec.fixed(), "snapshot.spec.fixed", &cfg.fixed); !e.ok()) return e;
+  cfg.fixed_groups.assign(spec.fixed().groups().begin(), spec.fixed().groups().end());
   if (Error e = colliders_from(spec.colliders(), "snapshot.spec.colliders", &cfg.colliders); !e.ok()) return e;
   FixedSelection fixed;
   fixed.indices.assign(p.fixed_vertices().begin(), p.fixed_vertices().end());
@@ -871,8 +874,10 @@ Error SceneRegistry::create(const v1::CreateSceneRequest& req, v1::Scene* out) {
   if (Error e = fixed_from(spec.fixed(), "spec.fixed", &cfg.fixed); !e.ok()) return e;
   if (Error e = colliders_from(spec.colliders(), "spec.colliders", &cfg.colliders); !e.ok()) return e;
   if (Error e = resolve_source(spec.mesh(), options_, cfg, &mesh); !e.ok()) return e;
+  FixedSelection fixed = cfg.fixed;
+  if (Error e = add_fixed_groups(spec.fixed(), "spec.fixed", mesh, &fixed, &cfg.fixed_groups); !e.ok()) return e;
   std::shared_ptr<const BodyModel> model;
-  if (Error e = build(mesh, material, cfg.fixed, &model); !e.ok()) return e;
+  if (Error e = build(mesh, material, fixed, &model); !e.ok()) return e;
   // A realtime scene whose request names neither a method nor a budget in sweeps gets the most
   // accurate method within its time budget (half the tick unless it names one).
   if (spec.solver().method() == v1::METHOD_UNSPECIFIED && !pins_budget(spec.solver()) && cfg.mode == TickMode::Realtime)
