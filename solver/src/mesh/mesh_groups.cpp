@@ -35,7 +35,8 @@ std::string describe_groups(const TetMesh& mesh) {
     if (!s.empty()) s += ", ";
     s += std::to_string(g.tag);
     if (!g.name.empty()) s += " \"" + g.name + "\"";
-    s += std::string(" (") + dimension_name(g.dimension) + ", " + std::to_string(g.vertices.size()) + " vertices)";
+    s += std::string(" (") + dimension_name(g.dimension) + ", " + std::to_string(g.vertices.size()) +
+         (g.vertices.size() == 1 ? " vertex)" : " vertices)");
   }
   return s.empty() ? "none" : s;
 }
