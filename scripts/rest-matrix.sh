@@ -25,7 +25,15 @@ run_model() {  # mesh clamp-x max-ticks -> one line per E on stdout
     echo "[rest-matrix] $mesh E $E ${EXTRA[*]}" >&2
     local line
     line=$("$SIM" "${cmd[@]}" 2>/dev/null | tail -n 1) || true  # exit 4: not at rest (reported in the JSON)
-    echo "{\"command\":\"pliant-sim ${cmd[*]}\",\"result\":${line:-null}}"
+    # The line as JSON (python3's json: the command quoted whatever its characters; a last
+    # line that is not JSON, e.g. after a crash, becomes result null with the text beside it).
+    python3 -c 'import json, sys
+cmd, line = sys.argv[1], sys.argv[2]
+try:
+    out = {"command": cmd, "result": json.loads(line) if line.strip() else None}
+except ValueError:
+    out = {"command": cmd, "result": None, "unparsed": line}
+print(json.dumps(out, allow_nan=False))' "pliant-sim ${cmd[*]}" "$line"
   done
 }
 

@@ -12,11 +12,15 @@
 // Usage: pliant_haptic_fidelity [--young E1,E2,...] [--poisson NU] [--budgets 4x2,8x1,newton:1x2,...]
 //                               [--reference SxI] [--seconds S] [--clamp bottom|end]
 //                               [--support-inertia K]   (Material::support_inertia, default 0)
+//                               [--json]   (one JSON line per row instead of the table)
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/client/haptic.hpp"
 #include "pliant/model.hpp"
 #include "pliant/state.hpp"
 #include "pliant/stepper.hpp"
+#include "pliant/version.hpp"
+
+#include "cli.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -123,11 +127,33 @@ std::vector<std::string> split(const std::string& s) {
   return out;
 }
 
-int usage() {
-  std::fprintf(stderr,
-               "usage: pliant_haptic_fidelity [--young E1,E2,...] [--poisson NU] [--budgets 4x2,8x1,newton:1x2,...] "
-               "[--reference SxI] [--seconds S] [--clamp bottom|end] [--support-inertia K]\n");
-  return 2;
+// "E1,E2,..": positive numbers; throws CLI::ValidationError naming the flag and the value.
+std::vector<double> parse_youngs(const std::string& text) {
+  std::vector<double> out;
+  for (const auto& e : split(text)) {
+    double v = 0;
+    try {
+      v = pliant::cli::parse_number("young", e);
+    } catch (const std::exception&) {
+      v = -1;
+    }
+    if (!(v > 0)) throw CLI::ValidationError("--young must be positive numbers E1,E2,..., got '" + text + "'");
+    out.push_back(v);
+  }
+  if (out.empty()) throw CLI::ValidationError("--young needs at least one value, got '" + text + "'");
+  return out;
+}
+
+std::vector<Budget> parse_budgets(const std::string& text) {
+  std::vector<Budget> out;
+  for (const auto& e : split(text)) {
+    Budget b;
+    if (!parse_budget(e, &b))
+      throw CLI::ValidationError("--budgets: '" + e + "' is not SxI or METHOD:SxI (in '" + text + "')");
+    out.push_back(b);
+  }
+  if (out.empty()) throw CLI::ValidationError("--budgets needs at least one budget, got '" + text + "'");
+  return out;
 }
 
 }  // namespace
@@ -141,42 +167,48 @@ int main(int argc, char** argv) {
   double seconds = 3;
   double support_inertia = 0;
   std::string clamp = defaults.create_clamp == haptic::BridgeOptions::Clamp::End ? "end" : "bottom";
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (i + 1 >= argc) return usage();
-    const std::string v = argv[++i];
-    if (a == "--young") {
-      youngs.clear();
-      for (const auto& e : split(v)) youngs.push_back(std::atof(e.c_str()));
-    } else if (a == "--poisson") poisson = std::atof(v.c_str());
-    else if (a == "--budgets") {
-      budgets.clear();
-      for (const auto& e : split(v)) {
-        Budget b;
-        if (!parse_budget(e, &b)) return usage();
-        budgets.push_back(b);
-      }
-    } else if (a == "--reference") {
-      if (!parse_budget(v, &reference)) return usage();
-    } else if (a == "--seconds") seconds = std::atof(v.c_str());
-    else if (a == "--clamp") clamp = v;
-    else if (a == "--support-inertia") support_inertia = std::atof(v.c_str());
-    else return usage();
-  }
-  if (seconds < 0.75) seconds = 0.75;
+  bool json = false;
+  CLI::App app{"pliant_haptic_fidelity: the force the bridge's default scene feels against the converged force",
+               "pliant_haptic_fidelity"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.add_option_function<std::string>("--young", [&](const std::string& v) { youngs = parse_youngs(v); },
+                                       "Young's moduli E1,E2,... in Pa");
+  app.add_option("--poisson", poisson, "Poisson's ratio")->check(CLI::Range(0.0, 0.499));
+  app.add_option_function<std::string>("--budgets", [&](const std::string& v) { budgets = parse_budgets(v); },
+                                       "budgets SxI or METHOD:SxI, comma separated (default: the bridge's, 8x1, 16x1)");
+  app.add_option_function<std::string>(
+      "--reference",
+      [&](const std::string& v) {
+        if (!parse_budget(v, &reference)) throw CLI::ValidationError("--reference must be SxI or METHOD:SxI, got '" + v + "'");
+      },
+      "the converged budget (default 512x1)");
+  app.add_option("--seconds", seconds, "seconds per run, at least 0.75 (default 3)")->check(CLI::Range(0.75, 3600.0));
+  app.add_option("--clamp", clamp, "bottom (the bridge's default) | end")->check(pliant::cli::one_of({"bottom", "end"}));
+  app.add_option("--support-inertia", support_inertia, "Material::support_inertia (default 0)")
+      ->check(CLI::Range(0.0, 1.0));
+  app.add_flag("--json", json, "one JSON line per row instead of the table");
+  if (auto rc = pliant::cli::parse_or_exit(app, argc, argv, "pliant_haptic_fidelity")) return *rc;
   const TetMesh mesh = *builtin_mesh(defaults.create_builtin.empty() ? "beam1" : defaults.create_builtin);
   FixedSelection fixed;
   // As haptic::scene_request: the bottom face (y <= 1 mm) or the end x <= 1 mm fixed.
   if (clamp == "bottom") fixed.boxes.push_back({Vec3(-1e9, -1e9, -1e9), Vec3(1e9, 1e-3, 1e9)});
-  else if (clamp == "end") fixed.boxes.push_back({Vec3(-1e9, -1e9, -1e9), Vec3(1e-3, 1e9, 1e9)});
-  else return usage();
+  else fixed.boxes.push_back({Vec3(-1e9, -1e9, -1e9), Vec3(1e-3, 1e9, 1e9)});
   const double hz = defaults.create_tick_hz;
+  // --json: one line per row, each with the scene's settings, so that a line stands alone.
+  auto row = [&](double e, const std::string& budget, const char* kind) {
+    return nlohmann::ordered_json{{"mesh", mesh.name},   {"clamp", clamp},   {"poisson", poisson},
+                                  {"tick_hz", hz},       {"seconds", seconds}, {"support_inertia", support_inertia},
+                                  {"young", e},          {"row", kind},      {"budget", budget},
+                                  {"reference", reference.name()}};
+  };
+  if (!json) {
   std::printf("scene: %s, %s fixed, nu = %g, %g Hz ticks, sphere r = 5 mm pressed 3 mm over the tip, "
               "%g s; bridge default budget %d x %d; support inertia %g\n",
               mesh.name.c_str(), clamp == "end" ? "x <= 1 mm" : "bottom face y <= 1 mm", poisson, hz, seconds, defaults.create_substeps, defaults.create_iterations, support_inertia);
   std::printf("| E | substeps x iterations | force at rest | reference (%s) | error | tick ms mean / p99 |\n",
               reference.name().c_str());
   std::printf("|---|---|---|---|---|---|\n");
+  }
   for (double e : youngs) {
     Material mat;
     mat.young = e;
@@ -187,10 +219,32 @@ int main(int argc, char** argv) {
     // Is the reference converged? The same scene at half its substeps.
     const Budget half{std::max(1, reference.substeps / 2), reference.iterations};
     const Outcome ref_half = press(model, half, hz, seconds);
-    std::printf("| %g Pa | reference check: %s | %.4g N | %.4g N | %+.1f%% | - |\n", e, half.name().c_str(),
-                ref_half.force, ref.force, 100 * (ref_half.force - ref.force) / ref.force);
+    if (json) {
+      auto j = row(e, half.name(), "reference_check");
+      j["force_n"] = ref_half.force;
+      j["reference_force_n"] = ref.force;
+      j["error"] = (ref_half.force - ref.force) / ref.force;
+      std::printf("%s\n", pliant::cli::json_line(j).c_str());
+    } else {
+      std::printf("| %g Pa | reference check: %s | %.4g N | %.4g N | %+.1f%% | - |\n", e, half.name().c_str(),
+                  ref_half.force, ref.force, 100 * (ref_half.force - ref.force) / ref.force);
+    }
     for (const Budget& b : budgets) {
       const Outcome o = press(model, b, hz, seconds);
+      if (json) {
+        auto j = row(e, b.name(), "budget");
+        j["diverged"] = o.diverged;
+        j["force_n"] = o.diverged ? nlohmann::ordered_json() : nlohmann::ordered_json(o.force);
+        j["drift"] = o.diverged ? nlohmann::ordered_json() : nlohmann::ordered_json(o.drift);
+        j["reference_force_n"] = ref.force;
+        j["reference_drift"] = ref.drift;
+        j["error"] = o.diverged ? nlohmann::ordered_json() : nlohmann::ordered_json((o.force - ref.force) / ref.force);
+        j["tick_ms_mean"] = o.tick_ms;
+        j["tick_ms_p99"] = o.tick_p99_ms;
+        std::printf("%s\n", pliant::cli::json_line(j).c_str());
+        std::fflush(stdout);
+        continue;
+      }
       if (o.diverged) {
         std::printf("| %g Pa | %s | diverged | %.4g N | - | - |\n", e, b.name().c_str(), ref.force);
         continue;

@@ -10,12 +10,16 @@
 // finiteness check, the frame's float positions).
 //
 // Usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity] [--mu MU]
+//                            [--json]   (one JSON line per variant and one for the server's work)
 // (--young 1e6 --gravity --iterations 4: the 50k scene of pliant_service_bench, which sags under
 // its weight.)
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/model.hpp"
 #include "pliant/state.hpp"
 #include "pliant/stepper.hpp"
+#include "pliant/version.hpp"
+
+#include "cli.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -49,34 +53,34 @@ int main(int argc, char** argv) {
   int ticks = 60, substeps = 1, iterations = 1;
   double young = 5e7;
   bool gravity = false;
-  double mu = -1;  // --mu: the sphere's static and dynamic friction (default: RigidTool's)  // --gravity: -9.81 m/s^2 and the server's default damping (0.5/s), no tool
-  for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--ticks") && i + 1 < argc) ticks = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--substeps") && i + 1 < argc) substeps = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--iterations") && i + 1 < argc) iterations = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--young") && i + 1 < argc) young = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--gravity")) gravity = true;
-    else if (!std::strcmp(argv[i], "--mu") && i + 1 < argc) mu = std::atof(argv[++i]);
-    else {
-      std::fprintf(stderr, "usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity] [--mu MU]\n");
-      return 2;
-    }
-  }
-  if (ticks < 1 || substeps < 1 || iterations < 1) return 2;
+  double mu = -1;  // --mu: the sphere's static and dynamic friction (default: RigidTool's)
+  bool json = false;
+  CLI::App app{"pliant_tick_profile: where the time of one server tick goes on the 50k-tet beam", "pliant_tick_profile"};
+  app.set_version_flag("--version", std::string(pliant::kVersion));
+  app.add_option("--ticks", ticks, "measured ticks per variant, after 30 (default 60)")->check(CLI::Range(1, 100000));
+  app.add_option("--substeps", substeps, "substeps per tick (default 1)")->check(CLI::Range(1, 100000));
+  app.add_option("--iterations", iterations, "iterations per substep (default 1)")->check(CLI::Range(1, 100000));
+  app.add_option("--young", young, "Young's modulus, Pa (default 5e7)")->check(CLI::Range(1.0, 1e12));
+  app.add_flag("--gravity", gravity, "-9.81 m/s^2 and the server's default damping (0.5/s), no tool");
+  app.add_option("--mu", mu, "the sphere's static and dynamic friction (default: RigidTool's)")->check(CLI::Range(0.0, 10.0));
+  app.add_flag("--json", json, "one JSON line per variant and one for the server's work, instead of the table");
+  if (auto rc = pliant::cli::parse_or_exit(app, argc, argv, "pliant_tick_profile")) return *rc;
   const TetMesh mesh = make_beam(51, 21, 11, 0.005);
   Material mat;
   mat.young = young;
   FixedSelection fixed;
   fixed.boxes.push_back({Vec3(-1e9, -1e9, -1e9), Vec3(1e-3, 1e9, 1e9)});
   auto model = build_model(mesh, mat, fixed);
-  std::printf("50k beam: %zu vertices, %zu tets, %zu colours; E %g Pa, %s; %d substep(s) x %d iteration(s), %d ticks "
-              "per variant after 30\n",
-              model->vertex_count(), model->tet_count(), model->colours.size(), young,
-              gravity ? "gravity, damping 0.5/s, no tool" : "no gravity, damping 20/s, sphere pressed 4 mm", substeps,
-              iterations, ticks);
-  std::printf("| variant | tick ms | projection | residual | other | update | volume corrections / tick | "
-              "tets with det F < 0.2 / <= 0 / min det F at the end |\n");
-  std::printf("|---|---|---|---|---|---|---|---|\n");
+  const char* scene = gravity ? "gravity, damping 0.5/s, no tool" : "no gravity, damping 20/s, sphere pressed 4 mm";
+  if (!json) {
+    std::printf("50k beam: %zu vertices, %zu tets, %zu colours; E %g Pa, %s; %d substep(s) x %d iteration(s), %d ticks "
+                "per variant after 30\n",
+                model->vertex_count(), model->tet_count(), model->colours.size(), young, scene, substeps, iterations,
+                ticks);
+    std::printf("| variant | tick ms | projection | residual | other | update | volume corrections / tick | "
+                "tets with det F < 0.2 / <= 0 / min det F at the end |\n");
+    std::printf("|---|---|---|---|---|---|---|---|\n");
+  }
   const Variant variants[] = {
       {"server default (residuals on, floor 0.2, 1 thread)", true, 0.2, 1},
       {"residuals off", false, 0.2, 1},
@@ -140,9 +144,30 @@ int main(int argc, char** argv) {
       under_floor += det < 0.2;
       inverted += det <= 0;
     }
-    std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.0f | %d / %d / %.3f |\n", var.name, wall / ticks,
-                sum.projection_ms / ticks, sum.residual_ms / ticks, sum.other_ms / ticks, sum.update_ms / ticks,
-                corrections / ticks, under_floor, inverted, min_det);
+    if (json) {
+      std::printf("%s\n", pliant::cli::json_line({{"variant", var.name},
+                                                   {"vertices", model->vertex_count()},
+                                                   {"tets", model->tet_count()},
+                                                   {"young", young},
+                                                   {"scene", scene},
+                                                   {"substeps", substeps},
+                                                   {"iterations", iterations},
+                                                   {"ticks", ticks},
+                                                   {"tick_ms", wall / ticks},
+                                                   {"projection_ms", sum.projection_ms / ticks},
+                                                   {"residual_ms", sum.residual_ms / ticks},
+                                                   {"other_ms", sum.other_ms / ticks},
+                                                   {"update_ms", sum.update_ms / ticks},
+                                                   {"volume_corrections_per_tick", corrections / ticks},
+                                                   {"tets_below_floor", under_floor},
+                                                   {"tets_inverted", inverted},
+                                                   {"min_det_f", min_det}})
+                                 .c_str());
+    } else {
+      std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.0f | %d / %d / %.3f |\n", var.name, wall / ticks,
+                  sum.projection_ms / ticks, sum.residual_ms / ticks, sum.other_ms / ticks, sum.update_ms / ticks,
+                  corrections / ticks, under_floor, inverted, min_det);
+    }
     std::fflush(stdout);
   }
 
@@ -164,8 +189,15 @@ int main(int argc, char** argv) {
       for (int c = 0; c < 3; ++c) positions[3 * i + c] = static_cast<float>(st.x[i][c]);
     frame_ms += ms_since(t0);
   }
-  std::printf("server work outside the solver per tick: rollback copy of x, v, lambda %.3f ms; finiteness check "
-              "%.3f ms; frame positions %.3f ms\n",
-              copy_ms / ticks, finite_ms / ticks, frame_ms / ticks);
+  if (json)
+    std::printf("%s\n", pliant::cli::json_line({{"server_work", true},
+                                                 {"rollback_copy_ms", copy_ms / ticks},
+                                                 {"finiteness_check_ms", finite_ms / ticks},
+                                                 {"frame_positions_ms", frame_ms / ticks}})
+                               .c_str());
+  else
+    std::printf("server work outside the solver per tick: rollback copy of x, v, lambda %.3f ms; finiteness check "
+                "%.3f ms; frame positions %.3f ms\n",
+                copy_ms / ticks, finite_ms / ticks, frame_ms / ticks);
   return 0;
 }

@@ -4,12 +4,16 @@
 // 2 usage error; 3 server unreachable or too slow (UNAVAILABLE, DEADLINE_EXCEEDED);
 // 4 NOT_FOUND; 5 UNAUTHENTICATED / PERMISSION_DENIED.
 #include "pliant/client/client.hpp"
+#include "pliant/client/placement.hpp"
 #include "pliant/mesh_io.hpp"
 #include "pliant/proto/enums.hpp"
 #include "pliant/settings.hpp"
 #include "pliant/version.hpp"
 #include "pliant/vtu_recording.hpp"
 
+#include "cli.hpp"
+
+#include <CLI/CLI.hpp>
 #include <google/protobuf/util/json_util.h>
 #include <nlohmann/json.hpp>
 #include <unistd.h>
@@ -77,11 +81,14 @@ Commands:
 
 Global flags:
   --address HOST:PORT   server (default $PLIANT_ADDRESS or localhost:50051)
+  --servers A,B,C       a sharded deployment's servers, in order (docs/deploy.md): commands on a
+                        scene go to the server that owns its ID; scenes list asks every server
   --token TOKEN         access token (default $PLIANT_TOKEN)
   --tls                 use TLS with the system roots;  --tls-ca FILE: with these roots
   --timeout S           deadline of each call in seconds (default 30)
   --json                machine-readable output
   --help                this text;   --version   the program's version
+Global flags go before or after the command. COMMAND --help lists a command's flags.
 
 Scene flags (create and update):
   --mesh NAME           builtin mesh (beam1 | beam2 | beam3; default beam1) or a file on the
@@ -99,7 +106,9 @@ Scene flags (create and update):
   --fix I,J,..          fixed vertex indices;   --fix-box X0,Y0,Z0,X1,Y1,Z1   fixed box
   --fix-x-below X       fix every vertex with x <= X (a cantilever's clamped end)
   --fix-file FILE       fix the vertex indices listed in FILE (whitespace or comma separated,
-                        '#' starts a comment)
+                        '#' starts a comment; read by pliant, sent as indices)
+  --fix-group NAME|N    fix the vertices of a physical group of the mesh file (Gmsh .msh: its
+                        name or physical tag; resolved by the server), repeatable
   --collider SPEC       a static obstacle, repeatable (create only). SPEC is a shape and
                         key=value parts joined by ':' (vectors as X,Y,Z):
                           plane:point=X,Y,Z:normal=X,Y,Z     solid below the plane
@@ -126,15 +135,14 @@ struct Usage : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// Arguments after the command: positionals and --flag [value] pairs.
+// One command's arguments as CLI11 parsed them: positionals in order (for `scenes X` and
+// `snapshot X` the subcommand word first), --flag values by name without "--".
 struct Args {
   std::vector<std::string> positional;
   std::map<std::string, std::string> flags;
   std::map<std::string, std::vector<std::string>> repeated;  // flags that may be given several times
-  std::vector<std::string> used;
 
-  std::vector<std::string> get_all(const std::string& f) {
-    used.push_back(f);
+  std::vector<std::string> get_all(const std::string& f) const {
     auto it = repeated.find(f);
     return it == repeated.end() ? std::vector<std::string>{} : it->second;
   }
@@ -143,29 +151,13 @@ struct Args {
     if (positional.size() > n)
       throw Usage(command + ": unexpected argument '" + positional[n] + "'");
   }
-
-  bool has(const std::string& f) {
-    used.push_back(f);
-    return flags.count(f) > 0;
-  }
-  std::optional<std::string> get(const std::string& f) {
-    used.push_back(f);
+  bool has(const std::string& f) const { return flags.count(f) > 0; }
+  std::optional<std::string> get(const std::string& f) const {
     auto it = flags.find(f);
     if (it == flags.end()) return std::nullopt;
     return it->second;
   }
-  void check_all_used() const {
-    for (auto& [k, v] : flags)
-      if (std::find(used.begin(), used.end(), k) == used.end())
-        throw Usage("unknown flag --" + k + " for this command");
-    for (auto& [k, v] : repeated)
-      if (std::find(used.begin(), used.end(), k) == used.end())
-        throw Usage("unknown flag --" + k + " for this command");
-  }
 };
-
-const std::vector<std::string> kBoolFlags = {"json", "tls", "paused", "replace", "help", "version"};
-const std::vector<std::string> kRepeatableFlags = {"collider"};
 
 double to_double(const std::string& flag, const std::string& v) {
   try {
@@ -559,9 +551,12 @@ int cmd_scenes(Client& c, Args& a, bool json) {
       client::clamp_below_x(*spec, to_double("fix-x-below", *v));
     }
     if (auto v = a.get("fix-file")) for (int32_t i : read_node_set(*v)) spec->mutable_fixed()->add_indices(i);
+    for (const std::string& g : a.get_all("fix-group")) {
+      if (g.empty()) throw Usage("--fix-group needs a physical group name or number, got ''");
+      spec->mutable_fixed()->add_groups(g);
+    }
     for (const std::string& c : a.get_all("collider")) *spec->add_colliders() = parse_collider(c);
     if (a.has("paused")) spec->set_start_paused(true);
-    a.check_all_used();
     auto r = c.create_scene(req);
     if (!r.ok()) return fail(r.status, c.options());
     if (json) print_scene(*r, true);
@@ -570,7 +565,6 @@ int cmd_scenes(Client& c, Args& a, bool json) {
   }
   if (sub == "list") {
     a.max_positional(1, "scenes list");
-    a.check_all_used();
     auto r = c.list_scenes();
     if (!r.ok()) return fail(r.status, c.options());
     if (json) {
@@ -591,7 +585,6 @@ int cmd_scenes(Client& c, Args& a, bool json) {
     bool any = read_settings(a, req.mutable_solver(), req.mutable_tick(), req.mutable_material(),
                              req.mutable_gravity(), &gravity_set);
     if (!gravity_set) req.clear_gravity();
-    a.check_all_used();
     if (!any) throw Usage("scenes update needs at least one setting (e.g. --method anderson-sor)");
     auto r = c.update_scene(req);
     if (!r.ok()) return fail(r.status, c.options());
@@ -600,7 +593,6 @@ int cmd_scenes(Client& c, Args& a, bool json) {
   }
   if (sub == "get" || sub == "reset") {
     std::string id = need_id();
-    a.check_all_used();
     auto r = sub == "get" ? c.get_scene(id) : c.reset_scene(id);
     if (!r.ok()) return fail(r.status, c.options());
     if (sub == "reset" && !json) std::printf("reset scene %s\n", id.c_str());
@@ -609,7 +601,6 @@ int cmd_scenes(Client& c, Args& a, bool json) {
   }
   if (sub == "delete") {
     std::string id = need_id();
-    a.check_all_used();
     Status s = c.delete_scene(id);
     if (!s.ok()) return fail(s, c.options());
     if (json) std::printf("%s\n", nlohmann::json{{"deleted", id}}.dump().c_str());
@@ -622,7 +613,6 @@ int cmd_scenes(Client& c, Args& a, bool json) {
 int cmd_pause_resume(Client& c, Args& a, bool json, bool pause) {
   if (a.positional.empty()) throw Usage(std::string(pause ? "pause" : "resume") + " needs a scene ID");
   a.max_positional(1, pause ? "pause" : "resume");
-  a.check_all_used();
   auto r = pause ? c.pause_scene(a.positional[0]) : c.resume_scene(a.positional[0]);
   if (!r.ok()) return fail(r.status, c.options());
   if (json) print_scene(*r, true);
@@ -637,7 +627,6 @@ int cmd_step(Client& c, Args& a, bool json) {
   a.max_positional(2, "step");
   if (a.positional.size() >= 2) n = to_int("ticks", a.positional[1], 1, UINT32_MAX);
   if (auto v = a.get("ticks")) n = to_int("ticks", *v, 1, UINT32_MAX);
-  a.check_all_used();
   if (n < 1) throw Usage("step: the number of ticks must be >= 1");
   auto r = c.step(a.positional[0], static_cast<uint32_t>(n));
   if (!r.ok()) return fail(r.status, c.options());
@@ -659,7 +648,6 @@ int cmd_force(Client& c, Args& a, bool json) {
   for (int32_t i : to_ints("vertices", *v)) req.add_vertices(i);
   set_vec(req.mutable_force(), to_doubles("force", *f, 3));
   if (auto t = a.get("ticks")) req.set_ticks(static_cast<uint32_t>(to_int("ticks", *t, 1, UINT32_MAX)));
-  a.check_all_used();
   auto r = c.apply_force(req);
   if (!r.ok()) return fail(r.status, c.options());
   if (json) std::printf("%s\n", json_of(*r).c_str());
@@ -684,7 +672,6 @@ int cmd_grab(Client& c, Args& a, bool json) {
   }
   if (auto g = a.get("target")) set_vec(req.mutable_target(), to_doubles("target", *g, 3));
   if (auto k = a.get("compliance")) req.set_compliance(to_double("compliance", *k));
-  a.check_all_used();
   auto r = c.grab(req);
   if (!r.ok()) return fail(r.status, c.options());
   if (json) std::printf("%s\n", json_of(*r).c_str());
@@ -702,7 +689,6 @@ int cmd_move_grab(Client& c, Args& a, bool json) {
   auto g = a.get("target");
   if (!g) throw Usage("move-grab needs --target X,Y,Z");
   set_vec(req.mutable_target(), to_doubles("target", *g, 3));
-  a.check_all_used();
   auto r = c.move_grab(req);
   if (!r.ok()) return fail(r.status, c.options());
   if (json) std::printf("%s\n", json_of(*r).c_str());
@@ -714,7 +700,6 @@ int cmd_move_grab(Client& c, Args& a, bool json) {
 int cmd_release(Client& c, Args& a, bool json) {
   if (a.positional.size() < 2) throw Usage("release needs a scene ID and a grab id");
   a.max_positional(2, "release");
-  a.check_all_used();
   auto st = c.release(a.positional[0], static_cast<uint64_t>(to_int("grab id", a.positional[1], 0, LLONG_MAX)));
   if (!st.ok()) return fail(st, c.options());
   if (json) std::printf("{}\n");
@@ -724,6 +709,40 @@ int cmd_release(Client& c, Args& a, bool json) {
 
 std::atomic<bool> g_interrupted{false};
 extern "C" void on_sigint(int) { g_interrupted = true; }
+
+// Ends a frame stream from the side: a thread cancels it on Ctrl-C / SIGTERM or once `duration`
+// seconds (when > 0) have passed since construction. Destruction (or finish()) stops the thread.
+class StreamStopper {
+ public:
+  StreamStopper(client::FrameStream& stream, double duration)
+      : start_(std::chrono::steady_clock::now()), thread_([this, &stream, duration] {
+          while (!done_) {
+            if (g_interrupted || (duration > 0 && std::chrono::steady_clock::now() - start_ >=
+                                                      std::chrono::duration<double>(duration))) {
+              stream.cancel();
+              return;
+            }
+            std::this_thread::sleep_for(std::chrono::milliseconds(20));
+          }
+        }) {
+    std::signal(SIGINT, on_sigint);
+    std::signal(SIGTERM, on_sigint);
+  }
+  ~StreamStopper() { finish(); }
+  StreamStopper(const StreamStopper&) = delete;
+  StreamStopper& operator=(const StreamStopper&) = delete;
+
+  void finish() {
+    done_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+  std::chrono::steady_clock::time_point start() const { return start_; }
+
+ private:
+  std::chrono::steady_clock::time_point start_;
+  std::atomic<bool> done_{false};
+  std::thread thread_;
+};
 
 int cmd_watch(Client& c, Args& a, bool json) {
   if (a.positional.empty()) throw Usage("watch needs a scene ID");
@@ -735,24 +754,11 @@ int cmd_watch(Client& c, Args& a, bool json) {
   if (auto v = a.get("every")) req.set_every_nth_tick(static_cast<uint32_t>(to_int("every", *v, 0, UINT32_MAX)));
   if (auto v = a.get("max-rate")) req.set_max_rate_hz(to_double("max-rate", *v));
   a.max_positional(1, "watch");
-  a.check_all_used();
 
-  std::signal(SIGINT, on_sigint);
-  std::signal(SIGTERM, on_sigint);
   const bool tty = isatty(STDOUT_FILENO) && !json;
   auto stream = c.stream_frames(req);
-  const auto start = std::chrono::steady_clock::now();
-  std::atomic<bool> done{false};
-  std::thread stopper([&] {
-    while (!done) {
-      if (g_interrupted ||
-          (duration > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(duration))) {
-        stream->cancel();
-        return;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-  });
+  StreamStopper stopper(*stream, duration);
+  const auto start = stopper.start();
 
   v1::Frame f, first, last;
   uint64_t frames = 0, skipped = 0;
@@ -781,8 +787,7 @@ int cmd_watch(Client& c, Args& a, bool json) {
       std::fflush(stdout);
     }
   }
-  done = true;
-  stopper.join();
+  stopper.finish();
   Status s = stream->finish();
   const bool cancelled_by_us = s.code == 1 && (g_interrupted || duration > 0);
   if (tty) std::printf("\n");
@@ -851,7 +856,6 @@ int cmd_record(Client& c, Args& a, bool json) {
     if (hz < 0) throw Usage("--max-rate must be >= 0 Hz, got " + *v);
     req.set_max_rate_hz(hz);
   }
-  a.check_all_used();
 
   auto topo = c.topology(id);
   if (!topo.ok()) return fail(topo.status, c.options());
@@ -878,21 +882,8 @@ int cmd_record(Client& c, Args& a, bool json) {
     return kExitRefused;
   }
 
-  std::signal(SIGINT, on_sigint);
-  std::signal(SIGTERM, on_sigint);
   auto stream = c.stream_frames(req);
-  const auto start = std::chrono::steady_clock::now();
-  std::atomic<bool> done{false};
-  std::thread stopper([&] {
-    while (!done) {
-      if (g_interrupted ||
-          (duration > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(duration))) {
-        stream->cancel();
-        return;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-  });
+  StreamStopper stopper(*stream, duration);
   v1::Frame f;
   RecordingFrame frame, previous;
   bool have_previous = false;
@@ -930,8 +921,7 @@ int cmd_record(Client& c, Args& a, bool json) {
       break;
     }
   }
-  done = true;
-  stopper.join();
+  stopper.finish();
   Status s = stream->finish();
   if (!write_error.empty()) {
     std::fprintf(stderr, "pliant: record: %s\n", write_error.c_str());
@@ -965,7 +955,6 @@ int cmd_snapshot(Client& c, Args& a, bool json) {
     req.set_scene_id(a.positional[1]);
     auto name = a.get("name");
     auto out = a.get("out");
-    a.check_all_used();
     if (!name && !out) throw Usage("snapshot save needs --name NAME (on the server) and/or --out FILE (here)");
     if (name) req.set_name(*name);
     req.set_omit_snapshot(!out);
@@ -1006,7 +995,6 @@ int cmd_snapshot(Client& c, Args& a, bool json) {
     }
     if (auto id = a.get("as")) req.set_scene_id(*id);
     req.set_replace(a.has("replace"));
-    a.check_all_used();
     auto r = c.restore_snapshot(req);
     if (!r.ok()) return fail(r.status, c.options());
     if (json) print_scene(*r, true);
@@ -1015,7 +1003,6 @@ int cmd_snapshot(Client& c, Args& a, bool json) {
   }
   if (sub == "list") {
     a.max_positional(1, "snapshot list");
-    a.check_all_used();
     auto r = c.list_snapshots();
     if (!r.ok()) return fail(r.status, c.options());
     if (json) {
@@ -1033,7 +1020,6 @@ int cmd_snapshot(Client& c, Args& a, bool json) {
 int cmd_health(Client& c, Args& a, bool json) {
   a.max_positional(0, "health");
   std::string service = a.get("service").value_or("");
-  a.check_all_used();
   auto r = c.health(service);
   if (!r.ok()) {
     if (json)
@@ -1045,90 +1031,360 @@ int cmd_health(Client& c, Args& a, bool json) {
   return *r == client::Health::Serving ? kExitOk : kExitRefused;
 }
 
+// The command line: global flags (before or after the command), a command word (two for scenes
+// and snapshot), then the command's positionals and flags. CLI11 parses it in two passes: the
+// global flags up to the command word, then the command's own parser, which also takes the
+// global flags, so that option values are never mistaken for command words.
+enum class Kind { Value, Flag, Repeated };
+struct Opt {
+  std::string name, value, help;
+  Kind kind = Kind::Value;
+};
+using Runner = int (*)(Client&, Args&, bool);
+struct Command {
+  std::vector<std::string> words;
+  std::string summary;
+  std::vector<std::pair<std::string, std::string>> positionals;  // name, help
+  std::vector<Opt> options;
+  Runner run;
+  bool scene_positional = true;  // positional 1 (after the words) is a scene ID: --servers routes by it
+};
+
+std::vector<Opt> settings_flags() {
+  return {
+      {"young", "PA", "Young's modulus"},
+      {"poisson", "NU", "Poisson's ratio"},
+      {"density", "KG_M3", "density"},
+      {"inertia-floor", "F", "inertia of a free vertex at least F x the mean vertex mass (default 0.1, 0 = off)"},
+      {"support-inertia", "K", "inertia of a free vertex at least K x the mass it carries to the fixed vertices "
+                               "(default 0 = off)"},
+      {"model", "stvk|corotated", "strain of the tet constraint (default stvk)"},
+      {"gravity", "GX,GY,GZ", "m/s^2 (default 0,-9.81,0)"},
+      {"dt", "S", "tick length (default 1/60 s)"},
+      {"rate", "HZ", "ticks per second (instead of --dt)"},
+      {"mode", "MODE", "realtime | lockstep | as-fast-as-possible"},
+      {"method", "METHOD", "xpbd|sor|lambda-sor|chebyshev|anderson|anderson-sor|extrapolation|vbd|newton|auto"},
+      {"sweep", "SWEEP", "gauss-seidel | jacobi | sequential"},
+      {"substeps", "N", "substeps per tick"},
+      {"iterations", "N", "solver iterations per substep"},
+      {"window", "M", "Anderson window"},
+      {"omega", "W", "over-relaxation factor"},
+      {"tolerance", "T", "residual tolerance"},
+      {"time-budget-ms", "MS", "time the solver may spend per tick"},
+      {"threads", "N", "solver threads"},
+      {"wave-courant", "C", "let the server pick the substeps: the fewest with a pressure wave crossing at most C "
+                            "elements per substep"},
+  };
+}
+
+std::vector<Opt> create_flags() {
+  std::vector<Opt> o = {
+      {"spec", "FILE", "a SceneSpec in protobuf's JSON mapping (examples/scenes/); flags override its fields"},
+      {"mesh", "NAME", "builtin mesh (beam1 | beam2 | beam3; default beam1) or a file on the server's model path"},
+      {"upload", "FILE", "read a mesh locally and send it with the request"},
+      {"scale", "F", "scale the mesh coordinates"},
+      {"fix", "I,J,..", "fixed vertex indices"},
+      {"fix-box", "X0,Y0,Z0,X1,Y1,Z1", "fix the vertices in this box"},
+      {"fix-x-below", "X", "fix every vertex with x <= X"},
+      {"fix-file", "FILE", "fix the vertex indices listed in FILE (whitespace or comma separated, '#' comments); "
+                           "read here, sent as indices"},
+      {"fix-group", "NAME|N", "fix the vertices of the mesh file's physical group NAME or tag N (Gmsh .msh on the "
+                              "server's model path), repeatable",
+       Kind::Repeated},
+      {"collider", "SPEC", "a static obstacle, repeatable: plane:point=X,Y,Z:normal=X,Y,Z | "
+                           "box:center=X,Y,Z:half=HX,HY,HZ | sphere:center=X,Y,Z:radius=R, each with an optional "
+                           ":friction=MU or :friction=MU_S,MU_D",
+       Kind::Repeated},
+      {"paused", "", "create the scene paused", Kind::Flag},
+  };
+  for (Opt& s : settings_flags()) o.push_back(std::move(s));
+  return o;
+}
+
+const std::vector<Command>& commands() {
+  static const std::vector<Command> c = {
+      {{"scenes", "create"}, "create a scene (ID optional: the server picks one)", {{"ID", "scene id"}},
+       create_flags(), cmd_scenes},
+      {{"scenes", "list"}, "list the server's scenes", {}, {}, cmd_scenes, false},
+      {{"scenes", "get"}, "show one scene", {{"ID", "scene id"}}, {}, cmd_scenes},
+      {{"scenes", "update"}, "change solver settings, material, gravity, dt or mode live", {{"ID", "scene id"}},
+       settings_flags(), cmd_scenes},
+      {{"scenes", "delete"}, "delete a scene", {{"ID", "scene id"}}, {}, cmd_scenes},
+      {{"scenes", "reset"}, "back to the rest state at tick 0", {{"ID", "scene id"}}, {}, cmd_scenes},
+      {{"pause"}, "stop a realtime or as-fast-as-possible scene", {{"ID", "scene id"}}, {},
+       [](Client& c, Args& a, bool j) { return cmd_pause_resume(c, a, j, true); }},
+      {{"resume"}, "restart a paused scene", {{"ID", "scene id"}}, {},
+       [](Client& c, Args& a, bool j) { return cmd_pause_resume(c, a, j, false); }},
+      {{"step"}, "advance N ticks (lockstep or paused scenes)", {{"ID", "scene id"}, {"N", "ticks (default 1)"}},
+       {{"ticks", "N", "ticks (instead of the positional N)"}}, cmd_step},
+      {{"force"}, "push vertices for N ticks", {{"ID", "scene id"}},
+       {{"vertices", "I,J,..", "vertex indices"}, {"force", "FX,FY,FZ", "force in N"},
+        {"ticks", "N", "ticks the force lasts"}},
+       cmd_force},
+      {{"grab"}, "attach a point to a target (default: where it is now)", {{"ID", "scene id"}},
+       {{"vertex", "I", "grab a vertex"}, {"tet", "T", "grab a point in a tet (with --barycentric)"},
+        {"barycentric", "B0,B1,B2,B3", "the point's barycentric coordinates in --tet"},
+        {"target", "X,Y,Z", "where to pull it"}, {"compliance", "C", "the grab's compliance"}},
+       cmd_grab},
+      {{"move-grab"}, "move a grab's target", {{"ID", "scene id"}, {"GRAB", "grab id"}},
+       {{"target", "X,Y,Z", "the new target"}}, cmd_move_grab},
+      {{"release"}, "let go", {{"ID", "scene id"}, {"GRAB", "grab id"}}, {}, cmd_release},
+      {{"watch"}, "live line: tick, sim time, ticks/s, iterations, residual, late ticks; ends with a summary",
+       {{"ID", "scene id"}},
+       {{"duration", "S", "stop after S seconds (default: Ctrl-C)"}, {"every", "N", "every Nth tick"},
+        {"max-rate", "HZ", "at most HZ frames per second"}},
+       cmd_watch},
+      {{"record"}, "stream the scene's frames into DIR as binary .vtu files and DIR/frames.pvd for ParaView",
+       {{"ID", "scene id"}},
+       {{"out", "DIR", "output directory"}, {"duration", "S", "stop after S seconds"},
+        {"frames", "N", "stop after N frames"}, {"every", "N", "every Nth tick"},
+        {"max-rate", "HZ", "at most HZ frames per second"}},
+       cmd_record},
+      {{"snapshot", "save"}, "save the scene's full state on the server (--name) and/or to a local file (--out)",
+       {{"ID", "scene id"}},
+       {{"name", "NAME", "snapshot name on the server"}, {"out", "FILE", "local file"}}, cmd_snapshot},
+      {{"snapshot", "restore"}, "restore a snapshot as a scene", {},
+       {{"name", "NAME", "a snapshot on the server"}, {"file", "FILE", "a local snapshot file"},
+        {"as", "ID", "the restored scene's id"}, {"replace", "", "replace a scene of that id", Kind::Flag}},
+       cmd_snapshot, false},
+      {{"snapshot", "list"}, "snapshots in the server's data directory", {}, {}, cmd_snapshot, false},
+      {{"health"}, "exit 0 when the server is SERVING", {}, {{"service", "NAME", "a service name"}}, cmd_health,
+       false},
+  };
+  return c;
+}
+
+// The global flags, as the first pass and every command's parser take them.
+struct Globals {
+  client::ConnectOptions* connect;
+  bool* json;
+  std::optional<std::string>* servers;
+  bool* address_given;  // on the command line (not from PLIANT_ADDRESS)
+};
+
+void add_global_flags(CLI::App& app, const Globals& g) {
+  const std::string group = "Global flags (before or after the command)";
+  auto* address = app.add_option_function<std::string>(
+      "--address",
+      [g](const std::string& v) {
+        g.connect->address = v;
+        *g.address_given = true;
+      },
+      "server HOST:PORT (default $PLIANT_ADDRESS or localhost:50051)");
+  auto* token = app.add_option_function<std::string>(
+      "--token", [g](const std::string& v) { g.connect->token = v; }, "access token (default $PLIANT_TOKEN)");
+  auto* servers = app.add_option_function<std::string>(
+      "--servers", [g](const std::string& v) { *g.servers = v; },
+      "A,B,C: a sharded deployment's servers in order; scenes go to their owner by id (docs/deploy.md)");
+  auto* tls = app.add_flag_callback("--tls", [g] { g.connect->tls = true; }, "use TLS with the system roots");
+  auto* tls_ca = app.add_option_function<std::string>(
+      "--tls-ca",
+      [g](const std::string& v) {
+        std::ifstream ca(v);
+        std::stringstream pem;
+        pem << ca.rdbuf();
+        if (!ca || pem.str().find("-----BEGIN") == std::string::npos)
+          throw CLI::ValidationError("--tls-ca '" + v + "' cannot be read as PEM certificates");
+        g.connect->tls_ca_file = v;
+      },
+      "use TLS with these PEM roots");
+  auto* timeout = app.add_option_function<std::string>(
+      "--timeout",
+      [g](const std::string& v) {
+        double t = 0;
+        try {
+          t = to_double("timeout", v);
+        } catch (const Usage& u) {
+          throw CLI::ValidationError(u.what());
+        }
+        if (!(t > 0)) throw CLI::ValidationError("--timeout must be > 0 s, got " + v);
+        g.connect->timeout = std::chrono::milliseconds(static_cast<long long>(t * 1000));
+      },
+      "deadline of each call in seconds (default 30)");
+  auto* json = app.add_flag_callback("--json", [g] { *g.json = true; }, "machine-readable output");
+  for (CLI::Option* o : {address, token, servers, tls_ca, timeout})
+    o->type_name("VALUE")->multi_option_policy(CLI::MultiOptionPolicy::TakeLast)->group(group);
+  address->type_name("HOST:PORT");
+  servers->type_name("A,B,C");
+  tls_ca->type_name("FILE");
+  timeout->type_name("S");
+  token->type_name("TOKEN");
+  tls->group(group);
+  json->group(group);
+}
+
+// Throws Usage for a CLI11 parse error; returns the exit code for --help / --version.
+std::optional<int> parse_command(CLI::App& app, std::vector<std::string> args) {
+  std::reverse(args.begin(), args.end());  // CLI11 takes a vector last argument first
+  try {
+    app.parse(args);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    throw Usage(pliant::cli::one_line(e.what()));
+  }
+  return std::nullopt;
+}
+
+std::string join(const std::vector<std::string>& words, const std::string& sep) {
+  std::string s;
+  for (const std::string& w : words) s += (s.empty() ? "" : sep) + w;
+  return s;
+}
+
+// The subcommands of a two-word command ("create | list | ...").
+std::string subcommands_of(const std::string& word) {
+  std::vector<std::string> subs;
+  for (const Command& c : commands())
+    if (c.words.size() == 2 && c.words[0] == word) subs.push_back(c.words[1]);
+  return join(subs, " | ");
+}
+
+// `pliant --servers A,B,C`: the servers are parsed once; `scenes list` asks each, commands on a
+// scene ask its owner (placement.hpp), others need one --address.
+int run_sharded(const Command& cmd, Args& args, const client::ConnectOptions& base, const std::string& text,
+                bool json) {
+  std::vector<std::string> servers;
+  std::string error;
+  if (!client::parse_servers(text, &servers, &error)) throw Usage("--servers: " + error);
+  const size_t id_at = cmd.words.size() - 1;  // positional index of the scene ID
+  if (cmd.words == std::vector<std::string>{"scenes", "list"}) {
+    v1::ListScenesResponse all;
+    for (const std::string& s : servers) {
+      client::ConnectOptions o = base;
+      o.address = s;
+      Client c(o);
+      auto r = c.list_scenes();
+      if (!r.ok()) return fail(r.status, c.options());
+      for (auto& scene : r.value) *all.add_scenes() = scene;
+    }
+    if (json) std::printf("%s\n", json_of(all).c_str());
+    else if (all.scenes().empty()) std::printf("no scenes\n");
+    else
+      for (const auto& s : all.scenes()) print_scene_line(s);
+    return kExitOk;
+  }
+  if (!cmd.scene_positional)
+    throw Usage("--servers: '" + join(cmd.words, " ") + "' works on one server: give --address instead");
+  if (args.positional.size() <= id_at)
+    throw Usage("--servers: '" + join(cmd.words, " ") + "' needs a scene ID (scenes are placed by id)");
+  client::ConnectOptions o = base;
+  o.address = client::owner(args.positional[id_at], servers);
+  Client c(o);
+  return cmd.run(c, args, json);
+}
+
+const char* kCommandFooter =
+    "Exit codes: 0 ok, 1 refused by the server, 2 usage, 3 server unreachable, 4 not found, 5 authentication.\n"
+    "All commands: pliant --help.";
+
 }  // namespace
 
 int main(int argc, char** argv) {
   client::ConnectOptions opt;
-  if (const char* v = std::getenv("PLIANT_ADDRESS")) opt.address = v;
-  if (const char* v = std::getenv("PLIANT_TOKEN")) opt.token = v;
-  bool json = false;
-  std::string command;
-  Args args;
+  if (const char* v = std::getenv("PLIANT_ADDRESS"); v && *v) opt.address = v;
+  if (const char* v = std::getenv("PLIANT_TOKEN"); v && *v) opt.token = v;
+  bool json = false, address_given = false;
+  std::optional<std::string> servers;
+  const Globals globals{&opt, &json, &servers, &address_given};
   try {
-    for (int i = 1; i < argc; ++i) {
-      std::string s = argv[i];
-      if (s.rfind("--", 0) == 0 && s.size() > 2) {
-        std::string name = s.substr(2), value;
-        bool has_value = false;
-        if (auto eq = name.find('='); eq != std::string::npos) {
-          value = name.substr(eq + 1);
-          name = name.substr(0, eq);
-          has_value = true;
-        }
-        const bool boolean = std::find(kBoolFlags.begin(), kBoolFlags.end(), name) != kBoolFlags.end();
-        if (!boolean && !has_value) {
-          if (i + 1 >= argc) throw Usage("--" + name + " needs a value");
-          value = argv[++i];
-        }
-        if (name.empty()) throw Usage("'" + s + "' is not a flag");
-        if (name == "help") {
-          std::fputs(kUsage, stdout);
+    // First pass: the global flags up to the command word; the rest stays for the command.
+    CLI::App root{"pliant: the command-line client of a Pliant server", "pliant"};
+    root.prefix_command();
+    root.set_help_flag();
+    bool help = false;
+    root.add_flag("-h,--help", help);
+    root.set_version_flag("--version", std::string(pliant::kVersion));
+    add_global_flags(root, globals);
+    try {
+      root.parse(argc, argv);
+    } catch (const CLI::CallForVersion& e) {
+      return root.exit(e);
+    } catch (const CLI::ParseError& e) {
+      throw Usage(pliant::cli::one_line(e.what()));
+    }
+    if (help) {
+      std::fputs(kUsage, stdout);
+      return kExitOk;
+    }
+    std::vector<std::string> rest = root.remaining();
+    if (rest.empty()) throw Usage("no command given");
+    if (rest[0].size() > 1 && rest[0][0] == '-') throw Usage("unknown flag " + rest[0] + " (before the command)");
+
+    // The command: one word, or two for scenes and snapshot.
+    const Command* cmd = nullptr;
+    bool two_words = false;
+    for (const Command& c : commands())
+      if (c.words[0] == rest[0]) two_words = c.words.size() == 2;
+    if (two_words) {
+      const std::string subs = subcommands_of(rest[0]);
+      if (rest.size() < 2 || rest[1] == "--help" || rest[1] == "-h") {
+        if (rest.size() >= 2) {
+          std::printf("usage: pliant %s SUBCOMMAND [args]\n  subcommands: %s\n  pliant %s SUBCOMMAND --help for "
+                      "each\n",
+                      rest[0].c_str(), subs.c_str(), rest[0].c_str());
           return kExitOk;
-        } else if (name == "version") {
-          std::printf("%s\n", pliant::kVersion);
-          return kExitOk;
-        } else if (name == "address") opt.address = value;
-        else if (name == "token") opt.token = value;
-        else if (name == "json") json = true;
-        else if (name == "tls") opt.tls = true;
-        else if (name == "tls-ca") {
-          std::ifstream ca(value);
-          std::stringstream pem;
-          pem << ca.rdbuf();
-          if (!ca || pem.str().find("-----BEGIN") == std::string::npos)
-            throw Usage("--tls-ca '" + value + "' cannot be read as PEM certificates");
-          opt.tls_ca_file = value;
         }
-        else if (name == "timeout") {
-          double t = to_double("timeout", value);
-          if (!(t > 0)) throw Usage("--timeout must be > 0 s, got " + value);
-          opt.timeout = std::chrono::milliseconds(static_cast<long long>(t * 1000));
-        } else if (std::find(kRepeatableFlags.begin(), kRepeatableFlags.end(), name) != kRepeatableFlags.end()) {
-          args.repeated[name].push_back(value);
-        } else {
-          if (args.flags.count(name)) throw Usage("--" + name + " given twice");
-          args.flags[name] = boolean ? "true" : value;
-        }
-      } else if (s.size() > 1 && s[0] == '-' && s != "-h" &&
-                 !(std::isdigit(static_cast<unsigned char>(s[1])) || s[1] == '.')) {
-        throw Usage("unknown option '" + s + "'");
-      } else if (s == "-h") {
-        std::fputs(kUsage, stdout);
-        return kExitOk;
-      } else if (command.empty()) {
-        command = s;
+        throw Usage(rest[0] + " needs a subcommand: " + subs);
+      }
+      for (const Command& c : commands())
+        if (c.words.size() == 2 && c.words[0] == rest[0] && c.words[1] == rest[1]) cmd = &c;
+      if (!cmd) throw Usage("unknown subcommand '" + rest[0] + " " + rest[1] + "' (" + subs + ")");
+    } else {
+      for (const Command& c : commands())
+        if (c.words[0] == rest[0]) cmd = &c;
+      if (!cmd) throw Usage("unknown command '" + rest[0] + "'");
+    }
+
+    // Second pass: the command's positionals and flags (and the global flags again).
+    Args args;
+    for (size_t i = 1; i < cmd->words.size(); ++i) args.positional.push_back(cmd->words[i]);
+    const std::string name = "pliant " + join(cmd->words, " ");
+    CLI::App app{cmd->summary, name};
+    app.footer(kCommandFooter);
+    app.set_version_flag("--version", std::string(pliant::kVersion));
+    for (const auto& [pos, help] : cmd->positionals)
+      app.add_option_function<std::string>(pos, [&args](const std::string& v) { args.positional.push_back(v); },
+                                           help);
+    for (const Opt& o : cmd->options) {
+      const std::string flag = "--" + o.name;
+      const std::string key = o.name;
+      if (o.kind == Kind::Flag) {
+        app.add_flag_callback(flag, [&args, key] { args.flags[key] = "true"; }, o.help);
+      } else if (o.kind == Kind::Repeated) {
+        app.add_option_function<std::vector<std::string>>(
+               flag, [&args, key](const std::vector<std::string>& v) { args.repeated[key] = v; }, o.help)
+            ->type_name(o.value)
+            ->expected(1)
+            ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
       } else {
-        args.positional.push_back(s);
+        app.add_option_function<std::string>(flag, [&args, key](const std::string& v) { args.flags[key] = v; },
+                                             o.help)
+            ->type_name(o.value);
       }
     }
-    if (command.empty()) {
-      if (!args.flags.empty()) throw Usage("unknown flag --" + args.flags.begin()->first + " (and no command given)");
-      throw Usage("no command given");
+    add_global_flags(app, globals);
+    app.allow_extras();  // reported below, first one first
+    try {
+      if (auto rc = parse_command(app, std::vector<std::string>(rest.begin() + static_cast<long>(cmd->words.size()),
+                                                                rest.end())))
+        return *rc;
+      if (const auto extra = app.remaining(); !extra.empty()) {
+        if (extra[0].size() > 1 && extra[0][0] == '-') throw Usage("unknown flag " + extra[0] + " for this command");
+        throw Usage("unexpected argument '" + extra[0] + "'");
+      }
+    } catch (const Usage& u) {
+      std::fprintf(stderr, "pliant: %s (see %s --help)\n", u.what(), name.c_str());
+      return kExitUsage;
+    }
+    if (servers) {
+      if (address_given) throw Usage("give --servers or --address, not both");
+      return run_sharded(*cmd, args, opt, *servers, json);
     }
     Client c(opt);
-    if (command == "scenes") return cmd_scenes(c, args, json);
-    if (command == "pause") return cmd_pause_resume(c, args, json, true);
-    if (command == "resume") return cmd_pause_resume(c, args, json, false);
-    if (command == "step") return cmd_step(c, args, json);
-    if (command == "force") return cmd_force(c, args, json);
-    if (command == "grab") return cmd_grab(c, args, json);
-    if (command == "move-grab") return cmd_move_grab(c, args, json);
-    if (command == "release") return cmd_release(c, args, json);
-    if (command == "watch") return cmd_watch(c, args, json);
-    if (command == "record") return cmd_record(c, args, json);
-    if (command == "snapshot") return cmd_snapshot(c, args, json);
-    if (command == "health") return cmd_health(c, args, json);
-    throw Usage("unknown command '" + command + "'");
+    return cmd->run(c, args, json);
   } catch (const Usage& u) {
     std::fprintf(stderr, "pliant: %s (see pliant --help)\n", u.what());
     return kExitUsage;

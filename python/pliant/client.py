@@ -260,35 +260,50 @@ class Client:
     ``address`` is HOST:PORT; ``token`` the server's access token (sent as
     ``authorization: Bearer``); ``timeout`` the deadline of each unary call in seconds
     (``step`` gets ``step_timeout``). ``tls=True`` uses TLS with the system roots, or with
-    ``tls_ca`` (PEM bytes) for a private CA.
+    ``tls_ca`` (PEM bytes) for a private CA. ``frame_window_bytes``: frame streams (and
+    topology) use a connection of their own whose HTTP/2 receive window stays this small (no
+    BDP probing), as the C++ client does, so a reader that pauses finds at most about one stale
+    frame before the newest one; 0 uses the main connection with gRPC's default window (64 KiB
+    or more of frames then queue up for a paused reader).
     """
 
     def __init__(self, address: str, token: Optional[str] = None, *, timeout: float = 30.0,
                  step_timeout: float = 600.0, tls: bool = False, tls_ca: Optional[bytes] = None,
-                 max_message_mb: int = 64) -> None:
+                 max_message_mb: int = 64, frame_window_bytes: int = 1) -> None:
         if not address or ":" not in address:
             raise ValueError(f"address must be HOST:PORT, got {address!r}")
         if timeout <= 0:
             raise ValueError(f"timeout must be > 0 s, got {timeout}")
+        if frame_window_bytes < 0:
+            raise ValueError(f"frame_window_bytes must be >= 0, got {frame_window_bytes}")
         self.address = address
         self.timeout = timeout
         self.step_timeout = step_timeout
         size = max_message_mb * 1024 * 1024
         options = [("grpc.max_receive_message_length", size), ("grpc.max_send_message_length", size)]
-        if tls or tls_ca is not None:
-            self._channel = grpc.secure_channel(
-                address, grpc.ssl_channel_credentials(root_certificates=tls_ca), options=options)
-        else:
-            self._channel = grpc.insecure_channel(address, options=options)
+        def channel(opts: list) -> grpc.Channel:
+            if tls or tls_ca is not None:
+                return grpc.secure_channel(
+                    address, grpc.ssl_channel_credentials(root_certificates=tls_ca), options=opts)
+            return grpc.insecure_channel(address, options=opts)
+
+        self._channel = channel(options)
+        self._frame_channel = self._channel
+        if frame_window_bytes > 0:
+            # Options differ from the main channel's, so gRPC opens a connection of its own.
+            self._frame_channel = channel(options + [("grpc.http2.bdp_probe", 0),
+                                                     ("grpc.http2.lookahead_bytes", frame_window_bytes)])
         self._metadata = (("authorization", f"Bearer {token}"),) if token else None
         self._scenes = pb_grpc.SceneServiceStub(self._channel)
-        self._frames = pb_grpc.FrameServiceStub(self._channel)
+        self._frames = pb_grpc.FrameServiceStub(self._frame_channel)
         self._snapshots = pb_grpc.SnapshotServiceStub(self._channel)
         self._interaction = pb_grpc.InteractionServiceStub(self._channel)
 
     # -- plumbing ---------------------------------------------------------------------------
 
     def close(self) -> None:
+        if self._frame_channel is not self._channel:
+            self._frame_channel.close()
         self._channel.close()
 
     def __enter__(self) -> "Client":
@@ -320,6 +335,7 @@ class Client:
         density: Optional[float] = None, elastic_model: Optional[str] = None,
         fixed: Optional[Sequence[int]] = None,
         fixed_boxes: Optional[Sequence[Tuple[Vec3Like, Vec3Like]]] = None,
+        fixed_groups: Optional[Sequence[str]] = None,
         fix_x_below: Optional[float] = None, gravity: Optional[Vec3Like] = None,
         rate_hz: Optional[float] = None, dt: Optional[float] = None, mode: Optional[str] = None,
         method: Optional[str] = None, sweep: Optional[str] = None,
@@ -333,7 +349,8 @@ class Client:
         ``mesh``: a builtin (beam1, beam2, beam3) or a file / model name on the server's model
         path. ``rate_hz`` or ``dt`` set the tick; ``mode`` is realtime (default), lockstep or
         as-fast-as-possible. ``fixed`` are vertex indices, ``fixed_boxes`` (min, max) corners,
-        ``fix_x_below`` fixes every vertex with x <= that value.
+        ``fixed_groups`` physical groups of a Gmsh mesh file (names or tags, resolved by the
+        server), ``fix_x_below`` fixes every vertex with x <= that value.
         """
         spec = pb.SceneSpec()
         if not mesh:
@@ -352,6 +369,8 @@ class Client:
             spec.material.model = _pick(_ELASTIC, elastic_model, "elastic_model")
         if fixed is not None:
             spec.fixed.indices.extend(int(i) for i in fixed)
+        for g in fixed_groups or ():
+            spec.fixed.groups.append(str(g))
         for lo, hi in fixed_boxes or ():
             b = spec.fixed.boxes.add()
             b.min.CopyFrom(_vec3(lo, "fixed_boxes min"))

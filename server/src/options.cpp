@@ -90,7 +90,8 @@ const std::vector<Flag>& flags() {
       {"data-dir", "directory for snapshots; scenes are saved there on shutdown and restored on start",
        [](const std::string& v, ServerOptions& o) { o.data_dir = v; return Error{}; }},
       {"model-path", "colon-separated directories searched for mesh files and model names "
-                     "(MeshSource.model_path; default: the source tree's meshes/)",
+                     "(MeshSource.model_path; default: $PLIANT_MODEL_PATH, then <prefix>/share/pliant/meshes "
+                     "for an installed server, else the source tree's meshes/)",
        [](const std::string& v, ServerOptions& o) { o.model_path = v; return Error{}; }},
       {"max-scenes", "most scenes hosted at once (default 16)",
        integer("max-scenes", 1, 100000, &ServerOptions::max_scenes)},

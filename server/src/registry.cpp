@@ -5,6 +5,7 @@
 #include "pliant/server/registry.hpp"
 
 #include "pliant/server/edge.hpp"
+#include "fixed_groups.hpp"
 #include "pliant/server/spec_proto.hpp"
 #include "pliant/server/stream_proto.hpp"
 
@@ -183,8 +184,10 @@ Error SceneRegistry::create(const v1::CreateSceneRequest& req, v1::Scene* out) {
   if (Error e = config_from_spec(spec, "spec", options_.max_threads, &cfg, &material); !e.ok()) return e;
   if (Error e = mesh_from_source(spec.mesh(), options_.model_path, options_.max_vertices, cfg, &mesh); !e.ok())
     return e;
+  FixedSelection fixed = cfg.fixed;
+  if (Error e = add_fixed_groups(spec.fixed(), "spec.fixed", mesh, &fixed, &cfg.fixed_groups); !e.ok()) return e;
   std::shared_ptr<const BodyModel> model;
-  if (Error e = build_body(mesh, material, cfg.fixed, &model); !e.ok()) return e;
+  if (Error e = build_body(mesh, material, fixed, &model); !e.ok()) return e;
   // A realtime scene whose request names neither a method nor a budget in sweeps gets the most
   // accurate method within its time budget (half the tick unless it names one).
   if (spec.solver().method() == v1::METHOD_UNSPECIFIED && !pins_budget(spec.solver()) && cfg.mode == TickMode::Realtime)

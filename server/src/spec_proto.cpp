@@ -186,6 +186,7 @@ Error config_from_spec(const v1::SceneSpec& spec, const std::string& prefix, int
     if (Error e = merge_gravity(spec.gravity(), prefix + ".gravity", cfg->settings); !e.ok()) return e;
   if (Error e = check_solver(cfg->settings, prefix + ".solver"); !e.ok()) return e;
   if (Error e = fixed_from(spec.fixed(), prefix + ".fixed", &cfg->fixed); !e.ok()) return e;
+  cfg->fixed_groups.assign(spec.fixed().groups().begin(), spec.fixed().groups().end());
   return colliders_from(spec.colliders(), prefix + ".colliders", &cfg->colliders);
 }
 
@@ -432,6 +433,7 @@ void spec_to_proto(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec
   m->set_model(proto::elastic_model_to(model.material.model));
   auto* f = spec->mutable_fixed();
   for (int32_t i : cfg.fixed.indices) f->add_indices(i);
+  for (const std::string& g : cfg.fixed_groups) f->add_groups(g);
   for (const auto& b : cfg.fixed.boxes) {
     auto* pb = f->add_boxes();
     to_proto(b.min, pb->mutable_min());

@@ -58,6 +58,8 @@ commands:
 
 common options:
   --mesh M            beam1 | beam2 | beam3 | a model name (armadillo, hippo, ...) | a mesh file
+  --fix-group G       fix the vertices of the Gmsh file's physical group G (a name or a physical
+                      tag) instead of the default clamp (with --fix-x-max: both)
   --young E           Young's modulus, Pa (default 1e6)
   --poisson NU        Poisson's ratio (default 0.4)
   --density RHO       kg/m^3 (default 1000)
@@ -147,7 +149,7 @@ const std::set<std::string> kValued = {
     "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "time-budget-ms", "threads",
     "log-level", "csv", "newton-linear-solver", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
     "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model",
-    "methods", "budget-ms", "start", "csv-dir", "png", "tet-order", "seed"};
+    "methods", "budget-ms", "start", "csv-dir", "png", "tet-order", "seed", "fix-group"};
 const std::set<std::string> kFlags = {"progress", "quiet", "no-line-search", "dynamic", "substep-floor"};
 
 const std::vector<std::string> kCommands = {"converge", "static", "reference", "run", "accuracy"};
@@ -260,8 +262,17 @@ std::shared_ptr<const BodyModel> load_model(const cli::Args& a, const Material& 
       throw cli::UsageError(e.what());
     }
   }
-  const double clamp = fix_x ? *fix_x : default_clamp_x(mesh.vertices);
-  return build_model(mesh, mat, clamp_below_x(clamp));
+  const auto group = a.str("fix-group");
+  FixedSelection fixed;
+  if (fix_x || !group) fixed = clamp_below_x(fix_x ? *fix_x : default_clamp_x(mesh.vertices));
+  if (group) {
+    try {
+      for (int32_t v : group_vertices(mesh, *group)) fixed.indices.push_back(v);
+    } catch (const std::exception& e) {
+      throw cli::UsageError(std::string("--fix-group: ") + e.what());
+    }
+  }
+  return build_model(mesh, mat, fixed);
 }
 
 int cmd_converge(const cli::Args& a) {

@@ -166,6 +166,27 @@ def check_pod_spec(rep, where, pod, claim_templates, pvcs, image):
     return ports_all
 
 
+def check_scrape_annotations(rep, where, annotations, pod, ports):
+    """Prometheus' pod annotations name a container port that the server's --metrics-listen serves."""
+    if "prometheus.io/scrape" not in annotations:
+        return
+    if annotations["prometheus.io/scrape"] != "true":
+        rep.err(where, "annotation prometheus.io/scrape must be the string \"true\"")
+    port = annotations.get("prometheus.io/port")
+    if not isinstance(port, str) or not port.isdigit():
+        rep.err(where, f"annotation prometheus.io/port must be a quoted port number, is {port!r}")
+        return
+    if int(port) not in ports:
+        rep.err(where, f"annotation prometheus.io/port {port} is not a container port")
+    containers = get(pod, "containers", []) or []
+    env = {get(e, "name"): get(e, "value") for e in (get(containers[0], "env", []) or [])} if containers else {}
+    listen = env.get("PLIANT_METRICS_LISTEN")
+    if listen is None:
+        rep.err(where, "scraped on port " + port + " but the server sets no PLIANT_METRICS_LISTEN")
+    elif str(listen).rsplit(":", 1)[-1] != port:
+        rep.err(where, f"PLIANT_METRICS_LISTEN {listen} does not listen on the scraped port {port}")
+
+
 def check_k8s(docs, image, rep):
     by_kind = {}
     for where, d in docs:
@@ -225,6 +246,7 @@ def check_k8s(docs, image, rep):
         pod = require(rep, where, spec, "template.spec", dict) or {}
         ports = check_pod_spec(rep, where, pod, templates, pvcs, image)
         workloads[name] = (labels, ports)
+        check_scrape_annotations(rep, where, get(spec, "template.metadata.annotations", {}) or {}, pod, ports)
         if kind == "Deployment" and get(spec, "strategy.type") != "Recreate" and any(
                 get(v, "persistentVolumeClaim.claimName") for v in get(pod, "volumes", []) or []):
             # A ReadWriteOnce claim cannot be attached to the old and the new pod at once.
@@ -395,6 +417,11 @@ def self_test(k8s_docs, compose_doc, image):
             .update({"app.kubernetes.io/name": "nothing"})),
         "statefulset mount of unknown claim template": ("volumeMount nope refers to no",
             lambda d, c: server(d, "StatefulSet")["volumeMounts"][0].update(name="nope")),
+        "scrape port not a container port": ("annotation prometheus.io/port 9999 is not a container port",
+            lambda d, c: find(d, "Deployment")["spec"]["template"]["metadata"]["annotations"]
+            .update({"prometheus.io/port": "9999"})),
+        "metrics not listened on": ("sets no PLIANT_METRICS_LISTEN",
+            lambda d, c: server(d).update(env=[e for e in server(d)["env"] if e["name"] != "PLIANT_METRICS_LISTEN"])),
         "compose undeclared volume": ("is not declared under top-level volumes",
             lambda d, c: c.pop("volumes")),
         "compose depends on unknown service": ("depends_on nope: no such service",

@@ -98,6 +98,32 @@ class ClientTest(unittest.TestCase):
         finally:
             c.delete_scene("steps")
 
+    def test_paused_reader_gets_the_newest_frame(self) -> None:
+        # A reader that stops reading while the scene runs 900 ticks gets, when it reads again,
+        # a frame within a few ticks of the scene's (at most one older frame, already in its
+        # transport, comes first), not a backlog from when it stopped: the frame connection's
+        # receive window stays small (frame_window_bytes), as the C++ client's.
+        c = self.client
+        c.create_scene("paused-reader", "beam1", mode="lockstep", fix_x_below=0.001,
+                       substeps=1, iterations=1)
+        try:
+            c.step("paused-reader", 1)
+            for fields in (None, ["solver_stats"]):
+                with self.subTest(fields=fields), c.frames("paused-reader", fields=fields) as stream:
+                    f = next(stream)
+                    now = c.step("paused-reader", 900).tick
+                    reads, first = 0, None
+                    while f.tick + 3 < now and reads < 50:
+                        f = next(stream)
+                        reads += 1
+                        first = first if first is not None else f.tick
+                    self.assertLessEqual(reads, 2, f"scene at tick {now}, first read after the pause at tick "
+                                                   f"{first}, {reads} reads to tick {f.tick}")
+                    self.assertGreaterEqual(f.tick + 3, now)
+                    self.assertGreater(f.skipped_frames, 0)
+        finally:
+            c.delete_scene("paused-reader")
+
     def test_grab_move_release(self) -> None:
         c = self.client
         c.create_scene("grab", "beam1", mode="lockstep", fix_x_below=0.001)

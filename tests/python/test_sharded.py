@@ -1,10 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Three real servers: scenes placed by id with the rendezvous rule by the Python client and by
-the C++ client library (placement_probe), each found and streamed by the other."""
+"""Three real servers: scenes placed by id with the rendezvous rule by the Python client, by
+the C++ client library (placement_probe) and by the pliant CLI (--servers), each found and
+streamed by the others."""
 from __future__ import annotations
 
+import json
 import os
 import subprocess
+import time
 import unittest
 
 import grpc
@@ -13,6 +16,7 @@ import pliant
 import servers
 
 PROBE = os.environ.get("PLIANT_PLACEMENT_PROBE", "")
+CLI = os.environ.get("PLIANT_CLI_BIN", "")
 
 
 class ShardedTest(unittest.TestCase):
@@ -76,6 +80,60 @@ class ShardedTest(unittest.TestCase):
                 with self.assertRaises(pliant.PliantError):
                     c.get_scene(sid)
 
+
+    def cli(self, *args: str, ok: bool = True) -> subprocess.CompletedProcess:
+        self.assertTrue(CLI and os.path.exists(CLI), f"PLIANT_CLI_BIN={CLI!r}")
+        run = subprocess.run([CLI, "--servers", ",".join(self.addresses), *args],
+                             capture_output=True, text=True, timeout=120, env={**os.environ, "PLIANT_ADDRESS": ""})
+        if ok:
+            self.assertEqual(run.returncode, 0, run.stderr + run.stdout)
+        return run
+
+    def test_cli_places_python_finds_cli_gets_watches_and_lists(self) -> None:
+        ids = [f"cli-{i}" for i in range(9)]
+        for sid in ids:
+            self.cli("scenes", "create", sid, "--mesh", "beam1", "--mode", "lockstep", "--fix-x-below", "0.001")
+        owners = {sid: pliant.owner_index(sid, 3) for sid in ids}
+        self.assertEqual(len(set(owners.values())), 3, f"9 ids should reach all 3 servers: {owners}")
+        for sid in ids:
+            # On its owner only (the Python client's direct per-server clients).
+            for k, c in enumerate(self.client.clients):
+                if k == owners[sid]:
+                    self.assertEqual(c.get_scene(sid).scene_id, sid)
+                else:
+                    with self.assertRaises(pliant.PliantError):
+                        c.get_scene(sid)
+            got = json.loads(self.cli("--json", "scenes", "get", sid).stdout)
+            self.assertEqual(got["scene_id"], sid)
+        # watch streams from the owner: step the scene meanwhile, the summary counts its frames.
+        sid = ids[0]
+        watch = subprocess.Popen([CLI, "--servers", ",".join(self.addresses), "watch", sid, "--duration", "3",
+                                  "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            for _ in range(20):
+                self.client.step(sid, 1)
+                time.sleep(0.05)
+            out, err = watch.communicate(timeout=60)
+        finally:
+            if watch.poll() is None:
+                watch.kill()
+        self.assertEqual(watch.returncode, 0, err)
+        self.assertGreater(json.loads(out.strip().splitlines()[-1])["frames"], 0, out)
+        listed = json.loads(self.cli("--json", "scenes", "list").stdout)
+        self.assertEqual(sorted(s["scene_id"] for s in listed["scenes"] if s["scene_id"].startswith("cli-")), sorted(ids))
+        # Usage errors: one line naming what is wrong, exit 2.
+        for argv, needle in ((["scenes", "create", "--mesh", "beam1"], "needs a scene ID"),
+                             (["health"], "--address"),
+                             (["--address", "127.0.0.1:1", "scenes", "get", sid], "not both")):
+            r = self.cli(*argv, ok=False)
+            self.assertEqual(r.returncode, 2, r.stderr)
+            self.assertIn(needle, r.stderr)
+            self.assertEqual(len(r.stderr.strip().splitlines()), 1, r.stderr)
+        r = subprocess.run([CLI, "--servers", "a:1,,b:2", "scenes", "list"], capture_output=True, text=True, timeout=60)
+        self.assertEqual(r.returncode, 2, r.stderr)
+        self.assertIn("--servers", r.stderr)
+        for sid in ids:
+            self.cli("scenes", "delete", sid)
 
 if __name__ == "__main__":
     unittest.main()

@@ -18,11 +18,21 @@ using Vec3 = Eigen::Vector3d;
 using Tet = std::array<int32_t, 4>;
 using Triangle = std::array<int32_t, 3>;
 
+// A set of vertices the mesh file names: a Gmsh physical group (the nodes of its elements).
+struct VertexGroup {
+  int dimension = 3;              // 0 points, 1 curves, 2 surfaces, 3 volumes
+  int64_t tag = 0;                // the physical tag
+  std::string name;               // from $PhysicalNames; empty when the file names none
+  std::vector<int32_t> vertices;  // indices into TetMesh::vertices, ascending, unique
+};
+
 struct TetMesh {
   std::vector<Vec3> vertices;   // metres
   std::vector<Tet> tets;        // positive orientation: det[x1-x0, x2-x0, x3-x0] > 0
   std::string name;             // for messages and logs ("beam3", "armadillo.node", ...)
+  std::vector<VertexGroup> groups;  // physical groups of a Gmsh file (empty for other formats)
 };
+
 
 struct Aabb {
   Vec3 min = Vec3::Constant(0.0);

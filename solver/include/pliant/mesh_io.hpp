@@ -44,6 +44,13 @@ TetMesh load_mesh(const std::string& path, const MeshLoadOptions& options = {});
 // The same, with the validation report (counts, repairs, quality, surface).
 MeshLoadResult load_mesh_with_report(const std::string& path, const MeshLoadOptions& options = {});
 
+// The vertices of the physical group called `group` (Gmsh files), or, when no group has that
+// name and `group` is a number, of the groups with that physical tag (every dimension). Throws
+// MeshError naming the group and listing the mesh's groups when there is none.
+std::vector<int32_t> group_vertices(const TetMesh& mesh, const std::string& group);
+// The mesh's groups for messages: `1 "clamp" (surface, 42 vertices), 7 (volume, 216 vertices)`.
+std::string describe_groups(const TetMesh& mesh);
+
 // "beam1".."beam3" -> builtin; a short model name -> the model set on `search_path`
 // (each entry a directory, e.g. the repo's meshes/); anything else -> a path.
 TetMesh resolve_mesh(std::string_view spec, const std::vector<std::string>& search_path = {});

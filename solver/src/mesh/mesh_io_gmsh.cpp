@@ -1,11 +1,14 @@
 // SPDX-License-Identifier: Apache-2.0
 // Gmsh .msh reader: v1 ($NOD/$ELM), v2.2 and v4.1, ASCII and binary (little-endian, 8-byte
 // size_t). Tetrahedra (type 4, and the corners of higher-order tets) are kept; other element
-// types are skipped with one log line per type; unknown sections are skipped.
+// types are skipped with one log line per type; unknown sections are skipped. Physical groups
+// (the physical tag of v1/v2 elements, the physical tags of v4 $Entities, names from
+// $PhysicalNames) become TetMesh::groups: the nodes of each group's elements of any type.
 #include "mesh/mesh_parse.hpp"
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <unordered_map>
@@ -30,6 +33,16 @@ int gmsh_nodes_per_element(int64_t type) {
 }
 
 bool is_tet_type(int64_t type) { return type == 4 || type == 11 || type == 29 || type == 30 || type == 31; }
+
+// Dimension of an element type: 0 point, 1 line, 2 surface, 3 volume.
+int type_dimension(int64_t type) {
+  switch (type) {
+    case 15: return 0;
+    case 1: case 8: case 26: case 27: case 28: return 1;
+    case 2: case 3: case 9: case 10: case 16: case 20: case 21: case 22: case 23: case 24: case 25: return 2;
+    default: return 3;
+  }
+}
 
 const char* type_name(int64_t type) {
   switch (type) {
@@ -95,6 +108,13 @@ class GmshReader {
           have_nodes_ = true;
           version_ >= 4 ? read_nodes_v4() : read_nodes_v2();
           expect_end("$EndNodes");
+        } else if (sec == "$PhysicalNames") {
+          read_physical_names();
+          expect_end("$EndPhysicalNames");
+        } else if (sec == "$Entities" && version_ >= 4) {
+          if (have_elements_) c_.fail("$Entities after $Elements");
+          read_entities_v4();
+          expect_end("$EndEntities");
         } else if (sec == "$Elements") {
           if (!have_nodes_) c_.fail("$Elements before $Nodes");
           if (have_elements_) c_.fail("second $Elements section");
@@ -118,6 +138,7 @@ class GmshReader {
     for (const auto& [type, count] : skipped_)
       spdlog::info("{}: skipped {} {} elements (Gmsh type {})", raw_.file, count, type_name(type), type);
     if (raw_.mesh.tets.empty()) c_.fail("no tetrahedra in the file");
+    make_groups();
     return std::move(raw_);
   }
 
@@ -171,6 +192,82 @@ class GmshReader {
     raw_.tet_origin.push_back(tag);
   }
 
+  // The nodes of an element of `dim` in the physical groups `physicals` (tag 0: none).
+  void add_to_groups(int dim, const std::vector<int64_t>& physicals, const int64_t* node_tags, size_t n) {
+    for (int64_t phys : physicals) {
+      if (phys == 0) continue;
+      auto& nodes = group_nodes_[{dim, phys}];
+      nodes.insert(nodes.end(), node_tags, node_tags + n);
+    }
+  }
+  void add_to_group(int dim, int64_t phys, const int64_t* node_tags, size_t n) {
+    if (phys == 0) return;
+    auto& nodes = group_nodes_[{dim, phys}];
+    nodes.insert(nodes.end(), node_tags, node_tags + n);
+  }
+
+  void make_groups() {
+    for (auto& [key, tags] : group_nodes_) {
+      VertexGroup g;
+      g.dimension = key.first;
+      g.tag = key.second;
+      if (auto it = names_.find(key); it != names_.end()) g.name = it->second;
+      g.vertices.reserve(tags.size());
+      for (int64_t t : tags) {
+        const int32_t i = nodes_.find(t);
+        if (i < 0) c_.fail("physical group " + std::to_string(g.tag) + ": node " + std::to_string(t) + " is not defined in the nodes section");
+        g.vertices.push_back(i);
+      }
+      std::sort(g.vertices.begin(), g.vertices.end());
+      g.vertices.erase(std::unique(g.vertices.begin(), g.vertices.end()), g.vertices.end());
+      raw_.mesh.groups.push_back(std::move(g));
+    }
+    // Named groups without elements are listed too (empty), so that a lookup names them.
+    for (const auto& [key, name] : names_)
+      if (!group_nodes_.count(key)) raw_.mesh.groups.push_back(VertexGroup{key.first, key.second, name, {}});
+  }
+
+  // $PhysicalNames (text in every version): count, then "dimension tag "name"" lines.
+  void read_physical_names() {
+    const size_t n = c_.checked_count(c_.integer("the number of physical names"), 6, "number of physical names");
+    for (size_t i = 0; i < n; ++i) {
+      const int64_t dim = c_.integer("a physical group dimension");
+      const int64_t tag = c_.integer("a physical tag");
+      if (dim < 0 || dim > 3) c_.fail("physical name: bad dimension " + std::to_string(dim));
+      std::string name(c_.rest_of_line());
+      while (!name.empty() && (name.back() == '\r' || name.back() == ' ' || name.back() == '\t')) name.pop_back();
+      const size_t a = name.find_first_not_of(" \t");
+      name = a == std::string::npos ? "" : name.substr(a);
+      if (name.size() >= 2 && name.front() == '"' && name.back() == '"') name = name.substr(1, name.size() - 2);
+      names_[{static_cast<int>(dim), tag}] = name;
+    }
+  }
+
+  // v4 $Entities: the physical tags of every point, curve, surface and volume.
+  void read_entities_v4() {
+    if (binary_) {
+      c_.rest_of_line();
+      c_.set_binary_mode(true);
+    }
+    size_t counts[4];
+    for (size_t& n : counts) n = c_.checked_count(static_cast<int64_t>(read_size("an entity count")), 8, "number of entities");
+    for (int dim = 0; dim < 4; ++dim) {
+      for (size_t e = 0; e < counts[dim]; ++e) {
+        const int64_t tag = read_int("an entity tag");
+        const int coords = dim == 0 ? 3 : 6;
+        for (int k = 0; k < coords; ++k) binary_ ? c_.raw<double>("an entity bound") : c_.real("an entity bound");
+        const size_t np = c_.checked_count(static_cast<int64_t>(read_size("a physical tag count")), 4, "number of physical tags");
+        std::vector<int64_t> phys(np);
+        for (size_t k = 0; k < np; ++k) phys[k] = read_int("a physical tag");
+        if (!phys.empty()) entity_physicals_[{dim, tag}] = std::move(phys);
+        if (dim > 0) {
+          const size_t nb = c_.checked_count(static_cast<int64_t>(read_size("a bounding entity count")), 4, "number of bounding entities");
+          for (size_t k = 0; k < nb; ++k) read_int("a bounding entity tag");
+        }
+      }
+    }
+  }
+
   void read_v1() {
     const size_t n = c_.checked_count(c_.integer("the number of nodes"), 8, "number of nodes");
     raw_.mesh.vertices.reserve(n);
@@ -189,7 +286,7 @@ class GmshReader {
     for (size_t i = 0; i < m; ++i) {
       const int64_t tag = c_.integer("an element number");
       const int64_t type = c_.integer("an element type");
-      c_.integer("a physical region");
+      const int64_t phys = c_.integer("a physical region");
       c_.integer("an elementary region");
       const int64_t nn = c_.integer("the number of nodes");
       if (nn < 1 || nn > 1000) c_.fail("element " + std::to_string(tag) + ": bad node count " + std::to_string(nn));
@@ -197,12 +294,11 @@ class GmshReader {
       if (expected >= 0 && expected != nn)
         c_.fail("element " + std::to_string(tag) + ": type " + std::to_string(type) + " needs " + std::to_string(expected) +
                 " nodes, the line says " + std::to_string(nn));
-      int64_t nt[4];
-      for (int64_t k = 0; k < nn; ++k) {
-        const int64_t v = c_.integer("a node number");
-        if (k < 4) nt[k] = v;
-      }
-      if (is_tet_type(type)) add_tet(tag, nt);
+      std::vector<int64_t>& nt = element_nodes_;
+      nt.resize(static_cast<size_t>(nn));
+      for (int64_t k = 0; k < nn; ++k) nt[k] = c_.integer("a node number");
+      add_to_group(type_dimension(type), phys, nt.data(), nt.size());
+      if (is_tet_type(type) && nn >= 4) add_tet(tag, nt.data());
       else skipped_[type]++;
     }
     expect_end("$ENDELM");
@@ -252,8 +348,13 @@ class GmshReader {
         nt.resize(static_cast<size_t>(npe));
         for (int32_t e = 0; e < follow; ++e) {
           const int32_t tag = c_.raw<int32_t>("an element tag");
-          for (int32_t k = 0; k < ntags; ++k) c_.raw<int32_t>("an element tag");
+          int64_t phys = 0;
+          for (int32_t k = 0; k < ntags; ++k) {
+            const int32_t t = c_.raw<int32_t>("an element tag");
+            if (k == 0) phys = t;  // the first tag is the physical group
+          }
           for (int k = 0; k < npe; ++k) nt[k] = c_.raw<int32_t>("a node tag");
+          add_to_group(type_dimension(type), phys, nt.data(), nt.size());
           if (is_tet_type(type)) add_tet(tag, nt.data());
           else skipped_[type]++;
         }
@@ -267,16 +368,24 @@ class GmshReader {
       const int64_t type = c_.integer("an element type");
       const int64_t ntags = c_.integer("the number of tags");
       if (ntags < 0 || ntags > 100) c_.fail("element " + std::to_string(tag) + ": bad tag count " + std::to_string(ntags));
-      for (int64_t k = 0; k < ntags; ++k) c_.integer("an element tag");
-      if (!is_tet_type(type)) {
+      int64_t phys = 0;
+      for (int64_t k = 0; k < ntags; ++k) {
+        const int64_t t = c_.integer("an element tag");
+        if (k == 0) phys = t;  // the first tag is the physical group
+      }
+      const bool tet = is_tet_type(type);
+      if (!tet && phys == 0) {
         skipped_[type]++;
         c_.rest_of_line();
         continue;
       }
-      int64_t nt[4];
-      for (int k = 0; k < 4; ++k) nt[k] = c_.integer("a node number");
-      add_tet(tag, nt);
-      while (c_.token_on_line(line)) c_.integer("a node number");  // higher-order nodes
+      std::vector<int64_t>& nt = element_nodes_;
+      nt.clear();
+      while (c_.token_on_line(line)) nt.push_back(c_.integer("a node number"));  // with higher-order nodes
+      if (tet && nt.size() < 4) c_.fail("element " + std::to_string(tag) + ": a tetrahedron needs 4 nodes, the line has " + std::to_string(nt.size()));
+      add_to_group(type_dimension(type), phys, nt.data(), nt.size());
+      if (tet) add_tet(tag, nt.data());
+      else skipped_[type]++;
     }
   }
 
@@ -339,9 +448,12 @@ class GmshReader {
     size_t total = 0;
     std::vector<int64_t> nt;
     for (size_t b = 0; b < blocks; ++b) {
-      read_int("an entity dimension");
-      read_int("an entity tag");
+      const int64_t entity_dim = read_int("an entity dimension");
+      const int64_t entity_tag = read_int("an entity tag");
       const int64_t type = read_int("an element type");
+      static const std::vector<int64_t> kNone;
+      const auto phys_it = entity_physicals_.find({static_cast<int>(entity_dim), entity_tag});
+      const std::vector<int64_t>& phys = phys_it == entity_physicals_.end() ? kNone : phys_it->second;
       const size_t count = read_size("the number of elements in a block");
       const int npe = gmsh_nodes_per_element(type);
       if (npe < 0 && binary_) c_.fail("unknown element type " + std::to_string(type) + " (cannot skip it in a binary file)");
@@ -354,18 +466,22 @@ class GmshReader {
         if (binary_) {
           const auto tag = static_cast<int64_t>(read_size("an element tag"));
           for (int k = 0; k < npe; ++k) nt[k] = static_cast<int64_t>(read_size("a node tag"));
+          add_to_groups(static_cast<int>(entity_dim), phys, nt.data(), static_cast<size_t>(npe));
           if (tet) add_tet(tag, nt.data());
           continue;
         }
         const int64_t tag = c_.integer("an element tag");
         const size_t line = c_.line();
-        if (!tet) {
+        if (!tet && phys.empty()) {
           c_.rest_of_line();
           continue;
         }
-        for (int k = 0; k < 4; ++k) nt[k] = c_.integer("a node tag");
-        add_tet(tag, nt.data());
-        while (c_.token_on_line(line)) c_.integer("a node tag");
+        std::vector<int64_t>& all = element_nodes_;
+        all.clear();
+        while (c_.token_on_line(line)) all.push_back(c_.integer("a node tag"));  // with higher-order nodes
+        if (tet && all.size() < 4) c_.fail("element " + std::to_string(tag) + ": a tetrahedron needs 4 nodes, the line has " + std::to_string(all.size()));
+        add_to_groups(static_cast<int>(entity_dim), phys, all.data(), all.size());
+        if (tet) add_tet(tag, all.data());
       }
       if (!tet) skipped_[type] += static_cast<int64_t>(count);
     }
@@ -380,6 +496,10 @@ class GmshReader {
   bool binary_ = false;
   bool have_nodes_ = false, have_elements_ = false;
   std::map<int64_t, int64_t> skipped_;
+  std::map<std::pair<int, int64_t>, std::vector<int64_t>> group_nodes_;       // (dimension, physical tag) -> node tags
+  std::map<std::pair<int, int64_t>, std::string> names_;                       // $PhysicalNames
+  std::map<std::pair<int, int64_t>, std::vector<int64_t>> entity_physicals_;  // v4: (dimension, entity tag) -> physical tags
+  std::vector<int64_t> element_nodes_;
 };
 
 }  // namespace

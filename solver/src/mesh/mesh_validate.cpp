@@ -324,6 +324,13 @@ MeshReport validate_mesh(TetMesh& mesh, const MeshValidationOptions& o) {
       mesh.vertices = std::move(kept);
       for (Tet& t : mesh.tets)
         for (int32_t& v : t) v = remap[v];
+      // A group keeps the vertices that remain (a group of only dropped vertices stays, empty).
+      for (VertexGroup& g : mesh.groups) {
+        std::vector<int32_t> kept_group;
+        for (int32_t v : g.vertices)
+          if (v >= 0 && static_cast<size_t>(v) < remap.size() && remap[v] >= 0) kept_group.push_back(remap[v]);
+        g.vertices = std::move(kept_group);
+      }
       warn(report, o, src + ": dropped " + std::to_string(dropped) + " vertices no tet uses (indices remapped)");
     }
     report.dropped_vertices = dropped;

@@ -40,6 +40,7 @@ struct SceneConfig {
   std::string mesh_name;
   double mesh_scale = 1.0;
   FixedSelection fixed;               // as requested
+  std::vector<std::string> fixed_groups;  // physical groups fixed as well (their vertices are in the model)
   std::vector<Collider> colliders;     // static obstacles, validated
   SolverSettings settings;            // dt is the tick length; gravity lives here too
   TickMode mode = TickMode::Realtime;
