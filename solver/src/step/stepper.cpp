@@ -26,12 +26,12 @@ namespace {
 
 // End-of-substep passes of the inversion floor: the first visits every tet, the later ones only
 // the tets around what the previous pass corrected (nothing else moved), at most
-// kVolumePassVisits x the tet count of visits in all. On a body the iteration budget leaves
-// tangled, the later passes would otherwise revisit most of it every pass, on the tick's
-// deadline; what they leave below the floor, the next sweep and pass take up (docs/solver.md,
-// "The floor pass").
+// kVolumePassVisits x the tet count of visits in all. At kVolumePasses x the tet count the
+// bound never binds (each later pass visits a tet at most once): a tighter one makes a tangled
+// body's tick much cheaper but leaves tets below the floor (docs/solver.md, "The floor pass"),
+// so it is not taken yet.
 constexpr int kVolumePasses = 20;
-constexpr double kVolumePassVisits = 4.0;
+constexpr double kVolumePassVisits = kVolumePasses;
 
 // Adds the elapsed time of a scope to a counter.
 struct PhaseTimer {
