@@ -88,16 +88,29 @@ TEST(StreamScale, SlowReaderGetsTheNewestFrame) {
   }
 }
 
+constexpr int kStreams = 1000, kChannels = 4;
+
+// A server that admits a thousand streams, and kChannels clients of it (the streams are spread
+// over several connections, as many users' would be).
+struct IdleScene {
+  static server::ServerOptions options() {
+    server::ServerOptions o;
+    o.max_streams = kStreams + 10;
+    o.max_streams_per_scene = kStreams + 10;
+    return o;
+  }
+  Fixture fx{options()};
+  std::vector<Client> clients;
+  IdleScene() {
+    for (int i = 0; i < kChannels; ++i) clients.push_back(fx.client());
+  }
+};
+
 // A thousand open, idle streams (their first frame read) add fewer than 20 threads to the
 // process (server and the test's client together), and all end when the scene is deleted.
 TEST(StreamScale, ThousandIdleStreamsCostFewThreadsAndEndWithTheirScene) {
-  constexpr int kStreams = 1000, kChannels = 4;
-  server::ServerOptions o;
-  o.max_streams = kStreams + 10;
-  o.max_streams_per_scene = kStreams + 10;
-  Fixture fx(o);
-  std::vector<Client> clients;
-  for (int i = 0; i < kChannels; ++i) clients.push_back(fx.client());
+  IdleScene idle;
+  std::vector<Client>& clients = idle.clients;
   ASSERT_TRUE(clients[0].create_scene(lockstep_beam("idle")).ok());
   ASSERT_TRUE(clients[0].step("idle", 1).ok());
   v1::StreamFramesRequest q;
@@ -139,13 +152,9 @@ TEST(StreamScale, ThousandIdleStreamsCostFewThreadsAndEndWithTheirScene) {
 // (its first pose taken) and no tick to answer, add fewer than 20 threads, and all end with
 // NOT_FOUND when their scene is deleted.
 TEST(StreamScale, ThousandIdleHapticStreamsCostFewThreadsAndEndWithTheirScene) {
-  constexpr int kStreams = 1000, kChannels = 4;
-  server::ServerOptions o;
-  o.max_streams = kStreams + 10;
-  o.max_streams_per_scene = kStreams + 10;
-  Fixture fx(o);
-  std::vector<Client> clients;
-  for (int i = 0; i < kChannels; ++i) clients.push_back(fx.client());
+  IdleScene idle;
+  Fixture& fx = idle.fx;
+  std::vector<Client>& clients = idle.clients;
   ASSERT_TRUE(clients[0].create_scene(lockstep_beam("idle")).ok());
   ASSERT_TRUE(clients[0].step("idle", 1).ok());
   v1::ToolPose pose;
