@@ -1,0 +1,70 @@
+// SPDX-License-Identifier: Apache-2.0
+// Bodies made of particles that the position-based loop steps: fluids (SPH density
+// constraints), cloth and ropes (distance and bending constraints). A scene holds them beside
+// its tetrahedral body; this is what it needs from every kind: the particles and their state,
+// one step against the scene's colliders, grabs that report their force, and a state that a
+// snapshot can keep and restore.
+#pragma once
+
+#include "pliant/colliders.hpp"
+#include "pliant/mesh.hpp"
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+namespace pliant {
+
+// The mutable part of a particle body. Kinds keep their multipliers here (one per
+// constraint, in the body's constraint order) so a restored snapshot warm-starts like the
+// original did.
+struct ParticleState {
+  std::vector<Vec3> x;          // positions, m
+  std::vector<Vec3> v;          // velocities, m/s
+  std::vector<double> lambda;   // the last substep's multipliers (kind-defined order)
+  double time = 0.0;            // simulated seconds
+  uint64_t steps = 0;
+};
+
+// What one step did, for frames and logs.
+struct ParticleStepReport {
+  int substeps = 0;
+  int iterations = 0;             // per substep
+  double constraint_error = 0.0;  // kind-defined, dimensionless (fluid: mean relative density
+                                  // error; cloth/rope: RMS relative stretch)
+  double max_constraint_error = 0.0;
+  size_t contacts = 0;            // particle-collider contacts in the last substep
+  double wall_ms = 0.0;
+};
+
+class ParticleBody {
+ public:
+  virtual ~ParticleBody() = default;
+
+  // "fluid", "cloth" or "rope".
+  virtual std::string kind() const = 0;
+  virtual size_t size() const = 0;  // particles
+  virtual const ParticleState& state() const = 0;
+  // Replaces the state (a snapshot's restore): sizes must match the body, else
+  // std::invalid_argument naming what differs.
+  virtual void set_state(const ParticleState& state) = 0;
+  // Inverse masses, 1/kg; 0 for a pinned particle.
+  virtual std::span<const double> inverse_masses() const = 0;
+  // Triangles to draw and to collide with (cloth); empty for fluids and ropes.
+  virtual std::span<const std::array<uint32_t, 3>> triangles() const { return {}; }
+
+  // Advances by dt seconds against the colliders.
+  virtual ParticleStepReport step(double dt, std::span<const Collider> colliders) = 0;
+
+  // Grabs: particle `particle` pulled toward `target` through a constraint of compliance
+  // `compliance` (m/N; 0 = hard). The force the grab applies to the body (N) comes from its
+  // multiplier, as the soft body's grabs do.
+  virtual void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) = 0;
+  virtual bool move_grab(uint64_t id, const Vec3& target) = 0;
+  virtual bool release(uint64_t id) = 0;
+  virtual Vec3 grab_force(uint64_t id) const = 0;
+};
+
+}  // namespace pliant
