@@ -7,6 +7,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <atomic>
 #include <fstream>
 #include <mutex>
 #include <sstream>
@@ -84,6 +85,7 @@ struct FrameStream::Impl {
   grpc::ClientContext ctx;
   std::unique_ptr<grpc::ClientReader<v1::Frame>> reader;
   bool finished = false;
+  std::atomic<bool> cancelled{false};  // cancel() was called here
   Status status;
 };
 
@@ -95,7 +97,11 @@ FrameStream::~FrameStream() {
   }
 }
 bool FrameStream::next(v1::Frame* frame) { return !impl_->finished && impl_->reader->Read(frame); }
-void FrameStream::cancel() { impl_->ctx.TryCancel(); }
+void FrameStream::cancel() {
+  impl_->cancelled = true;
+  impl_->ctx.TryCancel();
+}
+bool FrameStream::cancelled() const { return impl_->cancelled; }
 Status FrameStream::finish() {
   if (!impl_->finished) {
     // Drain what is in flight so Finish() does not wait on unread messages.

@@ -335,10 +335,19 @@ TEST_F(WebGateway, AServerThatStopsEndsTheSubscriptionWithUnavailable) {
   ASSERT_TRUE(ws.ok()) << ws.error();
   ws.send({{"type", "subscribe"}, {"scene", "web"}});
   ASSERT_TRUE(ws.next_json("subscribed"));
+  // A frame from the server shows its stream is open (the gateway answers "subscribed" before
+  // the server has seen the call; a call that reaches a stopping server is cancelled instead).
+  bool streaming = false;
+  for (int i = 0; i < 20 && !streaming; ++i) {
+    ASSERT_TRUE(client_->step("web", 1).ok());
+    for (auto m = ws.next(500ms); m && !streaming; m = ws.next(100ms))
+      streaming = m->binary && !m->data.empty() && m->data[0] == static_cast<char>(pliant::web::kKindFrame);
+  }
+  ASSERT_TRUE(streaming) << "no frame reached the page";
   server_.reset();  // SIGTERM: the server ends its streams with UNAVAILABLE
   // Generous: a sanitized server on a busy machine takes several seconds to shut down.
   auto ended = ws.next_json("ended", 30000ms);
-  ASSERT_TRUE(ended) << "the page is told when the server goes away";
+  ASSERT_TRUE(ended) << "the page is told when the server goes away\n" << web_->log();
   EXPECT_EQ((*ended)["code"], "UNAVAILABLE") << ended->dump();
   ws.send({{"type", "list"}});
   auto e = ws.next_json("error");

@@ -389,7 +389,7 @@ void Session::stream_loop(std::shared_ptr<client::FrameStream> stream, uint32_t 
     }
   }
   const client::Status st = stream->finish();
-  if (closed_ || st.code == 1 /* CANCELLED: we unsubscribed */) return;
+  if (closed_ || stream->cancelled()) return;  // we unsubscribed or the socket closed
   spdlog::info("web: stream of '{}' ended: {}", scene, st.to_string());
   reply(json{{"type", "ended"},
              {"scene", scene},

@@ -63,6 +63,9 @@ class FrameStream {
   ~FrameStream();  // cancels a stream still open
   bool next(v1::Frame* frame);
   void cancel();   // may be called from another thread
+  // True once cancel() was called on this side: a CANCELLED status then means "we ended it";
+  // without it, CANCELLED came from the server (a stopping server cancels what outlives its grace).
+  bool cancelled() const;
   Status finish();
 
  private:
