@@ -248,12 +248,16 @@ async function check() {
   await page.click('#pause');
   const snap = () => page.evaluate(() => ({ frames: window.pliant.framesReceived, renders: window.pliant.renders,
     animation: window.pliant.animationFrames }));
+  // Until no frame came for 500 ms (the last frames were in flight); the baseline is the snapshot
+  // at the end of that quiet half second, when the last frame has been drawn (a frame counted
+  // just before a snapshot is drawn in the next animation frame, after it).
   let idle0 = await snap();
-  for (let i = 0; i < 40; ++i) {  // until no frame came for 500 ms (the last frames were in flight)
+  for (let i = 0; i < 40; ++i) {
     await sleep(500);
     const s1 = await snap();
-    if (s1.frames === idle0.frames) break;
+    const quiet = s1.frames === idle0.frames;
     idle0 = s1;
+    if (quiet) break;
   }
   await sleep(1000);
   const idle1 = await snap();
