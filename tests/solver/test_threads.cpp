@@ -14,7 +14,7 @@
 
 #include <gtest/gtest.h>
 
-#include <cmath>
+#include <ostream>
 #include <string>
 
 using namespace pliant;
@@ -28,6 +28,8 @@ struct Case {
   NewtonLinearSolver linear = NewtonLinearSolver::Auto;
   int substeps = 4, iterations = 3;
 };
+
+void PrintTo(const Case& c, std::ostream* os) { *os << c.name; }
 
 std::shared_ptr<const BodyModel> beam3(double young) {
   const TetMesh mesh = *builtin_mesh("beam3");
