@@ -11,14 +11,16 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libassimp-dev libgtest-dev libgmock-dev libbenchmark-dev
       tetgen gnuplot-nox python3-yaml
       python3-grpcio python3-protobuf python3-numpy python3-vtk9 xvfb xauth
-      libcivetweb-dev nlohmann-json3-dev libcli11-dev libjs-three chromium zlib1g-dev)
+      libcivetweb-dev nlohmann-json3-dev libcli11-dev libjs-three chromium zlib1g-dev
+      calculix-ccx)
 # Needed only by tests, benchmarks and tools, not to build the programs; left out by --no-dev.
 # The Python client (python/, docs/python.md) runs on python3-grpcio/-protobuf/-numpy; its stubs
 # need only protobuf-compiler-grpc. python3-vtk9: VTK's own reader checks the recordings and the
 # Python examples' files; xvfb, xauth: the offscreen render of a recording for the docs
-# (scripts/render-recording.sh).
+# (scripts/render-recording.sh). calculix-ccx: the independent FEM code the static shapes are
+# checked against (tests/solver/test_calculix.cpp).
 DEV_ONLY=(libgtest-dev libgmock-dev libbenchmark-dev tetgen gnuplot-nox python3-yaml chromium
-          python3-grpcio python3-protobuf python3-numpy python3-vtk9 xvfb xauth)
+          python3-grpcio python3-protobuf python3-numpy python3-vtk9 xvfb xauth calculix-ccx)
 if [ "${1:-}" = --no-dev ]; then
   keep=()
   for p in "${PKGS[@]}"; do [[ " ${DEV_ONLY[*]} " == *" $p "* ]] || keep+=("$p"); done

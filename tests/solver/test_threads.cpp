@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // The step does not depend on how many threads run it: every family splits its loops over
 // work that shares no vertex (a colour's tets or vertices) and reduces in a fixed order, so
-// one thread, two and four reach the same state bit for bit. Short steps on beam3 (3,744 tets:
+// one thread, two and four reach the same state bit for bit. Short steps on beam3 (3,120 tets:
 // colours large enough to be split), with a tool and a grab in play.
 // CI also runs these under ThreadSanitizer (scripts/sanitize.sh, SANITIZER=thread): they
 // drive the thread pool through every family's parallel loops without gRPC in the process.
