@@ -41,6 +41,9 @@ struct FluidSettings {
   // A box whose inside is the domain ("inside-out" box): particles are kept inside it,
   // with the box collider's friction. Colliders passed to step() keep particles outside.
   std::optional<Collider> container;
+  // The container's walls count as fluid at rest beyond them in the density (the kernel's mass
+  // fraction beyond each wall plane), so particles along a wall are not under-dense.
+  bool container_density = true;
   // Particles allowed in all (blocks + emitters); emitters stop there.
   size_t max_particles = 1000000;
 };
@@ -95,8 +98,9 @@ class FluidBody final : public ParticleBody {
   const FluidSettings& settings() const;
   double particle_mass() const;    // kg
   double support_radius() const;   // h, m
-  // Pressure of each particle (Pa, creation order) from its multiplier: p = -lambda rho0 / dt_s^2
-  // with dt_s the last substep (the multiplier is the substep's position-level impulse).
+  // Pressure of each particle (Pa, creation order) from its multiplier: p = -lambda rho0 kappa /
+  // dt_s^2 with dt_s the last substep (the multiplier is the substep's position-level impulse)
+  // and kappa = sum_j d^3 (x_j - x_i)_y dW/dy over a rest lattice (0.956 at h = 2d).
   std::vector<double> pressure() const;
   // rho_i / rho0 of each particle at the current positions (creation order).
   std::vector<double> density_ratios() const;

@@ -73,6 +73,7 @@ struct FluidBody::Impl {
   double epsilon = 0.0;          // 1/m^2
   double scorr_scale = 0.0;      // k / ref_denominator, m^2
   double wdq = 0.0;              // W(dq)
+  double gradient_scale = 1.0;   // the spiky gradient's first moment on the rest lattice
   double last_dt = 0.0;          // the last substep, s
 
   // Internal (cell-sorted) order.
@@ -185,6 +186,28 @@ struct FluidBody::Impl {
     }
   }
 
+  // The container's walls as fluid at rest beyond them (boundary density): the density
+  // fraction they add to particle at q (rho / rho0) and its gradient with respect to q.
+  double wall_density(const Vec3& q, Vec3& grad) const {
+    grad.setZero();
+    if (!s.container || !s.container_density) return 0.0;
+    const Collider& c = *s.container;
+    double f = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      const double ylo = q[a] - (c.point[a] - c.half_extent[a]);
+      const double yhi = (c.point[a] + c.half_extent[a]) - q[a];
+      if (ylo < h) {
+        f += fluid::poly6_beyond(k, ylo);
+        grad[a] += fluid::poly6_beyond_slope(k, ylo);
+      }
+      if (yhi < h) {
+        f += fluid::poly6_beyond(k, yhi);
+        grad[a] -= fluid::poly6_beyond_slope(k, yhi);
+      }
+    }
+    return f;
+  }
+
   void substep(double dt, std::span<const Collider> inflated, ParticleStepReport& rep) {
     emit(dt);
     if (s.sort_interval > 0 && substeps_done % static_cast<uint64_t>(s.sort_interval) == 0) reorder();
@@ -216,6 +239,30 @@ struct FluidBody::Impl {
     const double sw = mass / s.rest_density;  // m / rho0
     const double w0 = mass * k.poly6(0.0);
     const int n_exp = s.scorr_n;
+    // The correction of multipliers lam (each pair (lam_i + lam_j + s_corr) grad W), into dp.
+    auto corrections = [&](bool with_scorr) {
+      parallel(N, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) {
+          const Vec3 pi = p[i];
+          const double li = lam[i];
+          Vec3 d = Vec3::Zero();
+          for (uint32_t j : grid.neighbours(i)) {
+            const Vec3 r = pi - p[j];
+            double sc = 0.0;
+            if (with_scorr && scorr_scale > 0.0) {
+              const double t = k.poly6(r.squaredNorm()) / wdq;
+              double tn = t;
+              for (int q = 1; q < n_exp; ++q) tn *= t;
+              sc = -scorr_scale * tn;
+            }
+            d += (li + lam[j] + sc) * fluid::pair_gradient(k, r, static_cast<uint32_t>(i), j);
+          }
+          Vec3 gw;
+          if (wall_density(pi, gw) > 0.0) d += (li / sw) * gw;  // the walls' share of grad_i C_i
+          dp[i] = sw * d;
+        }
+      });
+    };
     for (int it = 0; it < s.iterations; ++it) {
       parallel(N, [&](size_t b, size_t e) {
         for (size_t i = b; i < e; ++i) {
@@ -227,34 +274,19 @@ struct FluidBody::Impl {
             const Vec3 r = pi - p[j];
             const double r2 = r.squaredNorm();
             rho += mass * k.poly6(r2);
-            const Vec3 gj = sw * k.spiky_gradient(r);
+            const Vec3 gj = sw * fluid::pair_gradient(k, r, static_cast<uint32_t>(i), j);
             gi += gj;
             sq += gj.squaredNorm();
           }
-          const double c = rho / s.rest_density - 1.0;
+          Vec3 gw;
+          const double c = rho / s.rest_density + wall_density(pi, gw) - 1.0;
+          gi += gw;
           ratio[i] = c + 1.0;
+          // Only compression is corrected (C clamped at 0): multipliers stay <= 0.
           lam[i] = c > 0.0 ? -c / (gi.squaredNorm() + sq + epsilon) : 0.0;
         }
       });
-      parallel(N, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) {
-          const Vec3 pi = p[i];
-          const double li = lam[i];
-          Vec3 d = Vec3::Zero();
-          for (uint32_t j : grid.neighbours(i)) {
-            const Vec3 r = pi - p[j];
-            double sc = 0.0;
-            if (scorr_scale > 0.0) {
-              const double t = k.poly6(r.squaredNorm()) / wdq;
-              double tn = t;
-              for (int q = 1; q < n_exp; ++q) tn *= t;
-              sc = -scorr_scale * tn;
-            }
-            d += (li + lam[j] + sc) * k.spiky_gradient(r);
-          }
-          dp[i] = sw * d;
-        }
-      });
+      corrections(true);
       parallel(N, [&](size_t b, size_t e) {
         for (size_t i = b; i < e; ++i) {
           p[i] += dp[i];
@@ -395,6 +427,11 @@ FluidBody::FluidBody(const FluidSettings& st, const std::vector<FluidBlock>& blo
     double sq = 0.0;
     const double c0 = fluid::density_constraint(m.k, m.mass, st.rest_density, Vec3::Zero(), nb, &gi, &sq);
     m.ref_denominator = gi.squaredNorm() + sq;
+    // sum_j d^3 (x_j - x_i)_y dW/dy on the lattice: 1 for the continuous kernel, a little less
+    // on a lattice. A multiplier field lambda = a y pushes particles by a kappa per substep, so
+    // the pressure whose gradient the corrections balance is -lambda rho0 kappa / dt^2.
+    m.gradient_scale = 0.0;
+    for (const Vec3& q : nb) m.gradient_scale += st.spacing * st.spacing * st.spacing * q.y() * m.k.spiky_gradient(-q).y();
     m.epsilon = st.relaxation * m.ref_denominator;
     m.scorr_scale = st.scorr_k / m.ref_denominator;
     m.wdq = m.k.poly6(std::pow(st.scorr_dq * m.h, 2));
@@ -552,7 +589,7 @@ std::vector<double> FluidBody::pressure() const {
   const Impl& m = *impl_;
   std::vector<double> out(m.n(), 0.0);
   if (m.last_dt <= 0.0) return out;
-  for (size_t i = 0; i < m.n(); ++i) out[i] = -m.state.lambda[i] * m.s.rest_density / (m.last_dt * m.last_dt);
+  for (size_t i = 0; i < m.n(); ++i) out[i] = -m.state.lambda[i] * m.s.rest_density * m.gradient_scale / (m.last_dt * m.last_dt);
   return out;
 }
 
@@ -566,7 +603,9 @@ std::vector<double> FluidBody::density_ratios() const {
   for (size_t i = 0; i < x.size(); ++i) {
     nb.clear();
     for (uint32_t j : g.neighbours(i)) nb.push_back(x[j]);
-    out[i] = fluid::density_constraint(m.k, m.mass, m.s.rest_density, x[i], nb, nullptr, nullptr) + 1.0;
+    Vec3 gw;
+    out[i] = fluid::density_constraint(m.k, m.mass, m.s.rest_density, x[i], nb, nullptr, nullptr) + 1.0 +
+             m.wall_density(x[i], gw);
   }
   return out;
 }

@@ -6,7 +6,9 @@
 
 #include "pliant/mesh.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <numbers>
 #include <span>
 
@@ -48,6 +50,37 @@ struct Kernels {
     return (spiky_g * t * t / len) * r;
   }
 };
+
+// The fraction of poly6's mass beyond a plane at distance y from the kernel's centre (0.5 at
+// y = 0, 0 from y = h): (pi c / 4) int_y^h (h^2 - z^2)^4 dz with c = 315 / (64 pi h^9); and its
+// derivative with respect to y.
+inline double poly6_beyond(const Kernels& k, double y) {
+  if (y >= k.h) return 0.0;
+  y = std::max(y, 0.0);
+  const double h2 = k.h2;
+  auto g = [h2](double z) {
+    const double z2 = z * z;
+    return z * (h2 * h2 * h2 * h2 - 4.0 * h2 * h2 * h2 * z2 / 3.0 + 6.0 * h2 * h2 * z2 * z2 / 5.0 -
+                4.0 * h2 * z2 * z2 * z2 / 7.0 + z2 * z2 * z2 * z2 / 9.0);
+  };
+  return std::numbers::pi * k.poly6_c / 4.0 * (g(k.h) - g(y));
+}
+inline double poly6_beyond_slope(const Kernels& k, double y) {
+  if (y >= k.h) return 0.0;
+  y = std::max(y, 0.0);
+  const double t = k.h2 - y * y;
+  return -std::numbers::pi * k.poly6_c / 4.0 * t * t * t * t;
+}
+
+// grad W for the pair (i, j) at r = p_i - p_j: spiky_gradient, except for particles on the
+// same point (a container's corner can put several there), where the direction is a fixed
+// diagonal, signed by the index order so that the pair's gradients stay opposite, at the
+// kernel's largest slope.
+inline Vec3 pair_gradient(const Kernels& k, const Vec3& r, uint32_t i, uint32_t j) {
+  if (r.squaredNorm() > 1e-18 * k.h2) return k.spiky_gradient(r);
+  const double sign = i < j ? 1.0 : -1.0;
+  return (sign * k.spiky_g * k.h2 / std::sqrt(3.0)) * Vec3(1.0, 1.0, 1.0);
+}
 
 // The density constraint C_i = rho_i / rho0 - 1 of particle i at p_i with neighbours p_j
 // (rho_i = m sum_j W(p_i - p_j) + m W(0)), and its gradients: grad_i C_i = (m / rho0) sum_j
