@@ -80,6 +80,8 @@ struct FluidBody::Impl {
   std::vector<Vec3> x, v, p, x_prev, dp, omega;
   std::vector<double> lam, lam_sum, ratio, depth, mu_s, mu_k;
   std::vector<Vec3> contact_n;
+  std::vector<Vec3> pair_grad, wall_grad;  // per pair / particle, within one iteration
+  std::vector<double> pair_scorr;
   std::vector<uint32_t> perm;  // internal -> creation order
   std::vector<uint32_t> inv;   // creation order -> internal
 
@@ -239,30 +241,11 @@ struct FluidBody::Impl {
     const double sw = mass / s.rest_density;  // m / rho0
     const double w0 = mass * k.poly6(0.0);
     const int n_exp = s.scorr_n;
-    // The correction of multipliers lam (each pair (lam_i + lam_j + s_corr) grad W), into dp.
-    auto corrections = [&](bool with_scorr) {
-      parallel(N, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) {
-          const Vec3 pi = p[i];
-          const double li = lam[i];
-          Vec3 d = Vec3::Zero();
-          for (uint32_t j : grid.neighbours(i)) {
-            const Vec3 r = pi - p[j];
-            double sc = 0.0;
-            if (with_scorr && scorr_scale > 0.0) {
-              const double t = k.poly6(r.squaredNorm()) / wdq;
-              double tn = t;
-              for (int q = 1; q < n_exp; ++q) tn *= t;
-              sc = -scorr_scale * tn;
-            }
-            d += (li + lam[j] + sc) * fluid::pair_gradient(k, r, static_cast<uint32_t>(i), j);
-          }
-          Vec3 gw;
-          if (wall_density(pi, gw) > 0.0) d += (li / sw) * gw;  // the walls' share of grad_i C_i
-          dp[i] = sw * d;
-        }
-      });
-    };
+    // Each iteration: the multipliers, then the corrections from the same positions, so the
+    // pairs' kernel gradients and s_corr are computed once and kept for the second pass.
+    pair_grad.resize(grid.pairs());
+    pair_scorr.resize(grid.pairs());
+    wall_grad.resize(N);
     for (int it = 0; it < s.iterations; ++it) {
       parallel(N, [&](size_t b, size_t e) {
         for (size_t i = b; i < e; ++i) {
@@ -270,23 +253,47 @@ struct FluidBody::Impl {
           double rho = w0;
           Vec3 gi = Vec3::Zero();
           double sq = 0.0;
+          size_t idx = grid.first(i);
           for (uint32_t j : grid.neighbours(i)) {
             const Vec3 r = pi - p[j];
-            const double r2 = r.squaredNorm();
-            rho += mass * k.poly6(r2);
-            const Vec3 gj = sw * fluid::pair_gradient(k, r, static_cast<uint32_t>(i), j);
-            gi += gj;
-            sq += gj.squaredNorm();
+            const double w = k.poly6(r.squaredNorm());
+            rho += mass * w;
+            const Vec3 g = fluid::pair_gradient(k, r, static_cast<uint32_t>(i), j);
+            pair_grad[idx] = g;
+            double sc = 0.0;
+            if (scorr_scale > 0.0) {
+              const double t = w / wdq;
+              double tn = t;
+              for (int q = 1; q < n_exp; ++q) tn *= t;
+              sc = -scorr_scale * tn;
+            }
+            pair_scorr[idx] = sc;
+            ++idx;
+            gi += sw * g;
+            sq += sw * sw * g.squaredNorm();
           }
           Vec3 gw;
           const double c = rho / s.rest_density + wall_density(pi, gw) - 1.0;
+          wall_grad[i] = gw;
           gi += gw;
           ratio[i] = c + 1.0;
           // Only compression is corrected (C clamped at 0): multipliers stay <= 0.
           lam[i] = c > 0.0 ? -c / (gi.squaredNorm() + sq + epsilon) : 0.0;
         }
       });
-      corrections(true);
+      // Corrections: sum_j (lam_i + lam_j + s_corr) grad W, and the walls' share of grad_i C_i.
+      parallel(N, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) {
+          const double li = lam[i];
+          Vec3 d = Vec3::Zero();
+          size_t idx = grid.first(i);
+          for (uint32_t j : grid.neighbours(i)) {
+            d += (li + lam[j] + pair_scorr[idx]) * pair_grad[idx];
+            ++idx;
+          }
+          dp[i] = sw * d + li * wall_grad[i];
+        }
+      });
       parallel(N, [&](size_t b, size_t e) {
         for (size_t i = b; i < e; ++i) {
           p[i] += dp[i];
