@@ -87,11 +87,13 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
   const size_t ncells = cells_.size();
   run(pool, ncells, [&](int chunk, size_t b, size_t e) {
     std::vector<uint32_t>& out = chunk_list_[chunk];
-    std::vector<Vec3> cand_x;
+    std::vector<double> cx_, cy_, cz_, d2;  // candidates, structure of arrays (vectorised scan)
     std::vector<uint32_t> cand_i;
     for (size_t c = b; c < e; ++c) {
       const Cell& cell = cells_[c];
-      cand_x.clear();
+      cx_.clear();
+      cy_.clear();
+      cz_.clear();
       cand_i.clear();
       const int64_t cx = static_cast<int64_t>(cell.key & 0x1FFFFF), cy = static_cast<int64_t>((cell.key >> 21) & 0x1FFFFF),
                     cz = static_cast<int64_t>(cell.key >> 42);
@@ -104,15 +106,28 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
                                   static_cast<uint64_t>(ax));
             if (!nb) continue;
             for (uint32_t s = nb->begin; s < nb->end; ++s) {
-              cand_i.push_back(sorted_[s].second);
-              cand_x.push_back(x[sorted_[s].second]);
+              const uint32_t j = sorted_[s].second;
+              cand_i.push_back(j);
+              cx_.push_back(x[j].x());
+              cy_.push_back(x[j].y());
+              cz_.push_back(x[j].z());
             }
           }
       for (uint32_t s = cell.begin; s < cell.end; ++s) {
         const uint32_t i = sorted_[s].second;
-        const Vec3 xi = x[i];
-        for (size_t q = 0; q < cand_x.size(); ++q)
-          if ((cand_x[q] - xi).squaredNorm() < h2 && cand_i[q] != i) out.push_back(cand_i[q]);
+        const double xi = x[i].x(), yi = x[i].y(), zi = x[i].z();
+        const size_t nc = cand_i.size();
+        d2.resize(nc);
+        const double* px = cx_.data();
+        const double* py = cy_.data();
+        const double* pz = cz_.data();
+        double* pd = d2.data();
+        for (size_t q = 0; q < nc; ++q) {
+          const double dx = px[q] - xi, dy = py[q] - yi, dz = pz[q] - zi;
+          pd[q] = dx * dx + dy * dy + dz * dz;
+        }
+        for (size_t q = 0; q < nc; ++q)
+          if (pd[q] < h2 && cand_i[q] != i) out.push_back(cand_i[q]);
         offset_[s + 1] = static_cast<uint32_t>(out.size());  // chunk-relative for now
       }
     }
