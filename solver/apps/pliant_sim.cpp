@@ -14,6 +14,7 @@
 #include "pliant/strain_constraint.hpp"
 #include "pliant/version.hpp"
 #include "pliant/vtu_recording.hpp"
+#include "sim_fluid.hpp"
 
 #include <Eigen/SVD>
 #include <spdlog/fmt/fmt.h>
@@ -51,6 +52,7 @@ commands:
             equilibrium; with them, what that real-time budget gives. Last line: JSON.
   reference Static equilibrium of the same set-up by Newton's method (independent check).
   run       Simulate --steps steps under gravity and write VTK frames to --out DIR.
+  fluid     A position-based fluid: dam break or column at rest (pliant-sim fluid --help).
   accuracy  The true error ||x - x*|| / ||x0 - x*|| of one implicit-Euler step of length --dt
             against wall-clock ms, x* the Newton solution of the step, for every solver budget in
             --methods (see below). Last line: JSON with, per method, ms_to_error for 1e-1, 1e-2
@@ -793,8 +795,9 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (const std::string first = argv[1]; first != "--help" && first != "-h" && first != "--version" &&
+                                         first != "fluid" &&
                                          std::find(kCommands.begin(), kCommands.end(), first) == kCommands.end()) {
-    std::cerr << "pliant-sim: unknown command '" << first << "' (converge, static, reference, run, accuracy)\n";
+    std::cerr << "pliant-sim: unknown command '" << first << "' (converge, static, reference, run, accuracy, fluid)\n";
     return 2;
   }
   CLI::App app{"pliant-sim"};
@@ -808,9 +811,21 @@ int main(int argc, char** argv) {
     cli::add_options(*sub, kValued, kFlags, &values);
     sub->get_option("--log-level")->check(cli::one_of(cli::log_levels()));
   }
+  std::map<std::string, std::string> fluid_values;
+  {
+    CLI::App* sub = app.add_subcommand("fluid");
+    sub->formatter_fn([](const CLI::App*, std::string, CLI::AppFormatMode) { return std::string(sim::kFluidUsage); });
+    cli::add_options(*sub, sim::kFluidValued, sim::kFluidFlags, &fluid_values);
+    sub->get_option("--log-level")->check(cli::one_of(cli::log_levels()));
+  }
   if (auto rc = cli::parse_or_exit(app, argc, argv, "pliant-sim")) return *rc;
   const std::string cmd = app.get_subcommands().at(0)->get_name();
   try {
+    if (cmd == "fluid") {
+      const cli::Args fa(fluid_values);
+      spdlog::set_level(spdlog::level::from_str(fa.str("log-level", "warn")));
+      return sim::cmd_fluid(fa);
+    }
     const cli::Args a(values);
     spdlog::set_level(spdlog::level::from_str(a.str("log-level", "warn")));
     g_progress = std::make_unique<cli::Progress>("pliant-sim", !a.has("quiet") && cli::Progress::stderr_is_terminal());

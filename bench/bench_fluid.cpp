@@ -1,0 +1,82 @@
+// SPDX-License-Identifier: Apache-2.0
+// Google Benchmark: position-based fluids on 10,000 particles (a 17 x 34 x 17 lattice block
+// of spacing 2 cm in a box, after half a second of dam break so the particles are disordered).
+//   build/bench/bench_fluid --benchmark_counters_tabular=true
+// neighbour_search: the grid and every particle's neighbour list (arg: threads);
+// ns_per_particle the wall time / particles.
+// step_1it / step_4it: one substep of 1/120 s with 1 or 4 density iterations (prediction,
+// neighbour search, iterations, friction, velocities, XSPH); the difference over 3 is what one
+// iteration costs: ns_per_particle_iter = wall time / (particles x iterations) of the whole step.
+#include "fluid/neighbour_grid.hpp"
+#include "pliant/fluid.hpp"
+#include "step/thread_pool.hpp"
+
+#include <benchmark/benchmark.h>
+
+#include <memory>
+
+using namespace pliant;
+
+namespace {
+
+FluidSettings dam_settings(int threads, int iterations) {
+  FluidSettings s;
+  s.spacing = 0.02;
+  s.threads = threads;
+  s.substeps = 1;
+  s.iterations = iterations;
+  s.container = Collider::box(Vec3(0.68, 0.68, 0.17), Vec3(0.68, 0.68, 0.17));
+  return s;
+}
+
+// The dam break after 0.5 s (30 steps of 2 substeps x 4 iterations), as a state.
+const ParticleState& disordered_state() {
+  static const ParticleState st = [] {
+    FluidSettings s = dam_settings(2, 4);
+    s.substeps = 2;
+    FluidBody f(s, {FluidBlock{Vec3(0, 0, 0), Vec3(0.34, 0.68, 0.34)}});
+    for (int i = 0; i < 30; ++i) f.step(1.0 / 60.0, {});
+    return f.state();
+  }();
+  return st;
+}
+
+void BM_FluidNeighbourSearch(benchmark::State& state) {
+  const int threads = static_cast<int>(state.range(0));
+  const ParticleState& st = disordered_state();
+  std::unique_ptr<ThreadPool> pool = threads > 1 ? std::make_unique<ThreadPool>(threads) : nullptr;
+  fluid::NeighbourGrid grid;
+  for (auto _ : state) {
+    grid.build(st.x, 0.04, pool.get());
+    benchmark::DoNotOptimize(grid.pairs());
+  }
+  state.counters["particles"] = static_cast<double>(st.x.size());
+  state.counters["pairs_per_particle"] = static_cast<double>(grid.pairs()) / static_cast<double>(st.x.size());
+  state.counters["ns_per_particle"] = benchmark::Counter(
+      static_cast<double>(st.x.size()) * 1e-9, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
+}
+
+void BM_FluidStep(benchmark::State& state) {
+  const int threads = static_cast<int>(state.range(0));
+  const int iterations = static_cast<int>(state.range(1));
+  FluidBody f(dam_settings(threads, iterations), {FluidBlock{Vec3(0, 0, 0), Vec3(0.34, 0.68, 0.34)}});
+  const ParticleState& st = disordered_state();
+  for (auto _ : state) {
+    state.PauseTiming();
+    f.set_state(st);
+    state.ResumeTiming();
+    benchmark::DoNotOptimize(f.step(1.0 / 120.0, {}));
+  }
+  const double n = static_cast<double>(f.size());
+  state.counters["particles"] = n;
+  state.counters["ns_per_particle_iter"] = benchmark::Counter(
+      n * iterations * 1e-9, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
+}
+
+}  // namespace
+
+BENCHMARK(BM_FluidNeighbourSearch)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_FluidStep)->ArgNames({"threads", "iterations"})->Args({1, 1})->Args({1, 4})->Args({2, 1})->Args({2, 4})
+    ->Unit(benchmark::kMillisecond)->UseRealTime();
+
+BENCHMARK_MAIN();

@@ -1,0 +1,620 @@
+// SPDX-License-Identifier: Apache-2.0
+// Position-based fluids: one substep is (Macklin & Mueller 2013, algorithm 1) gravity and
+// prediction, the neighbour grid on the predicted positions, `iterations` Jacobi passes of the
+// density constraints (lambda_i, then the corrections with s_corr, then colliders and grabs),
+// friction, the velocity from the positions, XSPH viscosity and vorticity confinement.
+#include "pliant/fluid.hpp"
+
+#include "fluid/neighbour_grid.hpp"
+#include "fluid/sph_kernels.hpp"
+#include "step/thread_pool.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <map>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+namespace pliant {
+
+namespace {
+
+std::string num(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
+void require(bool ok, const std::string& field, const std::string& what, double value) {
+  if (!ok) throw std::invalid_argument("fluid: " + field + " " + what + " (got " + num(value) + ")");
+}
+
+bool finite(const Vec3& v) { return v.allFinite(); }
+
+void require_vec(const Vec3& v, const std::string& field) {
+  if (!finite(v)) throw std::invalid_argument("fluid: " + field + " must be finite");
+}
+
+// Two unit vectors orthogonal to the unit vector n (and to each other).
+void basis(const Vec3& n, Vec3& u, Vec3& w) {
+  const Vec3 a = std::abs(n.x()) < 0.9 ? Vec3(1, 0, 0) : Vec3(0, 1, 0);
+  u = n.cross(a).normalized();
+  w = n.cross(u);
+}
+
+}  // namespace
+
+struct FluidBody::Impl {
+  struct Emitter {
+    FluidEmitter spec;
+    std::vector<Vec3> layer;  // lattice points of one layer, relative to the centre
+    double travelled = 0.0;   // m since the last layer
+    size_t emitted = 0;
+  };
+  struct Grab {
+    size_t particle;  // creation order
+    Vec3 target;
+    double compliance;
+    double lambda = 0.0;
+    Vec3 normal = Vec3::Zero();
+    Vec3 force = Vec3::Zero();
+  };
+
+  FluidSettings s;
+  fluid::Kernels k;
+  double mass = 0.0;
+  double h = 0.0;
+  double ref_denominator = 0.0;  // sum_k |grad_k C_i|^2 inside a rest lattice, 1/m^2
+  double epsilon = 0.0;          // 1/m^2
+  double scorr_scale = 0.0;      // k / ref_denominator, m^2
+  double wdq = 0.0;              // W(dq)
+  double gradient_scale = 1.0;   // the spiky gradient's first moment on the rest lattice
+  double last_dt = 0.0;          // the last substep, s
+
+  // Internal (cell-sorted) order.
+  std::vector<Vec3> x, v, p, x_prev, dp, omega;
+  std::vector<double> lam, lam_sum, ratio, depth, mu_s, mu_k;
+  std::vector<Vec3> contact_n;
+  std::vector<Vec3> pair_grad, wall_grad;  // per pair / particle, within one iteration
+  std::vector<double> pair_scorr;
+  std::vector<uint32_t> perm;  // internal -> creation order
+  std::vector<uint32_t> inv;   // creation order -> internal
+
+  ParticleState state;  // creation order
+  std::vector<double> inv_mass;
+  std::vector<Emitter> emitters;
+  std::map<uint64_t, Grab> grabs;
+  fluid::NeighbourGrid grid;
+  std::unique_ptr<ThreadPool> pool;
+  uint64_t substeps_done = 0;
+
+  explicit Impl(const FluidSettings& settings) : s(settings), k(settings.spacing * settings.support_ratio) {}
+
+  void parallel(size_t n, const std::function<void(size_t, size_t)>& fn) {
+    if (pool)
+      pool->parallel_for(n, [&](int, size_t b, size_t e) { fn(b, e); }, 256);
+    else
+      fn(0, n);
+  }
+
+  size_t n() const { return x.size(); }
+
+  void add_particle(const Vec3& xi, const Vec3& vi) {
+    const uint32_t id = static_cast<uint32_t>(state.x.size());
+    x.push_back(xi);
+    v.push_back(vi);
+    lam_sum.push_back(0.0);
+    perm.push_back(id);
+    inv.push_back(static_cast<uint32_t>(x.size() - 1));
+    state.x.push_back(xi);
+    state.v.push_back(vi);
+    state.lambda.push_back(0.0);
+    inv_mass.push_back(1.0 / mass);
+  }
+
+  void reorder() {
+    const std::vector<uint32_t> order = fluid::NeighbourGrid::cell_order(x, h);
+    auto gather = [&](auto& a) {
+      std::remove_reference_t<decltype(a)> b(a.size());
+      for (size_t i = 0; i < order.size(); ++i) b[i] = a[order[i]];
+      a.swap(b);
+    };
+    gather(x);
+    gather(v);
+    gather(lam_sum);
+    gather(perm);
+    for (size_t i = 0; i < perm.size(); ++i) inv[perm[i]] = static_cast<uint32_t>(i);
+  }
+
+  void emit(double dt) {
+    for (Emitter& e : emitters) {
+      e.travelled += e.spec.speed * dt;
+      while (e.travelled >= s.spacing) {
+        e.travelled -= s.spacing;
+        if (e.emitted + e.layer.size() > e.spec.max_particles ||
+            n() + e.layer.size() > s.max_particles) {
+          e.travelled = 0.0;
+          break;
+        }
+        const Vec3 at = e.spec.centre + e.travelled * e.spec.direction;
+        for (const Vec3& q : e.layer) add_particle(at + q, e.spec.speed * e.spec.direction);
+        e.emitted += e.layer.size();
+      }
+    }
+  }
+
+  // Pushes p out of the colliders (inflated by the particle radius) and into the container;
+  // accumulates the depth and keeps the last normal and friction for particle i.
+  void collide(size_t i, std::span<const Collider> cols) {
+    const double r = s.particle_radius * s.spacing;
+    Vec3& pi = p[i];
+    for (const Collider& c : cols) {
+      ContactPoint cp;
+      if (!find_contact(c, pi, cp) || !(cp.depth > 0)) continue;
+      pi += cp.depth * cp.normal;
+      depth[i] += cp.depth;
+      contact_n[i] = cp.normal;
+      mu_s[i] = c.static_friction;
+      mu_k[i] = c.dynamic_friction;
+    }
+    if (s.container) {
+      const Collider& c = *s.container;
+      for (int a = 0; a < 3; ++a) {
+        const double hi = c.point[a] + c.half_extent[a] - r;
+        const double lo = c.point[a] - c.half_extent[a] + r;
+        double d = 0.0;
+        Vec3 nrm = Vec3::Zero();
+        if (pi[a] > hi) {
+          d = pi[a] - hi;
+          pi[a] = hi;
+          nrm[a] = -1.0;
+        } else if (pi[a] < lo) {
+          d = lo - pi[a];
+          pi[a] = lo;
+          nrm[a] = 1.0;
+        }
+        if (d > 0) {
+          depth[i] += d;
+          contact_n[i] = nrm;
+          mu_s[i] = c.static_friction;
+          mu_k[i] = c.dynamic_friction;
+        }
+      }
+    }
+  }
+
+  // The container's walls as fluid at rest beyond them (boundary density): the density
+  // fraction they add to particle at q (rho / rho0) and its gradient with respect to q.
+  double wall_density(const Vec3& q, Vec3& grad) const {
+    grad.setZero();
+    if (!s.container || !s.container_density) return 0.0;
+    const Collider& c = *s.container;
+    double f = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      const double ylo = q[a] - (c.point[a] - c.half_extent[a]);
+      const double yhi = (c.point[a] + c.half_extent[a]) - q[a];
+      if (ylo < h) {
+        f += fluid::poly6_beyond(k, ylo);
+        grad[a] += fluid::poly6_beyond_slope(k, ylo);
+      }
+      if (yhi < h) {
+        f += fluid::poly6_beyond(k, yhi);
+        grad[a] -= fluid::poly6_beyond_slope(k, yhi);
+      }
+    }
+    return f;
+  }
+
+  void substep(double dt, std::span<const Collider> inflated, ParticleStepReport& rep) {
+    emit(dt);
+    if (s.sort_interval > 0 && substeps_done % static_cast<uint64_t>(s.sort_interval) == 0) reorder();
+    ++substeps_done;
+    last_dt = dt;
+    const size_t N = n();
+    p.resize(N);
+    x_prev.resize(N);
+    dp.resize(N);
+    lam.resize(N);
+    ratio.resize(N);
+    depth.assign(N, 0.0);
+    contact_n.resize(N);
+    mu_s.resize(N);
+    mu_k.resize(N);
+    const Vec3 g = s.gravity;
+    parallel(N, [&](size_t b, size_t e) {
+      for (size_t i = b; i < e; ++i) {
+        v[i] += dt * g;
+        x_prev[i] = x[i];
+        p[i] = x[i] + dt * v[i];
+        lam_sum[i] = 0.0;
+        collide(i, inflated);
+      }
+    });
+    grid.build(p, h, pool.get());
+    for (auto& [id, gr] : grabs) gr.lambda = 0.0;
+
+    const double sw = mass / s.rest_density;  // m / rho0
+    const double w0 = mass * k.poly6(0.0);
+    const int n_exp = s.scorr_n;
+    // Each iteration: the multipliers, then the corrections from the same positions, so the
+    // pairs' kernel gradients and s_corr are computed once and kept for the second pass.
+    pair_grad.resize(grid.pairs());
+    pair_scorr.resize(grid.pairs());
+    wall_grad.resize(N);
+    for (int it = 0; it < s.iterations; ++it) {
+      parallel(N, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) {
+          const Vec3 pi = p[i];
+          double rho = w0;
+          Vec3 gi = Vec3::Zero();
+          double sq = 0.0;
+          size_t idx = grid.first(i);
+          for (uint32_t j : grid.neighbours(i)) {
+            const Vec3 r = pi - p[j];
+            const double w = k.poly6(r.squaredNorm());
+            rho += mass * w;
+            const Vec3 g = fluid::pair_gradient(k, r, static_cast<uint32_t>(i), j);
+            pair_grad[idx] = g;
+            double sc = 0.0;
+            if (scorr_scale > 0.0) {
+              const double t = w / wdq;
+              double tn = t;
+              for (int q = 1; q < n_exp; ++q) tn *= t;
+              sc = -scorr_scale * tn;
+            }
+            pair_scorr[idx] = sc;
+            ++idx;
+            gi += sw * g;
+            sq += sw * sw * g.squaredNorm();
+          }
+          Vec3 gw;
+          const double c = rho / s.rest_density + wall_density(pi, gw) - 1.0;
+          wall_grad[i] = gw;
+          gi += gw;
+          ratio[i] = c + 1.0;
+          // Only compression is corrected (C clamped at 0): multipliers stay <= 0.
+          lam[i] = c > 0.0 ? -c / (gi.squaredNorm() + sq + epsilon) : 0.0;
+        }
+      });
+      // Corrections: sum_j (lam_i + lam_j + s_corr) grad W, and the walls' share of grad_i C_i.
+      parallel(N, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) {
+          const double li = lam[i];
+          Vec3 d = Vec3::Zero();
+          size_t idx = grid.first(i);
+          for (uint32_t j : grid.neighbours(i)) {
+            d += (li + lam[j] + pair_scorr[idx]) * pair_grad[idx];
+            ++idx;
+          }
+          dp[i] = sw * d + li * wall_grad[i];
+        }
+      });
+      parallel(N, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) {
+          p[i] += dp[i];
+          lam_sum[i] += lam[i];
+          collide(i, inflated);
+        }
+      });
+      const double w = 1.0 / mass;
+      for (auto& [id, gr] : grabs) {
+        Vec3& pg = p[inv[gr.particle]];
+        const Vec3 diff = pg - gr.target;
+        const double len = diff.norm();
+        if (len < 1e-12) continue;
+        gr.normal = diff / len;
+        const double alpha = gr.compliance / (dt * dt);
+        const double dl = (-len - alpha * gr.lambda) / (w + alpha);
+        pg += w * dl * gr.normal;
+        gr.lambda += dl;
+      }
+    }
+    for (auto& [id, gr] : grabs) gr.force = gr.normal * gr.lambda / (dt * dt);
+
+    // Friction at position level against each particle's last contact, then velocities.
+    size_t contacts = 0;
+    for (size_t i = 0; i < N; ++i) contacts += depth[i] > 0.0;
+    parallel(N, [&](size_t b, size_t e) {
+      for (size_t i = b; i < e; ++i) {
+        if (depth[i] > 0.0) {
+          const Vec3 nn = contact_n[i];
+          const Vec3 moved = p[i] - x_prev[i];
+          const Vec3 tang = moved - moved.dot(nn) * nn;
+          const double tl = tang.norm();
+          if (tl > 0.0) {
+            if (tl <= mu_s[i] * depth[i])
+              p[i] -= tang;
+            else
+              p[i] -= tang * std::min(mu_k[i] * depth[i] / tl, 1.0);
+          }
+        }
+        v[i] = (p[i] - x_prev[i]) / dt;
+      }
+    });
+    // XSPH viscosity (Jacobi: from the velocities before it), symmetric weights.
+    if (s.xsph > 0.0) {
+      parallel(N, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) {
+          Vec3 acc = Vec3::Zero();
+          const Vec3 vi = v[i];
+          for (uint32_t j : grid.neighbours(i)) acc += (v[j] - vi) * k.poly6((p[i] - p[j]).squaredNorm());
+          dp[i] = vi + s.xsph * sw * acc;
+        }
+      });
+      std::swap(v, dp);
+    }
+    if (s.vorticity > 0.0) {
+      omega.resize(N);
+      parallel(N, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) {
+          Vec3 w = Vec3::Zero();
+          for (uint32_t j : grid.neighbours(i)) w += k.spiky_gradient(p[i] - p[j]).cross(v[j] - v[i]);
+          omega[i] = sw * w;
+        }
+      });
+      parallel(N, [&](size_t b, size_t e) {
+        for (size_t i = b; i < e; ++i) {
+          const double wi = omega[i].norm();
+          Vec3 eta = Vec3::Zero();
+          for (uint32_t j : grid.neighbours(i)) eta += (omega[j].norm() - wi) * k.spiky_gradient(p[i] - p[j]);
+          const double len = eta.norm();
+          dp[i] = len > 1e-12 ? Vec3(dt * s.vorticity * (eta / len).cross(omega[i])) : Vec3::Zero();
+        }
+      });
+      for (size_t i = 0; i < N; ++i) v[i] += dp[i];
+    }
+    std::swap(x, p);
+    rep.contacts = contacts;
+  }
+
+  void sync_state() {
+    const size_t N = n();
+    for (size_t i = 0; i < N; ++i) {
+      const uint32_t u = perm[i];
+      state.x[u] = x[i];
+      state.v[u] = v[i];
+      state.lambda[u] = lam_sum[i];
+    }
+  }
+};
+
+FluidBody::FluidBody(const FluidSettings& st, const std::vector<FluidBlock>& blocks,
+                     const std::vector<FluidEmitter>& emitters) {
+  require(std::isfinite(st.spacing) && st.spacing > 0, "spacing", "must be > 0", st.spacing);
+  require(std::isfinite(st.rest_density) && st.rest_density > 0, "rest_density", "must be > 0", st.rest_density);
+  require(std::isfinite(st.support_ratio) && st.support_ratio > 1.0 && st.support_ratio <= 4.0, "support_ratio",
+          "must be in (1, 4]", st.support_ratio);
+  require(std::isfinite(st.relaxation) && st.relaxation > 0, "relaxation", "must be > 0", st.relaxation);
+  require(std::isfinite(st.scorr_k) && st.scorr_k >= 0, "scorr_k", "must be >= 0", st.scorr_k);
+  require(st.scorr_n >= 1 && st.scorr_n <= 16, "scorr_n", "must be in [1, 16]", st.scorr_n);
+  require(std::isfinite(st.scorr_dq) && st.scorr_dq > 0 && st.scorr_dq < 1, "scorr_dq", "must be in (0, 1)",
+          st.scorr_dq);
+  require(std::isfinite(st.xsph) && st.xsph >= 0 && st.xsph <= 1, "xsph", "must be in [0, 1]", st.xsph);
+  require(std::isfinite(st.vorticity) && st.vorticity >= 0, "vorticity", "must be >= 0", st.vorticity);
+  require_vec(st.gravity, "gravity");
+  require(st.substeps >= 1, "substeps", "must be >= 1", st.substeps);
+  require(st.iterations >= 1, "iterations", "must be >= 1", st.iterations);
+  require(st.threads >= 1 && st.threads <= 256, "threads", "must be in [1, 256]", st.threads);
+  require(st.sort_interval >= 0, "sort_interval", "must be >= 0", st.sort_interval);
+  require(std::isfinite(st.particle_radius) && st.particle_radius >= 0 && st.particle_radius <= 1,
+          "particle_radius", "must be in [0, 1]", st.particle_radius);
+  require(st.max_particles >= 1 && st.max_particles < (size_t(1) << 31), "max_particles",
+          "must be in [1, 2^31)", static_cast<double>(st.max_particles));
+  if (st.container) {
+    const Collider& c = *st.container;
+    if (c.shape != Collider::Shape::Box) throw std::invalid_argument("fluid: container must be a box collider");
+    require_vec(c.point, "container.point");
+    require_vec(c.half_extent, "container.half_extent");
+    require(c.half_extent.minCoeff() > st.particle_radius * st.spacing, "container.half_extent",
+            "must exceed the particle radius on every axis", c.half_extent.minCoeff());
+  }
+
+  impl_ = std::make_unique<Impl>(st);
+  Impl& m = *impl_;
+  m.h = st.spacing * st.support_ratio;
+  m.mass = st.rest_density * st.spacing * st.spacing * st.spacing;
+  if (st.threads > 1) m.pool = std::make_unique<ThreadPool>(st.threads);
+
+  // The reference denominator: a particle inside a rest lattice of spacing d.
+  {
+    std::vector<Vec3> nb;
+    const int r = static_cast<int>(std::ceil(st.support_ratio));
+    for (int a = -r; a <= r; ++a)
+      for (int b = -r; b <= r; ++b)
+        for (int c = -r; c <= r; ++c) {
+          const Vec3 q = st.spacing * Vec3(a, b, c);
+          if ((a || b || c) && q.squaredNorm() < m.h * m.h) nb.push_back(q);
+        }
+    Vec3 gi;
+    double sq = 0.0;
+    const double c0 = fluid::density_constraint(m.k, m.mass, st.rest_density, Vec3::Zero(), nb, &gi, &sq);
+    m.ref_denominator = gi.squaredNorm() + sq;
+    // sum_j d^3 (x_j - x_i)_y dW/dy on the lattice: 1 for the continuous kernel, a little less
+    // on a lattice. A multiplier field lambda = a y pushes particles by a kappa per substep, so
+    // the pressure whose gradient the corrections balance is -lambda rho0 kappa / dt^2.
+    m.gradient_scale = 0.0;
+    for (const Vec3& q : nb) m.gradient_scale += st.spacing * st.spacing * st.spacing * q.y() * m.k.spiky_gradient(-q).y();
+    m.epsilon = st.relaxation * m.ref_denominator;
+    m.scorr_scale = st.scorr_k / m.ref_denominator;
+    m.wdq = m.k.poly6(std::pow(st.scorr_dq * m.h, 2));
+    spdlog::debug("fluid: h {} m, mass {} kg, {} lattice neighbours, lattice rho/rho0 {:.4f}", m.h, m.mass,
+                  nb.size(), c0 + 1.0);
+  }
+
+  for (size_t bi = 0; bi < blocks.size(); ++bi) {
+    const FluidBlock& b = blocks[bi];
+    const std::string f = "blocks[" + std::to_string(bi) + "]";
+    require_vec(b.min, f + ".min");
+    require_vec(b.max, f + ".max");
+    require_vec(b.velocity, f + ".velocity");
+    const Vec3 ext = b.max - b.min;
+    require(ext.minCoeff() >= 0, f + ".max", "must not be below min", ext.minCoeff());
+    const long nx = static_cast<long>(std::floor(ext.x() / st.spacing + 1e-9));
+    const long ny = static_cast<long>(std::floor(ext.y() / st.spacing + 1e-9));
+    const long nz = static_cast<long>(std::floor(ext.z() / st.spacing + 1e-9));
+    require(static_cast<double>(nx) * ny * nz + m.n() <= static_cast<double>(st.max_particles), f,
+            "holds more particles than max_particles", static_cast<double>(nx) * ny * nz);
+    for (long c = 0; c < nz; ++c)
+      for (long bb = 0; bb < ny; ++bb)
+        for (long a = 0; a < nx; ++a)
+          m.add_particle(b.min + st.spacing * Vec3(a + 0.5, bb + 0.5, c + 0.5), b.velocity);
+  }
+  for (size_t ei = 0; ei < emitters.size(); ++ei) {
+    const FluidEmitter& e = emitters[ei];
+    const std::string f = "emitters[" + std::to_string(ei) + "]";
+    require_vec(e.centre, f + ".centre");
+    require_vec(e.direction, f + ".direction");
+    require(e.direction.norm() > 1e-12, f + ".direction", "must not be zero", e.direction.norm());
+    require(std::isfinite(e.speed) && e.speed > 0, f + ".speed", "must be > 0", e.speed);
+    Impl::Emitter em;
+    em.spec = e;
+    em.spec.direction = e.direction.normalized();
+    Vec3 u, w;
+    basis(em.spec.direction, u, w);
+    if (e.shape == FluidEmitter::Shape::Disc) {
+      require(std::isfinite(e.radius) && e.radius > 0, f + ".radius", "must be > 0", e.radius);
+      const int r = static_cast<int>(std::floor(e.radius / st.spacing + 1e-9));
+      for (int a = -r; a <= r; ++a)
+        for (int b = -r; b <= r; ++b)
+          if ((a * a + b * b) * st.spacing * st.spacing <= e.radius * e.radius * (1 + 1e-9))
+            em.layer.push_back(st.spacing * (a * u + b * w));
+    } else {
+      require(std::isfinite(e.half_u) && e.half_u > 0, f + ".half_u", "must be > 0", e.half_u);
+      require(std::isfinite(e.half_v) && e.half_v > 0, f + ".half_v", "must be > 0", e.half_v);
+      const int ru = static_cast<int>(std::floor(e.half_u / st.spacing + 1e-9));
+      const int rv = static_cast<int>(std::floor(e.half_v / st.spacing + 1e-9));
+      for (int a = -ru; a <= ru; ++a)
+        for (int b = -rv; b <= rv; ++b) em.layer.push_back(st.spacing * (a * u + b * w));
+    }
+    m.emitters.push_back(std::move(em));
+  }
+  if (m.n() == 0 && m.emitters.empty())
+    throw std::invalid_argument("fluid: blocks hold no particle and there is no emitter (zero particles)");
+}
+
+FluidBody::~FluidBody() = default;
+
+size_t FluidBody::size() const { return impl_->n(); }
+const ParticleState& FluidBody::state() const { return impl_->state; }
+std::span<const double> FluidBody::inverse_masses() const { return impl_->inv_mass; }
+const FluidSettings& FluidBody::settings() const { return impl_->s; }
+double FluidBody::particle_mass() const { return impl_->mass; }
+double FluidBody::support_radius() const { return impl_->h; }
+
+void FluidBody::set_state(const ParticleState& st) {
+  Impl& m = *impl_;
+  const size_t N = m.n();
+  if (st.x.size() != N)
+    throw std::invalid_argument("fluid: state.x has " + std::to_string(st.x.size()) + " positions, the body " +
+                                std::to_string(N) + " particles");
+  if (st.v.size() != N)
+    throw std::invalid_argument("fluid: state.v has " + std::to_string(st.v.size()) + " velocities, the body " +
+                                std::to_string(N) + " particles");
+  if (!st.lambda.empty() && st.lambda.size() != N)
+    throw std::invalid_argument("fluid: state.lambda has " + std::to_string(st.lambda.size()) +
+                                " multipliers, the body " + std::to_string(N) + " particles (or give none)");
+  for (size_t i = 0; i < N; ++i) {
+    if (!st.x[i].allFinite()) throw std::invalid_argument("fluid: state.x[" + std::to_string(i) + "] is not finite");
+    if (!st.v[i].allFinite()) throw std::invalid_argument("fluid: state.v[" + std::to_string(i) + "] is not finite");
+    if (!st.lambda.empty() && !std::isfinite(st.lambda[i]))
+      throw std::invalid_argument("fluid: state.lambda[" + std::to_string(i) + "] is not finite");
+  }
+  require(std::isfinite(st.time), "state.time", "must be finite", st.time);
+  for (size_t i = 0; i < N; ++i) {
+    const uint32_t k = m.inv[i];
+    m.x[k] = st.x[i];
+    m.v[k] = st.v[i];
+    m.lam_sum[k] = st.lambda.empty() ? 0.0 : st.lambda[i];
+  }
+  m.state.time = st.time;
+  m.state.steps = st.steps;
+  m.sync_state();
+}
+
+ParticleStepReport FluidBody::step(double dt, std::span<const Collider> colliders) {
+  require(std::isfinite(dt) && dt > 0, "dt", "must be > 0", dt);
+  Impl& m = *impl_;
+  const auto t0 = std::chrono::steady_clock::now();
+  const double r = m.s.particle_radius * m.s.spacing;
+  std::vector<Collider> inflated(colliders.begin(), colliders.end());
+  for (Collider& c : inflated) {
+    switch (c.shape) {
+      case Collider::Shape::Plane: c.point += r * c.normal; break;
+      case Collider::Shape::Sphere: c.radius += r; break;
+      case Collider::Shape::Box: c.half_extent += Vec3::Constant(r); break;
+    }
+  }
+  ParticleStepReport rep;
+  rep.substeps = m.s.substeps;
+  rep.iterations = m.s.iterations;
+  const double h = dt / m.s.substeps;
+  for (int sub = 0; sub < m.s.substeps; ++sub) m.substep(h, inflated, rep);
+  // Density error at the last iteration (before its correction): compression only.
+  double sum = 0.0, mx = 0.0;
+  for (size_t i = 0; i < m.n(); ++i) {
+    const double e = std::max(m.ratio[i] - 1.0, 0.0);
+    sum += e;
+    mx = std::max(mx, e);
+  }
+  rep.constraint_error = m.n() ? sum / static_cast<double>(m.n()) : 0.0;
+  rep.max_constraint_error = mx;
+  m.state.time += dt;
+  ++m.state.steps;
+  m.sync_state();
+  rep.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return rep;
+}
+
+void FluidBody::grab(uint64_t id, size_t particle, const Vec3& target, double compliance) {
+  require(particle < size(), "grab particle", "must be below the particle count", static_cast<double>(particle));
+  require_vec(target, "grab target");
+  require(std::isfinite(compliance) && compliance >= 0, "grab compliance", "must be >= 0", compliance);
+  impl_->grabs[id] = Impl::Grab{particle, target, compliance};
+}
+
+bool FluidBody::move_grab(uint64_t id, const Vec3& target) {
+  require_vec(target, "grab target");
+  auto it = impl_->grabs.find(id);
+  if (it == impl_->grabs.end()) return false;
+  it->second.target = target;
+  return true;
+}
+
+bool FluidBody::release(uint64_t id) { return impl_->grabs.erase(id) > 0; }
+
+Vec3 FluidBody::grab_force(uint64_t id) const {
+  auto it = impl_->grabs.find(id);
+  return it == impl_->grabs.end() ? Vec3::Zero() : it->second.force;
+}
+
+std::vector<double> FluidBody::pressure() const {
+  const Impl& m = *impl_;
+  std::vector<double> out(m.n(), 0.0);
+  if (m.last_dt <= 0.0) return out;
+  for (size_t i = 0; i < m.n(); ++i) out[i] = -m.state.lambda[i] * m.s.rest_density * m.gradient_scale / (m.last_dt * m.last_dt);
+  return out;
+}
+
+std::vector<double> FluidBody::density_ratios() const {
+  const Impl& m = *impl_;
+  const std::vector<Vec3>& x = m.state.x;
+  fluid::NeighbourGrid g;
+  g.build(x, m.h, nullptr);
+  std::vector<double> out(x.size());
+  std::vector<Vec3> nb;
+  for (size_t i = 0; i < x.size(); ++i) {
+    nb.clear();
+    for (uint32_t j : g.neighbours(i)) nb.push_back(x[j]);
+    Vec3 gw;
+    out[i] = fluid::density_constraint(m.k, m.mass, m.s.rest_density, x[i], nb, nullptr, nullptr) + 1.0 +
+             m.wall_density(x[i], gw);
+  }
+  return out;
+}
+
+}  // namespace pliant

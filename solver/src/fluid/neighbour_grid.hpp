@@ -1,0 +1,54 @@
+// SPDX-License-Identifier: Apache-2.0
+// Fixed-radius neighbour search on a uniform grid of cell h: the points sorted by cell (z, y,
+// x), the occupied cells found through a hash table, and for every cell the points of its 27
+// neighbouring cells gathered once into a contiguous buffer that each of its points scans.
+// Each point's neighbours (distance < h, itself excluded) come in a fixed order (cells in z,
+// y, x order, points by index within a cell) whatever the number of threads.
+#pragma once
+
+#include "pliant/mesh.hpp"
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+namespace pliant {
+class ThreadPool;
+}
+
+namespace pliant::fluid {
+
+class NeighbourGrid {
+ public:
+  // Neighbours within h of every point of x; the pool may be null (one thread).
+  void build(std::span<const Vec3> x, double h, ThreadPool* pool);
+
+  size_t size() const { return slot_.size(); }
+  std::span<const uint32_t> neighbours(size_t i) const {
+    const uint32_t s = slot_[i];
+    return {list_.data() + offset_[s], list_.data() + offset_[s + 1]};
+  }
+  size_t pairs() const { return list_.size(); }  // directed pairs (each pair counted twice)
+  // Where point i's neighbours start in the list of all pairs (per-pair data goes there).
+  size_t first(size_t i) const { return offset_[slot_[i]]; }
+
+  // The permutation that orders points by grid cell (z, then y, then x; ties by index):
+  // order[k] = the point that goes to place k.
+  static std::vector<uint32_t> cell_order(std::span<const Vec3> x, double h);
+
+ private:
+  struct Cell {
+    uint64_t key;
+    uint32_t begin, end;  // in sorted_
+  };
+  std::vector<std::pair<uint64_t, uint32_t>> sorted_;  // (cell key, point), ascending
+  std::vector<uint32_t> slot_;                         // point -> place in sorted_
+  std::vector<Cell> cells_;
+  std::vector<int32_t> table_;  // open addressing: cell key -> index in cells_ (-1 empty)
+  std::vector<uint32_t> offset_;  // by place in sorted_
+  std::vector<uint32_t> list_;
+  std::vector<std::vector<uint32_t>> chunk_list_;
+  std::vector<uint32_t> chunk_first_;
+};
+
+}  // namespace pliant::fluid
