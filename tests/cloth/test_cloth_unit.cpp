@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <string>
 
@@ -299,4 +300,46 @@ TEST(ConstraintBody, PinnedParticlesStayAndGrabsPull) {
   EXPECT_TRUE(rope->release(7));
   EXPECT_FALSE(rope->release(7));
   EXPECT_EQ(rope->grab_force(7), Vec3::Zero());
+}
+
+TEST(ConstraintBody, VolumeConstraintKeepsAClosedSurfaceAtItsPressure) {
+  // an octahedron of distance constraints with soft edges, no gravity: the volume constraint
+  // (pressure 1.3) inflates it to 1.3 x its rest volume against the edges' compliance
+  std::vector<Vec3> x = {Vec3(1, 0, 0), Vec3(-1, 0, 0), Vec3(0, 1, 0), Vec3(0, -1, 0), Vec3(0, 0, 1), Vec3(0, 0, -1)};
+  const std::vector<Triangle> t = {{0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4}, {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}};
+  ConstraintBodySettings s;
+  s.gravity = Vec3::Zero();
+  s.volume = true;
+  s.pressure = 1.3;
+  s.stretch_compliance = 1e-2;
+  s.bending = false;
+  s.damping = 5.0;
+  s.self_collision = false;
+  auto body = ConstraintBody::cloth(x, t, 1.0, s);
+  EXPECT_NEAR(body->rest_volume(), 4.0 / 3.0, 1e-12);
+  EXPECT_EQ(body->constraint_count(), 12u + 1u);  // edges and the volume
+  for (int k = 0; k < 120; ++k) body->step(1.0 / 60, {});
+  EXPECT_NEAR(body->volume() / body->rest_volume(), 1.3, 1e-3);
+  // an open surface cannot carry a volume constraint
+  EXPECT_THROW(ConstraintBody::cloth({Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0)}, {{0, 1, 2}}, 1.0, s),
+               std::invalid_argument);
+}
+
+TEST(ConstraintBody, ClothFromASurfaceFile) {
+  // two triangles as an OBJ in centimetres, read with assimp
+  const std::string path = ::testing::TempDir() + "pliant_cloth_quad.obj";
+  {
+    std::FILE* f = std::fopen(path.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs("v 0 0 0\nv 10 0 0\nv 10 0 10\nv 0 0 10\nf 1 2 3\nf 1 3 4\n", f);
+    std::fclose(f);
+  }
+  ConstraintBodySettings s;
+  auto body = ConstraintBody::cloth_from_file(path, 0.01, 0.5, s);
+  EXPECT_EQ(body->size(), 4u);
+  EXPECT_EQ(body->triangles().size(), 2u);
+  EXPECT_EQ(body->distance_constraints(), 5u);
+  EXPECT_EQ(body->bending_constraints(), 1u);
+  EXPECT_NEAR(body->total_mass(), 0.1 * 0.1 * 0.5, 1e-12);
+  std::remove(path.c_str());
 }

@@ -429,12 +429,15 @@ void ConstraintBody::build_self_hash(double dt) {
   };
   std::vector<std::pair<uint32_t, uint32_t>> entries;  // (bucket, triangle)
   entries.reserve(nt * 8);
+  std::vector<Vec3> tri_lo(nt), tri_hi(nt);
   for (uint32_t t = 0; t < nt; ++t) {
     Vec3 lo = Vec3::Constant(1e300), hi = Vec3::Constant(-1e300);
     for (uint32_t v : triangles_[t]) {
       lo = lo.cwiseMin(state_.x[v]).cwiseMin(to[v]);
       hi = hi.cwiseMax(state_.x[v]).cwiseMax(to[v]);
     }
+    tri_lo[t] = lo.array() - reach;
+    tri_hi[t] = hi.array() + reach;
     std::array<int64_t, 6> r;
     if (cells(lo, hi, reach, r) > 4096) continue;  // a torn-apart triangle: skip
     for (int64_t i = r[0]; i <= r[1]; ++i)
@@ -459,8 +462,9 @@ void ConstraintBody::build_self_hash(double dt) {
     std::vector<uint32_t> mine;
     std::vector<uint32_t> seen(nt, UINT32_MAX);  // the particle that last saw a triangle
     for (size_t i = lo_i; i < hi_i; ++i) {
+      const Vec3 plo = state_.x[i].cwiseMin(to[i]), phi = state_.x[i].cwiseMax(to[i]);
       std::array<int64_t, 6> r;
-      if (cells(state_.x[i].cwiseMin(to[i]), state_.x[i].cwiseMax(to[i]), 0.0, r) > 512) continue;
+      if (cells(plo, phi, 0.0, r) > 512) continue;
       mine.clear();
       for (int64_t a = r[0]; a <= r[1]; ++a)
         for (int64_t b = r[2]; b <= r[3]; ++b)
@@ -470,6 +474,7 @@ void ConstraintBody::build_self_hash(double dt) {
               const uint32_t t = bucket_tris_[e];
               if (seen[t] == i) continue;
               seen[t] = uint32_t(i);
+              if ((plo.array() > tri_hi[t].array()).any() || (phi.array() < tri_lo[t].array()).any()) continue;
               mine.push_back(t);
             }
           }
