@@ -329,8 +329,18 @@ void ConstraintBody::solve_distance(size_t k, double h2) {
 void ConstraintBody::solve_bend(size_t k, double h2) {
   const Bend& b = bend_[k];
   const Vec3 &a = p_[b.a], &bb = p_[b.b], &c = p_[b.c], &d = p_[b.d];
-  const double theta = cloth_math::dihedral_angle(a, bb, c, d);
-  const auto g = cloth_math::dihedral_gradient(a, bb, c, d);
+  // cloth_math::dihedral_angle and dihedral_gradient, sharing the normals
+  const Vec3 e = bb - a;
+  const double el = e.norm();
+  const Vec3 n1 = e.cross(c - a);
+  const Vec3 n2 = (a - bb).cross(d - bb);
+  const double q1 = n1.squaredNorm(), q2 = n2.squaredNorm();
+  if (el < 1e-15 || q1 < 1e-30 || q2 < 1e-30) return;
+  const Vec3 eh = e / el;
+  const double theta = std::atan2(n1.cross(n2).dot(eh), n1.dot(n2));
+  const Vec3 m1 = n1 / q1, m2 = n2 / q2;
+  const Vec3 g[4] = {-(((c - bb).dot(eh)) * m1 + ((d - bb).dot(eh)) * m2),
+                     ((c - a).dot(eh)) * m1 + ((d - a).dot(eh)) * m2, -el * m1, -el * m2};
   const double ws[4] = {w_[b.a], w_[b.b], w_[b.c], w_[b.d]};
   const double alpha = settings_.bend_compliance / h2;
   double denom = alpha;
