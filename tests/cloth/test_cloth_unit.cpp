@@ -135,8 +135,8 @@ namespace {
 
 std::unique_ptr<ConstraintBody> small_cloth(int threads, bool self_collision = true) {
   ClothGridSpec spec;
-  spec.nx = 24;
-  spec.ny = 24;
+  spec.nx = 32;
+  spec.ny = 32;
   spec.size_x = 0.5;
   spec.size_y = 0.5;
   ConstraintBodySettings s;
@@ -204,14 +204,14 @@ TEST(ConstraintBody, ResultsDoNotDependOnTheThreadCount) {
   }
 }
 
-TEST(ConstraintBody, ColoursShareNoParticle) {
+TEST(ConstraintBody, GridCounts) {
   auto body = small_cloth(1);
   EXPECT_GT(body->colours(), 3u);
   EXPECT_EQ(body->state().lambda.size(), body->constraint_count());
   EXPECT_EQ(body->kind(), "cloth");
-  EXPECT_EQ(body->triangles().size(), size_t(2 * 23 * 23));
-  // stretch 2 x 23 x 24 + diagonal 23 x 23, shear 23 x 23, bending every interior edge
-  EXPECT_EQ(body->distance_constraints(), size_t(2 * 23 * 24 + 2 * 23 * 23));
+  EXPECT_EQ(body->triangles().size(), size_t(2 * 31 * 31));
+  // stretch 2 x 31 x 32 + one diagonal per quad, shear: the other diagonal
+  EXPECT_EQ(body->distance_constraints(), size_t(2 * 31 * 32 + 2 * 31 * 31));
 }
 
 TEST(ConstraintBody, SetStateRoundTrip) {
