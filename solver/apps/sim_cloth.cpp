@@ -28,6 +28,8 @@ cloth:     --grid N (64: N x N particles) --size M (1.0 m) --mass-per-area KG_M2
            --stretch-compliance C (1e-9 m/N) --shear-compliance C (1e-6 m/N)
            --bend-compliance C (1e3 1/(N m); none: no bending) --damping D (0 1/s)
            --thickness R (0.005 m) --threads T (1) --no-self-collision
+           --pressure P (a closed --mesh: keep P x its rest volume; off by default)
+           --volume-compliance C (0 m^5/N)
            Last line: JSON with ms_per_step_mean/p99, max_stretch (largest relative edge
            stretch over the run), final_stretch_rms, penetrations (particle-steps inside the
            sphere), min_clearance_m (closest particle or triangle centre to the sphere's
@@ -44,7 +46,7 @@ rope:      --segments N (100) --span S (1 m) --length L (1.2 m) --linear-density
 const std::set<std::string> kClothValued = {
     "log-level", "grid", "size", "mass-per-area", "mesh", "scale", "drape", "radius", "height", "seconds", "dt",
     "substeps", "iterations", "stretch-compliance", "shear-compliance", "bend-compliance", "damping",
-    "thickness", "threads", "segments", "span", "length", "linear-density"};
+    "thickness", "threads", "pressure", "volume-compliance", "segments", "span", "length", "linear-density"};
 const std::set<std::string> kClothFlags = {"quiet", "no-self-collision"};
 
 namespace {
@@ -72,6 +74,13 @@ ConstraintBodySettings settings_from(const cli::Args& a, const ConstraintBodySet
   s.damping = a.number("damping", s.damping);
   s.thickness = a.number("thickness", s.thickness);
   if (a.has("no-self-collision")) s.self_collision = false;
+  if (a.has("pressure")) {
+    s.volume = true;
+    s.pressure = a.number("pressure", 1.0);
+    if (!std::isfinite(s.pressure) || s.pressure <= 0.0)
+      throw cli::UsageError(fmt::format("--pressure: must be > 0 (got {})", s.pressure));
+  }
+  s.volume_compliance = a.number("volume-compliance", s.volume_compliance);
   auto check = [](const char* flag, double v, bool strict) {
     if (!std::isfinite(v) || v < 0.0 || (strict && v == 0.0))
       throw cli::UsageError(fmt::format("--{}: must be a number {} 0 (got {})", flag, strict ? ">" : ">=", v));
@@ -80,6 +89,7 @@ ConstraintBodySettings settings_from(const cli::Args& a, const ConstraintBodySet
   check("shear-compliance", s.shear_compliance, false);
   check("bend-compliance", s.bend_compliance, false);
   check("damping", s.damping, false);
+  check("volume-compliance", s.volume_compliance, false);
   check("thickness", s.thickness, true);
   return s;
 }
@@ -212,6 +222,7 @@ int cmd_cloth(const cli::Args& a, cli::Progress& progress) {
   j["max_speed"] = max_speed;
   j["contacts"] = contacts;
   j["self_contacts"] = self_contacts;
+  if (s.volume) j["volume_ratio"] = body->volume() / body->rest_volume();
   j["load_average"] = load_average();
   std::cout << cli::json_line(j) << std::endl;
   return nan ? 1 : 0;
