@@ -20,6 +20,10 @@ namespace pliant {
 
 namespace {
 
+// A colour smaller than this runs on the calling thread: below it the hand-off to the pool
+// costs about what the work does (a few microseconds of constraints).
+constexpr size_t kMinParallelColour = 1024;
+
 std::string num(double v) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "%g", v);
@@ -299,7 +303,7 @@ template <class F>
 void ConstraintBody::for_colours(const std::vector<size_t>& starts, F&& f) {
   for (size_t c = 0; c + 1 < starts.size(); ++c) {
     const size_t b = starts[c], e = starts[c + 1];
-    if (pool_ && e - b >= 256) {
+    if (pool_ && e - b >= kMinParallelColour) {
       pool_->parallel_for(e - b, [&](int, size_t lo, size_t hi) {
         for (size_t k = b + lo; k < b + hi; ++k) f(k);
       });
