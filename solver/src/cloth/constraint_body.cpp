@@ -112,7 +112,7 @@ Vec3 closest_barycentric(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3
   if (d3 >= 0 && d4 <= d3) return {0, 1, 0};
   const double vc = d1 * d4 - d3 * d2;
   if (vc <= 0 && d1 >= 0 && d3 <= 0) {
-    const double t = d1 / (d1 - d3);
+    const double t = d1 - d3 > 0 ? d1 / (d1 - d3) : 0.0;
     return {1 - t, t, 0};
   }
   const Vec3 cp = p - c;
@@ -120,18 +120,24 @@ Vec3 closest_barycentric(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3
   if (d6 >= 0 && d5 <= d6) return {0, 0, 1};
   const double vb = d5 * d2 - d1 * d6;
   if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-    const double t = d2 / (d2 - d6);
+    const double t = d2 - d6 > 0 ? d2 / (d2 - d6) : 0.0;
     return {1 - t, 0, t};
   }
   const double va = d3 * d6 - d5 * d4;
   if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-    const double t = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+    const double t = (d4 - d3) + (d5 - d6) > 0 ? (d4 - d3) / ((d4 - d3) + (d5 - d6)) : 0.0;
     return {0, 1 - t, t};
   }
-  const double denom = 1.0 / (va + vb + vc);
+  const double sum = va + vb + vc;
+  if (!(sum > 0)) return {1, 0, 0};  // degenerate triangle
+  const double denom = 1.0 / sum;
   const double v = vb * denom, w = vc * denom;
   return {1 - v - w, v, w};
 }
+
+// The cell index of a coordinate already divided by the cell size, clamped so that a body
+// that flew apart (or a NaN) neither overflows the conversion nor the cell counts below.
+inline int64_t cell_of(double v) { return std::isnan(v) ? 0 : int64_t(std::floor(std::clamp(v, -1e5, 1e5))); }
 
 inline uint32_t cell_hash(int64_t i, int64_t j, int64_t k, uint32_t mask) {
   const uint64_t h = static_cast<uint64_t>(i) * 73856093ull ^ static_cast<uint64_t>(j) * 19349663ull ^
@@ -437,8 +443,8 @@ void ConstraintBody::build_self_hash(double dt) {
   auto cells = [&](Vec3 lo, Vec3 hi, double grow, std::array<int64_t, 6>& r) {
     lo.array() -= grow;
     hi.array() += grow;
-    r = {int64_t(std::floor(lo.x() * inv)), int64_t(std::floor(hi.x() * inv)), int64_t(std::floor(lo.y() * inv)),
-         int64_t(std::floor(hi.y() * inv)), int64_t(std::floor(lo.z() * inv)), int64_t(std::floor(hi.z() * inv))};
+    r = {cell_of(lo.x() * inv), cell_of(hi.x() * inv), cell_of(lo.y() * inv),
+         cell_of(hi.y() * inv), cell_of(lo.z() * inv), cell_of(hi.z() * inv)};
     return (r[1] - r[0] + 1) * (r[3] - r[2] + 1) * (r[5] - r[4] + 1);
   };
   std::vector<std::pair<uint32_t, uint32_t>> entries;  // (bucket, triangle)
