@@ -14,6 +14,7 @@
 #include "pliant/strain_constraint.hpp"
 #include "pliant/version.hpp"
 #include "pliant/vtu_recording.hpp"
+#include "sim_cloth.hpp"
 #include "sim_fluid.hpp"
 
 #include <Eigen/SVD>
@@ -52,6 +53,9 @@ commands:
             equilibrium; with them, what that real-time budget gives. Last line: JSON.
   reference Static equilibrium of the same set-up by Newton's method (independent check).
   run       Simulate --steps steps under gravity and write VTK frames to --out DIR.
+  cloth     A cloth grid (or a triangle surface file) dropped on a sphere or a floor: ms per
+            step, stretch, penetrations. Last line: JSON (options below).
+  rope      A rope hung between two pins at equal height against the catenary. Last line: JSON.
   fluid     A position-based fluid: dam break or column at rest (pliant-sim fluid --help).
   accuracy  The true error ||x - x*|| / ||x0 - x*|| of one implicit-Euler step of length --dt
             against wall-clock ms, x* the Newton solution of the step, for every solver budget in
@@ -155,6 +159,7 @@ const std::set<std::string> kValued = {
 const std::set<std::string> kFlags = {"progress", "quiet", "no-line-search", "dynamic", "substep-floor"};
 
 const std::vector<std::string> kCommands = {"converge", "static", "reference", "run", "accuracy"};
+const std::vector<std::string> kParticleCommands = {"cloth", "rope"};
 
 // Progress on stderr while a command runs (cli::Progress: a line every 2 s on a terminal).
 std::unique_ptr<cli::Progress> g_progress;
@@ -796,13 +801,17 @@ int main(int argc, char** argv) {
   }
   if (const std::string first = argv[1]; first != "--help" && first != "-h" && first != "--version" &&
                                          first != "fluid" &&
-                                         std::find(kCommands.begin(), kCommands.end(), first) == kCommands.end()) {
-    std::cerr << "pliant-sim: unknown command '" << first << "' (converge, static, reference, run, accuracy, fluid)\n";
+                                         std::find(kCommands.begin(), kCommands.end(), first) == kCommands.end() &&
+                                         std::find(kParticleCommands.begin(), kParticleCommands.end(), first) ==
+                                             kParticleCommands.end()) {
+    std::cerr << "pliant-sim: unknown command '" << first << "' (converge, static, reference, run, accuracy, fluid, cloth, rope)\n";
     return 2;
   }
   CLI::App app{"pliant-sim"};
   app.set_version_flag("--version", std::string(pliant::kVersion));
-  app.formatter_fn([](const CLI::App*, std::string, CLI::AppFormatMode) { return std::string(kUsage); });
+  app.formatter_fn([](const CLI::App*, std::string, CLI::AppFormatMode) {
+    return std::string(kUsage) + pliant::sim::kClothUsage;
+  });
   app.require_subcommand(1, 1);
   std::map<std::string, std::string> values;
   for (const std::string& c : kCommands) {
@@ -816,6 +825,12 @@ int main(int argc, char** argv) {
     CLI::App* sub = app.add_subcommand("fluid");
     sub->formatter_fn([](const CLI::App*, std::string, CLI::AppFormatMode) { return std::string(sim::kFluidUsage); });
     cli::add_options(*sub, sim::kFluidValued, sim::kFluidFlags, &fluid_values);
+    sub->get_option("--log-level")->check(cli::one_of(cli::log_levels()));
+  }
+  for (const std::string& c : kParticleCommands) {
+    CLI::App* sub = app.add_subcommand(c);
+    sub->set_version_flag("--version", std::string(pliant::kVersion));
+    cli::add_options(*sub, pliant::sim::kClothValued, pliant::sim::kClothFlags, &values);
     sub->get_option("--log-level")->check(cli::one_of(cli::log_levels()));
   }
   if (auto rc = cli::parse_or_exit(app, argc, argv, "pliant-sim")) return *rc;
@@ -833,6 +848,8 @@ int main(int argc, char** argv) {
     if (cmd == "static") return cmd_static(a);
     if (cmd == "reference") return cmd_reference(a);
     if (cmd == "run") return cmd_run(a);
+    if (cmd == "cloth") return pliant::sim::cmd_cloth(a, *g_progress);
+    if (cmd == "rope") return pliant::sim::cmd_rope(a, *g_progress);
     return cmd_accuracy(a);
   } catch (const cli::UsageError& e) {
     g_progress.reset();

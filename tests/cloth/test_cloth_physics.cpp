@@ -1,0 +1,157 @@
+// SPDX-License-Identifier: Apache-2.0
+// Constraint bodies as physics: a rope hanging between two pins against the analytic
+// catenary, a 64 x 64 cloth draped over a sphere (no particle inside, no explosion at a stiff
+// stretch compliance), two falling layers kept apart by self-collision, and a grab's force
+// against the weight it holds.
+#include "pliant/cloth.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+#include <utility>
+
+using namespace pliant;
+
+namespace {
+
+struct CatenaryResult {
+  double sag = 0, expected_sag = 0, sag_error = 0, shape_error = 0, max_stretch = 0;
+};
+
+// A rope of `segments` links and length `length` hung between pins `span` apart at equal
+// height, started as a V, damped to rest over `seconds`.
+CatenaryResult hang_rope(int segments, double span, double length, double seconds) {
+  ConstraintBodySettings s;
+  s.stretch_compliance = 0.0;  // inextensible
+  s.bending = false;           // a chain: the catenary has no bending stiffness
+  s.damping = 2.0;
+  s.substeps = 100;
+  s.iterations = 1;
+  const double drop = std::sqrt(length * length - span * span) / 2.0;
+  auto rope = ConstraintBody::rope({Vec3(-span / 2, 0, 0), Vec3(0, -drop, 0), Vec3(span / 2, 0, 0)}, segments, 0.05, s);
+  rope->pin(0);
+  rope->pin(rope->size() - 1);
+  const int steps = int(std::lround(seconds * 60));
+  for (int k = 0; k < steps; ++k) rope->step(1.0 / 60, {});
+  CatenaryResult r;
+  const double a = cloth_math::catenary_parameter(span, length);
+  r.expected_sag = cloth_math::catenary_sag(span, length);
+  const auto& x = rope->state().x;
+  double lowest = 0.0, worst = 0.0;
+  for (const Vec3& p : x) {
+    lowest = std::min(lowest, p.y());
+    const double y = a * (std::cosh(p.x() / a) - std::cosh(span / (2 * a)));
+    worst = std::max(worst, std::abs(p.y() - y));
+  }
+  r.sag = -lowest;
+  r.sag_error = std::abs(r.sag - r.expected_sag) / r.expected_sag;
+  r.shape_error = worst / r.expected_sag;
+  r.max_stretch = rope->max_stretch();
+  return r;
+}
+
+}  // namespace
+
+TEST(RopePhysics, HangsAsTheCatenary) {
+  const CatenaryResult r = hang_rope(100, 1.0, 1.2, 10.0);
+  EXPECT_LT(r.sag_error, 0.02) << "sag " << r.sag << " m, catenary " << r.expected_sag << " m";
+  EXPECT_LT(r.shape_error, 0.02) << "largest |y - y_catenary| / sag";
+  EXPECT_LT(r.max_stretch, 5e-3);
+}
+
+TEST(RopePhysics, GrabForceCarriesTheWeight) {
+  ConstraintBodySettings s;
+  s.damping = 3.0;
+  s.substeps = 20;
+  auto rope = ConstraintBody::rope({Vec3(0, 0, 0), Vec3(0, -0.5, 0)}, 20, 0.2, s);
+  rope->grab(1, 0, Vec3(0, 0, 0), 0.0);
+  for (int k = 0; k < 300; ++k) rope->step(1.0 / 60, {});
+  const Vec3 f = rope->grab_force(1);
+  const double weight = rope->total_mass() * 9.81;
+  EXPECT_NEAR(f.y(), weight, 0.01 * weight) << "force " << f.transpose() << " N, weight " << weight << " N";
+  EXPECT_LT(std::hypot(f.x(), f.z()), 1e-6 * weight);
+}
+
+TEST(ClothPhysics, DrapesOverASphereWithoutTunnellingOrExploding) {
+  ClothGridSpec g;  // 64 x 64, 1 m x 1 m, horizontal
+  g.origin = Vec3(-0.5, 0.35, -0.5);
+  ConstraintBodySettings s;
+  s.stretch_compliance = 1e-9;
+  s.threads = 2;
+  auto cloth = ConstraintBody::cloth_grid(g, s);
+  const Vec3 centre(0, 0, 0);
+  const double radius = 0.3;
+  const std::vector<Collider> colliders = {Collider::sphere(centre, radius)};
+  double closest = 1e300, worst_stretch = 0.0, fastest = 0.0;
+  size_t touching = 0;
+  for (int k = 0; k < 180; ++k) {
+    const auto rep = cloth->step(1.0 / 60, colliders);
+    touching = rep.contacts;
+    for (size_t i = 0; i < cloth->size(); ++i) {
+      const Vec3& p = cloth->state().x[i];
+      ASSERT_TRUE(p.allFinite() && cloth->state().v[i].allFinite()) << "step " << k << " particle " << i;
+      closest = std::min(closest, (p - centre).norm());
+      fastest = std::max(fastest, cloth->state().v[i].norm());
+    }
+    for (const auto& t : cloth->triangles()) {
+      const Vec3 c = (cloth->state().x[t[0]] + cloth->state().x[t[1]] + cloth->state().x[t[2]]) / 3.0;
+      closest = std::min(closest, (c - centre).norm());
+    }
+    worst_stretch = std::max(worst_stretch, cloth->max_stretch());
+  }
+  EXPECT_GE(closest, radius) << "a particle or triangle centre went inside the sphere";
+  EXPECT_GE(closest, radius + 0.5 * s.thickness) << "closest " << closest;
+  // no explosion: edges stay within a bounded stretch at this budget (1 iteration, 16
+  // substeps: the draping swing stretches the free edges for a moment), and end near rest
+  EXPECT_LT(worst_stretch, 0.5) << "largest relative stretch of an edge over the run";
+  EXPECT_LT(cloth->step(1.0 / 60, colliders).constraint_error, 0.03) << "RMS relative stretch at the end";
+  EXPECT_LT(fastest, 20.0) << "largest particle speed, m/s";
+  EXPECT_GT(touching, 100u) << "the cloth should lie on the sphere at the end";
+}
+
+namespace {
+
+// Two 16 x 16 sheets 2 cm apart in one body, dropped on the floor: the smallest height of a
+// top particle above its bottom twin over the run and at the end.
+std::pair<double, double> stacked_layers_gap(bool self_collision) {
+  const int n = 16;
+  std::vector<Vec3> x;
+  std::vector<Triangle> t;
+  for (int layer = 0; layer < 2; ++layer) {
+    const int32_t base = int32_t(x.size());
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i) x.push_back(Vec3(-0.2 + 0.4 * i / (n - 1), 0.1 + 0.02 * layer, -0.2 + 0.4 * j / (n - 1)));
+    for (int j = 0; j + 1 < n; ++j)
+      for (int i = 0; i + 1 < n; ++i) {
+        const int32_t a = base + j * n + i, b = a + 1, c = a + n + 1, d = a + n;
+        t.push_back({a, b, c});
+        t.push_back({a, c, d});
+      }
+  }
+  ConstraintBodySettings s;
+  s.self_collision = self_collision;
+  s.damping = 0.5;
+  auto body = ConstraintBody::cloth(x, t, 0.2, s);
+  // the bottom layer stops on the floor, the top one lands on it
+  const std::vector<Collider> colliders = {Collider::plane(Vec3(0, 0, 0), Vec3(0, 1, 0))};
+  double gap = 1e300, last = 1e300;
+  for (int k = 0; k < 90; ++k) {
+    body->step(1.0 / 60, colliders);
+    last = 1e300;
+    for (int i = 0; i < n * n; ++i) last = std::min(last, body->state().x[n * n + i].y() - body->state().x[i].y());
+    gap = std::min(gap, last);
+  }
+  return {gap, last};
+}
+
+}  // namespace
+
+TEST(ClothPhysics, SelfCollisionKeepsTwoFallingLayersApart) {
+  const double thickness = ConstraintBodySettings{}.thickness;
+  const auto [with, with_end] = stacked_layers_gap(true);
+  EXPECT_GT(with, 0.0) << "smallest height of the top layer above the bottom one over the run, m";
+  EXPECT_GT(with_end, 0.8 * thickness) << "at rest the layers lie a thickness apart, m";
+  const auto [without, without_end] = stacked_layers_gap(false);
+  EXPECT_LT(without_end, 0.1 * thickness) << "without self-collision the layers should meet (the check can fail)";
+}
