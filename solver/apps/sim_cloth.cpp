@@ -51,12 +51,6 @@ const std::set<std::string> kClothFlags = {"quiet", "no-self-collision"};
 
 namespace {
 
-double load_average() {
-  std::ifstream f("/proc/loadavg");
-  double v = -1.0;
-  if (f) f >> v;
-  return v;
-}
 
 ConstraintBodySettings settings_from(const cli::Args& a, const ConstraintBodySettings& base) {
   ConstraintBodySettings s = base;
@@ -223,7 +217,7 @@ int cmd_cloth(const cli::Args& a, cli::Progress& progress) {
   j["contacts"] = contacts;
   j["self_contacts"] = self_contacts;
   if (s.volume) j["volume_ratio"] = body->volume() / body->rest_volume();
-  j["load_average"] = load_average();
+  j["load_average"] = cli::load_average();
   std::cout << cli::json_line(j) << std::endl;
   return nan ? 1 : 0;
 }
@@ -289,7 +283,7 @@ int cmd_rope(const cli::Args& a, cli::Progress& progress) {
   j["shape_error"] = worst / sag_cat;
   j["max_stretch"] = rope->max_stretch();
   j["nan"] = nan;
-  j["load_average"] = load_average();
+  j["load_average"] = cli::load_average();
   std::cout << cli::json_line(j) << std::endl;
   return nan ? 1 : 0;
 }

@@ -51,12 +51,6 @@ against depth, pressure_slope_expected (rho0 |g|), pressure_fit_r2.
 
 namespace {
 
-double load_average() {
-  std::ifstream f("/proc/loadavg");
-  double l = -1.0;
-  if (f) f >> l;
-  return l;
-}
 
 }  // namespace
 
@@ -199,7 +193,7 @@ int cmd_fluid(const cli::Args& a) {
     j["pressure_slope_expected"] = s.rest_density * s.gravity.norm();
     j["pressure_fit_r2"] = vx > 0 && vy > 0 ? cxy * cxy / (vx * vy) : 0.0;
   }
-  j["load_average"] = load_average();
+  j["load_average"] = cli::load_average();
   std::cout << cli::json_line(j) << std::endl;
   return 0;
 }

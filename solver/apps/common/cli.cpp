@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "cli.hpp"
 
+#include <fstream>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -161,6 +162,13 @@ void Progress::loop() {
     std::fprintf(stderr, "%s: [%.0f s] %s\n", program_.c_str(), s, text_.c_str());
     std::fflush(stderr);
   }
+}
+
+double load_average() {
+  std::ifstream f("/proc/loadavg");
+  double v = -1.0;
+  if (f) f >> v;
+  return v;
 }
 
 }  // namespace pliant::cli

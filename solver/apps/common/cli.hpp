@@ -44,6 +44,10 @@ const std::vector<std::string>& log_levels();
 // A JSON value as one line of strict JSON (field order kept with ordered_json).
 std::string json_line(const nlohmann::ordered_json& j);
 
+// The 1-minute load average (/proc/loadavg), -1 where it cannot be read: measuring programs
+// print it beside their timings.
+double load_average();
+
 // The options a tool's subcommand was given, by name without "--", with typed getters that
 // fail with a one-line message naming the option.
 class Args {
