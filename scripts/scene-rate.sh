@@ -2,9 +2,10 @@
 # SPDX-License-Identifier: Apache-2.0
 # Ticks per second a server keeps on the service's armadillo scene (feet fixed, E 1 MPa, gravity,
 # 1 substep x 1 iteration at 60 Hz, realtime): starts BUILD/server/pliant-server on a free local
-# port, creates the scene with BUILD/client/pliant, waits SECONDS, prints one line from
-# `pliant scenes get arm` and stops the server. Several build dirs are measured in turn,
-# ROUNDS times (interleaved, so that a shared machine's load hits them alike).
+# port, creates the scene with BUILD/client/pliant, waits SECONDS, prints the progress line of
+# `pliant scenes get arm` (ticks, ticks/s, late ticks, rollbacks) and stops the server. Several
+# build dirs are measured in turn, ROUNDS times (interleaved, so that a shared machine's load
+# hits them alike).
 #   bash scripts/scene-rate.sh [--seconds S] [--rounds N] [--iterations I] BUILD_DIR...
 set -euo pipefail
 seconds=20 rounds=1 iterations=1
@@ -35,7 +36,7 @@ measure() {
     --substeps 1 --iterations "$iterations" >/dev/null
   sleep "$seconds"
   local line
-  line=$("${cli[@]}" scenes get arm | tr '\n' ' ' | sed 's/  */ /g')
+  line=$("${cli[@]}" scenes get arm | tr '\n' ' ' | sed 's/  */ /g; s/.*progress/progress/')
   kill "$pid"
   wait "$pid" 2>/dev/null || true
   rm -rf "$data"

@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <stdexcept>
 
 namespace pliant {
@@ -56,7 +57,10 @@ struct Stepper::Impl {
   std::vector<double> partial;  // per-thread sums
   std::vector<int> floor_hits_per_chunk;  // per-thread corrections of a floor pass
   std::vector<uint32_t> floor_stamp;      // per vertex: the floor pass (serial) that last moved it
+  std::vector<uint32_t> floor_pack_mark;  // per pack: the floor pass that queued it
   uint32_t floor_serial = 0;              // floor passes made (with this vertex count)
+  std::vector<int32_t> floor_moved;       // vertices the last floor pass moved
+  std::vector<std::vector<int32_t>> floor_moved_chunks, floor_queue;  // per thread; per colour
 
   ThreadPool& threads(int n) {
     if (!pool || pool_threads != n) {
@@ -149,19 +153,29 @@ struct Stepper::Impl {
     return params.inversion_floor > 0 ? volume_pass(m, x, params.inversion_floor, tp) : 0;
   }
 
-  // One pass of the inversion floor in colour order, four tets at a time, each colour in
-  // parallel (no two tets of a colour share a vertex, so the result does not depend on the
-  // thread count). The first pass of a substep (all = true) visits every pack; a later one only
-  // the packs with a corner that a floor correction moved since the previous pass began: a
-  // tet's det F changes only when a corner moves. Returns the corrections made.
+  // One pass of the inversion floor in colour order, four tets at a time. The first pass of a
+  // substep (all = true) visits every pack, each colour in parallel (no two tets of a colour
+  // share a vertex, so the result does not depend on the thread count). A later one visits only
+  // the packs with a corner that a floor correction moved in the previous pass or earlier in
+  // this one (a tet's det F changes only when a corner moves), on this thread: a tangled body
+  // runs up to 40 of them with some 30 colours each, and on a loaded machine each colour's
+  // barrier waits for a worker to be scheduled (docs/solver.md, "The floor pass"). It finds
+  // them by checking every pack's corners or, when few vertices moved, from the moved
+  // vertices' tets: the same packs either way (the order within a colour does not matter).
+  // Returns the corrections made.
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp, bool all = true) {
     const detail::PackedModel& packed = detail::packed(m);
-    if (floor_stamp.size() != m.vertex_count() || floor_serial >= UINT32_MAX - 1) {
+    if (floor_stamp.size() != m.vertex_count() || floor_pack_mark.size() != packed.packs.size() ||
+        floor_serial >= UINT32_MAX - 1) {
       floor_stamp.assign(m.vertex_count(), 0);
+      floor_pack_mark.assign(packed.packs.size(), 0);
       floor_serial = 0;
     }
     const uint32_t serial = ++floor_serial;  // stamps >= serial - 1: moved in the last pass or this one
+    if (!all && floor_moved.size() * 8 < packed.packs.size()) return volume_pass_from_moved(m, x, floor, serial);
     floor_hits_per_chunk.assign(tp.size(), 0);
+    floor_moved_chunks.resize(tp.size());
+    for (auto& v : floor_moved_chunks) v.clear();
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
@@ -169,20 +183,65 @@ struct Stepper::Impl {
         for (size_t i = b; i < e; ++i) {
           const detail::TetPack& p = packed.packs[first + i];
           if (!all && !pack_moved(p, serial - 1)) continue;
-          const int corrected = detail::volume_floor_pack(p, x, floor);
-          for (int l = 0; l < p.lanes; ++l) {
-            if (!(corrected & (1 << l))) continue;
-            ++hits;
-            for (int k = 0; k < 4; ++k)
-              if (p.w[k][l] > 0) floor_stamp[p.v[k][l]] = serial;
-          }
+          hits += correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
         }
         floor_hits_per_chunk[chunk] += hits;
-      }, 32);
+      }, all ? 32 : SIZE_MAX);
     }
+    floor_moved.clear();
+    for (const auto& v : floor_moved_chunks) floor_moved.insert(floor_moved.end(), v.begin(), v.end());
     int total = 0;
     for (int h : floor_hits_per_chunk) total += h;
     return total;
+  }
+
+  // A later pass from the vertices the previous one moved: their packs are queued by colour, and
+  // a correction queues the packs of later colours around the corners it moved.
+  int volume_pass_from_moved(const BodyModel& m, std::vector<Vec3>& x, double floor, uint32_t serial) {
+    const detail::PackedModel& packed = detail::packed(m);
+    const size_t colours = packed.colour_begin.size() - 1;
+    floor_queue.resize(colours);
+    for (auto& q : floor_queue) q.clear();
+    auto queue_around = [&](int32_t v, size_t after_colour) {
+      for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
+        const size_t q = size_t(packed.vertex_slot_entry[a]) / 16;  // 4 x slot + corner; 4 slots per pack
+        if (floor_pack_mark[q] == serial) continue;
+        const size_t c = size_t(std::upper_bound(packed.colour_begin.begin(), packed.colour_begin.end(), q) -
+                                packed.colour_begin.begin()) - 1;
+        if (c + 1 <= after_colour) continue;  // an earlier colour (or this one): the next pass takes it
+        floor_pack_mark[q] = serial;
+        floor_queue[c].push_back(int32_t(q));
+      }
+    };
+    for (int32_t v : floor_moved) queue_around(v, 0);
+    floor_moved.clear();
+    int hits = 0;
+    for (size_t c = 0; c < colours; ++c)
+      for (size_t i = 0; i < floor_queue[c].size(); ++i) {
+        const size_t before = floor_moved.size();
+        hits += correct_pack(packed.packs[floor_queue[c][i]], x, floor, serial, floor_moved);
+        for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], c + 1);
+      }
+    return hits;
+  }
+
+  // The floor on one pack's lanes; stamps the corners it moved (appending those not yet moved in
+  // this pass to moved). Returns the corrections.
+  int correct_pack(const detail::TetPack& p, std::vector<Vec3>& x, double floor, uint32_t serial,
+                   std::vector<int32_t>& moved) {
+    const int corrected = detail::volume_floor_pack(p, x, floor);
+    int hits = 0;
+    for (int l = 0; l < p.lanes; ++l) {
+      if (!(corrected & (1 << l))) continue;
+      ++hits;
+      for (int k = 0; k < 4; ++k) {
+        const int32_t v = p.v[k][l];
+        if (!(p.w[k][l] > 0) || floor_stamp[v] == serial) continue;
+        floor_stamp[v] = serial;
+        moved.push_back(v);
+      }
+    }
+    return hits;
   }
 
   bool pack_moved(const detail::TetPack& p, uint32_t since) const {
