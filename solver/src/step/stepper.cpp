@@ -158,8 +158,9 @@ struct Stepper::Impl {
   // share a vertex, so the result does not depend on the thread count). A later one visits only
   // the packs with a corner that a floor correction moved in the previous pass or earlier in
   // this one (a tet's det F changes only when a corner moves), on this thread: a tangled body
-  // runs up to 40 of them with some 30 colours each, and on a loaded machine each colour's
-  // barrier waits for a worker to be scheduled (docs/solver.md, "The floor pass"). It finds
+  // runs up to 40 of them, split between threads each would need a barrier per colour (66 on
+  // the armadillo), and on a loaded machine each barrier waits for a worker to be scheduled
+  // (docs/solver.md, "The floor pass"). It finds
   // them by checking every pack's corners or, when few vertices moved, from the moved
   // vertices' tets: the same packs either way (the order within a colour does not matter).
   // Returns the corrections made.
