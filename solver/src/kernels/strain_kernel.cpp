@@ -581,16 +581,42 @@ T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x) {
 }
 
 template <class T>
-int volume_floor_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
-                       std::vector<int32_t>* hit) {
-  const T det = volume_ratio_lanes(p, x);
-  int hits = 0;
+int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor) {
+  T f[3][3];
+  deformation(p, x, f);
+  const T J = det3(f);
+  int below = 0;
   for (int l = 0; l < p.lanes; ++l)
-    if (get_lane(det, l) < floor && enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, floor)) {
-      ++hits;
-      if (hit) hit->push_back(int32_t(p.tet[l]));
+    if (get_lane(J, l) < floor) below |= 1 << l;
+  if (!below) return 0;
+  // grad_k det F = cof(F) b_k, b_k the rows of D_m^-1 (b_3 = -(b_0 + b_1 + b_2)); the columns of
+  // cof(F) are f_1 x f_2, f_2 x f_0, f_0 x f_1.
+  T cof[3][3];
+  cross(f[1], f[2], cof[0]);
+  cross(f[2], f[0], cof[1]);
+  cross(f[0], f[1], cof[2]);
+  T grad[4][3];
+  for (int c = 0; c < 3; ++c) {
+    for (int k = 0; k < 3; ++k) grad[k][c] = cof[0][c] * p.B[3 * k] + cof[1][c] * p.B[3 * k + 1] + cof[2][c] * p.B[3 * k + 2];
+    grad[3][c] = -(grad[0][c] + grad[1][c] + grad[2][c]);
+  }
+  T denom = splat<T>(0.0);
+  for (int k = 0; k < 4; ++k)
+    denom += p.w[k] * (grad[k][0] * grad[k][0] + grad[k][1] * grad[k][1] + grad[k][2] * grad[k][2]);
+  const T dl = (splat<T>(floor) - J) / denom;
+  int corrected = 0;
+  for (int l = 0; l < p.lanes; ++l) {
+    if (!(below & (1 << l)) || !(get_lane(denom, l) > 1e-300)) continue;
+    corrected |= 1 << l;
+    for (int k = 0; k < 4; ++k) {
+      const double s = get_lane(p.w[k], l) * get_lane(dl, l);
+      Vec3& q = x[p.v[k][l]];
+      q[0] += s * get_lane(grad[k][0], l);
+      q[1] += s * get_lane(grad[k][1], l);
+      q[2] += s * get_lane(grad[k][2], l);
     }
-  return hits;
+  }
+  return corrected;
 }
 
 template <class T>
@@ -615,8 +641,7 @@ double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, 
   template void apply_increment_lanes(const TetLanes<T>&, std::vector<Vec3>&, const std::vector<Vec6>&,            \
                                       ElasticModel);                                                               \
   template T volume_ratio_lanes(const TetLanes<T>&, const std::vector<Vec3>&);                                     \
-  template int volume_floor_lanes(const TetLanes<T>&, std::vector<Vec3>&, const BodyModel&, double,                \
-                                  std::vector<int32_t>*);                                                          \
+  template int volume_floor_pack(const TetLanes<T>&, std::vector<Vec3>&, double);                                \
   template double residual_squared_lanes(const TetLanes<T>&, const std::vector<Vec3>&, const std::vector<Vec6>&,   \
                                          const Mat6&, ElasticModel);
 #pragma GCC diagnostic push

@@ -119,11 +119,11 @@ void apply_increment_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const std
 template <class T>
 T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x);
 
-// Enforces the inversion floor on the real lanes whose det(F) is below it; returns how many.
-// The tets it corrected are appended to hit when given.
+// The inversion floor on the real lanes (tets of one colour) from the pack's own rest data: each
+// lane with det F below the floor takes the linearised correction of enforce_volume_floor
+// (projection.hpp), all lanes at once. Returns the corrected lanes as a bit mask.
 template <class T>
-int volume_floor_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const BodyModel& model, double floor,
-                       std::vector<int32_t>* hit = nullptr);
+int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor);
 
 // Sum over the real lanes of ||C + alpha~ lambda||^2 (lambda in slots).
 template <class T>

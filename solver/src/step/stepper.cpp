@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <stdexcept>
 
 namespace pliant {
@@ -25,13 +26,9 @@ using detail::ms_since;
 namespace {
 
 // End-of-substep passes of the inversion floor: the first visits every tet, the later ones only
-// the tets around what the previous pass corrected (nothing else moved), at most
-// kVolumePassVisits x the tet count of visits in all. At kVolumePasses x the tet count the
-// bound never binds (each later pass visits a tet at most once): a tighter one makes a tangled
-// body's tick much cheaper but leaves tets below the floor (docs/solver.md, "The floor pass"),
-// so it is not taken yet.
-constexpr int kVolumePasses = 20;
-constexpr double kVolumePassVisits = kVolumePasses;
+// the tets with a corner that a floor correction has moved since (docs/solver.md, "The floor
+// pass"), until a pass corrects nothing or kVolumePasses have run.
+constexpr int kVolumePasses = 40;
 
 // Adds the elapsed time of a scope to a counter.
 struct PhaseTimer {
@@ -58,9 +55,12 @@ struct Stepper::Impl {
   std::vector<Vec6> lambda_saved;
   std::vector<Vec3> jacobi_dx;  // 4 per slot
   std::vector<double> partial;  // per-thread sums
-  std::vector<std::vector<int32_t>> floor_hit_chunks;  // per-thread tets corrected by a floor pass
-  std::vector<int32_t> floor_hit, floor_candidates;
-  std::vector<uint8_t> floor_queued;  // per tet, set only while a pass collects its candidates
+  std::vector<int> floor_hits_per_chunk;  // per-thread corrections of a floor pass
+  std::vector<uint32_t> floor_stamp;      // per vertex: the floor pass (serial) that last moved it
+  std::vector<uint32_t> floor_pack_mark;  // per pack: the floor pass that queued it
+  uint32_t floor_serial = 0;              // floor passes made (with this vertex count)
+  std::vector<int32_t> floor_moved;       // vertices the last floor pass moved
+  std::vector<std::vector<int32_t>> floor_moved_chunks, floor_queue;  // per thread; per colour
 
   ThreadPool& threads(int n) {
     if (!pool || pool_threads != n) {
@@ -153,50 +153,103 @@ struct Stepper::Impl {
     return params.inversion_floor > 0 ? volume_pass(m, x, params.inversion_floor, tp) : 0;
   }
 
-  // One pass of the inversion floor over every tet, in colour order. The tets it corrected are
-  // left in floor_hit, sorted (the same list for any thread count).
-  int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp) {
+  // One pass of the inversion floor in colour order, four tets at a time. The first pass of a
+  // substep (all = true) visits every pack, each colour in parallel (no two tets of a colour
+  // share a vertex, so the result does not depend on the thread count). A later one visits only
+  // the packs with a corner that a floor correction moved in the previous pass or earlier in
+  // this one (a tet's det F changes only when a corner moves), on this thread: a tangled body
+  // runs up to 40 of them, split between threads each would need a barrier per colour (66 on
+  // the armadillo), and on a loaded machine each barrier waits for a worker to be scheduled
+  // (docs/solver.md, "The floor pass"). It finds
+  // them by checking every pack's corners or, when few vertices moved, from the moved
+  // vertices' tets: the same packs either way (the order within a colour does not matter).
+  // Returns the corrections made.
+  int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp, bool all = true) {
     const detail::PackedModel& packed = detail::packed(m);
-    floor_hit_chunks.resize(tp.size());
-    for (auto& h : floor_hit_chunks) h.clear();
+    if (floor_stamp.size() != m.vertex_count() || floor_pack_mark.size() != packed.packs.size() ||
+        floor_serial >= UINT32_MAX - 1) {
+      floor_stamp.assign(m.vertex_count(), 0);
+      floor_pack_mark.assign(packed.packs.size(), 0);
+      floor_serial = 0;
+    }
+    const uint32_t serial = ++floor_serial;  // stamps >= serial - 1: moved in the last pass or this one
+    if (!all && floor_moved.size() * 8 < packed.packs.size()) return volume_pass_from_moved(m, x, floor, serial);
+    floor_hits_per_chunk.assign(tp.size(), 0);
+    floor_moved_chunks.resize(tp.size());
+    for (auto& v : floor_moved_chunks) v.clear();
     for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
       const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
       tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i)
-          detail::volume_floor_lanes(packed.packs[first + i], x, m, floor, &floor_hit_chunks[chunk]);
-      }, 32);
+        int hits = 0;
+        for (size_t i = b; i < e; ++i) {
+          const detail::TetPack& p = packed.packs[first + i];
+          if (!all && !pack_moved(p, serial - 1)) continue;
+          hits += correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
+        }
+        floor_hits_per_chunk[chunk] += hits;
+      }, all ? 32 : SIZE_MAX);
     }
-    floor_hit.clear();
-    for (const auto& h : floor_hit_chunks) floor_hit.insert(floor_hit.end(), h.begin(), h.end());
-    std::sort(floor_hit.begin(), floor_hit.end());
-    return int(floor_hit.size());
+    floor_moved.clear();
+    for (const auto& v : floor_moved_chunks) floor_moved.insert(floor_moved.end(), v.begin(), v.end());
+    int total = 0;
+    for (int h : floor_hits_per_chunk) total += h;
+    return total;
   }
 
-  // A later pass: a tet's det F can only have changed if one of its corners was moved by the
-  // previous pass, so only the tets sharing a vertex with a tet in floor_hit are visited, each
-  // once, on this thread, in the order they are found from floor_hit (the same for any thread
-  // count), at most `budget` of them (taken off it). Leaves this pass's corrections in floor_hit.
-  int volume_pass_around_hits(const BodyModel& m, std::vector<Vec3>& x, double floor, size_t& budget) {
-    floor_queued.resize(m.tets.size(), 0);
-    floor_candidates.clear();
-    for (size_t h = 0; h < floor_hit.size() && floor_candidates.size() < budget; ++h)
-      for (int k = 0; k < 4; ++k) {
-        const int32_t v = m.tets[floor_hit[h]].v[k];
-        for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
-          const int32_t n = m.vertex_tet_entry[a] / 4;
-          if (!floor_queued[n]) {
-            floor_queued[n] = 1;
-            floor_candidates.push_back(n);
-          }
-        }
+  // A later pass from the vertices the previous one moved: their packs are queued by colour, and
+  // a correction queues the packs of later colours around the corners it moved.
+  int volume_pass_from_moved(const BodyModel& m, std::vector<Vec3>& x, double floor, uint32_t serial) {
+    const detail::PackedModel& packed = detail::packed(m);
+    const size_t colours = packed.colour_begin.size() - 1;
+    floor_queue.resize(colours);
+    for (auto& q : floor_queue) q.clear();
+    auto queue_around = [&](int32_t v, size_t after_colour) {
+      for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
+        const size_t q = size_t(packed.vertex_slot_entry[a]) / 16;  // 4 x slot + corner; 4 slots per pack
+        if (floor_pack_mark[q] == serial) continue;
+        const size_t c = size_t(std::upper_bound(packed.colour_begin.begin(), packed.colour_begin.end(), q) -
+                                packed.colour_begin.begin()) - 1;
+        if (c + 1 <= after_colour) continue;  // an earlier colour (or this one): the next pass takes it
+        floor_pack_mark[q] = serial;
+        floor_queue[c].push_back(int32_t(q));
       }
-    for (int32_t n : floor_candidates) floor_queued[n] = 0;
-    if (floor_candidates.size() > budget) floor_candidates.resize(budget);
-    budget -= floor_candidates.size();
-    floor_hit.clear();
-    for (int32_t t : floor_candidates)
-      if (detail::enforce_volume_floor(m.tets[t], x, m.inv_mass, floor)) floor_hit.push_back(t);
-    return int(floor_hit.size());
+    };
+    for (int32_t v : floor_moved) queue_around(v, 0);
+    floor_moved.clear();
+    int hits = 0;
+    for (size_t c = 0; c < colours; ++c)
+      for (size_t i = 0; i < floor_queue[c].size(); ++i) {
+        const size_t before = floor_moved.size();
+        hits += correct_pack(packed.packs[floor_queue[c][i]], x, floor, serial, floor_moved);
+        for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], c + 1);
+      }
+    return hits;
+  }
+
+  // The floor on one pack's lanes; stamps the corners it moved (appending those not yet moved in
+  // this pass to moved). Returns the corrections.
+  int correct_pack(const detail::TetPack& p, std::vector<Vec3>& x, double floor, uint32_t serial,
+                   std::vector<int32_t>& moved) {
+    const int corrected = detail::volume_floor_pack(p, x, floor);
+    int hits = 0;
+    for (int l = 0; l < p.lanes; ++l) {
+      if (!(corrected & (1 << l))) continue;
+      ++hits;
+      for (int k = 0; k < 4; ++k) {
+        const int32_t v = p.v[k][l];
+        if (!(p.w[k][l] > 0) || floor_stamp[v] == serial) continue;
+        floor_stamp[v] = serial;
+        moved.push_back(v);
+      }
+    }
+    return hits;
+  }
+
+  bool pack_moved(const detail::TetPack& p, uint32_t since) const {
+    for (int k = 0; k < 4; ++k)
+      for (int l = 0; l < p.lanes; ++l)
+        if (floor_stamp[p.v[k][l]] >= since) return true;
+    return false;
   }
 
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
@@ -477,14 +530,12 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     PhaseTimer t{rep.times.other_ms};
     int hits = I.volume_pass(m, x, s.inversion_floor, tp);
     rep.volume_corrections += hits;
-    size_t visits = size_t(kVolumePassVisits * double(m.tet_count()));
     int pass = 1;
-    for (; pass < kVolumePasses && hits > 0 && visits > 0; ++pass) {
-      hits = I.volume_pass_around_hits(m, x, s.inversion_floor, visits);
+    for (; pass < kVolumePasses && hits > 0; ++pass) {
+      hits = I.volume_pass(m, x, s.inversion_floor, tp, false);
       rep.volume_corrections += hits;
     }
-    if (hits > 0 && visits == 0)
-      spdlog::trace("inversion floor: visit budget spent after {} passes, {} corrections in the last", pass, hits);
+    spdlog::trace("inversion floor: {} passes, {} corrections in the last", pass, hits);
   }
   if (interacting) I.finish_interaction(x, inputs, h, rep);
   rep.wall_ms = ms_since(t_start) - hook_ms;
