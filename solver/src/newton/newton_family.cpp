@@ -752,11 +752,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       }
       rep.residuals.push_back(r);
       rep.residual_final = r;
-      if (hook) {
-        const auto th = Clock::now();
-        hook(it, x, r, ms_since(t_start) - hook_ms);
-        hook_ms += ms_since(th);
-      }
+      if (hook) call_iteration_hook(hook, it, x, r, t_start, hook_ms);
       if (!std::isfinite(r)) {
         rep.diverged = true;
         break;

@@ -19,6 +19,17 @@ inline double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
+// Calls an experiment's iteration hook with the time since t0 minus the time spent in earlier
+// hooks, then adds this call's own time to hook_ms. One clock reading serves both, so the
+// times handed to the hook never decrease (a pause between two readings would otherwise make
+// the next time smaller than this one).
+inline void call_iteration_hook(const Stepper::IterationHook& hook, int it, const std::vector<Vec3>& x, double r,
+                                Clock::time_point t0, double& hook_ms) {
+  const auto th = Clock::now();
+  hook(it, x, r, std::chrono::duration<double, std::milli>(th - t0).count() - hook_ms);
+  hook_ms += ms_since(th);
+}
+
 // Saves the positions in x_start, then v += h (g weight/inertia + f/inertia), x += h v for the
 // free vertices (fixed vertices get v = 0). The result is the inertial target the solvers
 // start from.

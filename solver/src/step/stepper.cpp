@@ -496,11 +496,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       rep.residuals.push_back(r);
       rep.residual_final = r;
     }
-    if (I.hook) {
-      const auto th = Clock::now();
-      I.hook(it, x, r, ms_since(t_start) - hook_ms);
-      hook_ms += ms_since(th);
-    }
+    if (I.hook) detail::call_iteration_hook(I.hook, it, x, r, t_start, hook_ms);
     if (s.record_residuals) {
       // Tools and grabs move vertices after the sweep, so the first iteration's residual can
       // exceed r0 by any factor (r0 is exactly 0 for an undisturbed body without gravity):

@@ -453,11 +453,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
           total.residual_final = r;
         }
       }
-      if (hook) {
-        const auto th = Clock::now();
-        hook(it, state.x, r, ms_since(t_sub) - hook_ms);
-        hook_ms += ms_since(th);
-      }
+      if (hook) call_iteration_hook(hook, it, state.x, r, t_sub, hook_ms);
       if (residuals && !std::isfinite(r)) {
         total.diverged = true;
         break;
