@@ -33,6 +33,19 @@ TEST(Inversion, AnInvertedTetRecoversItsRestOrientation) {
   EXPECT_LT(strain_vector(deformation_gradient(model->tets[0], gather(state.x, model->tets[0].v))).norm(), 0.02);
 }
 
+// A beam squashed to 5% of its height (about y = 5 mm) and shaken by up to 2 mm per coordinate
+// (edges are 5 mm): hundreds of inverted tets.
+static void squash_and_shake(std::vector<Vec3>& x, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> shake(-0.002, 0.002);
+  for (Vec3& p : x) {
+    p.y() = 0.005 + 0.05 * (p.y() - 0.005);
+    // One draw per statement: gcc and clang evaluate constructor arguments in different orders.
+    const double dx = shake(rng), dy = shake(rng), dz = shake(rng);
+    p += Vec3(dx, dy, dz);
+  }
+}
+
 // The end-of-substep floor passes after the first visit only the tets around the previous
 // pass's corrections; this checks that nothing below the floor escapes them. beam1 squashed to
 // 5% of its height and shaken (up to 2 mm per coordinate; edges are 5 mm) has over 200 inverted
@@ -42,14 +55,7 @@ TEST(Inversion, FloorPassesLeaveNoTetBelowTheFloor) {
   TetMesh mesh = *builtin_mesh("beam1");
   auto model = build_model(mesh, Material{1e5, 0.4, 1000});
   BodyState state = rest_state(*model);
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<double> shake(-0.002, 0.002);
-  for (Vec3& p : state.x) {
-    p.y() = 0.005 + 0.05 * (p.y() - 0.005);
-    // One draw per statement: gcc and clang evaluate constructor arguments in different orders.
-    const double dx = shake(rng), dy = shake(rng), dz = shake(rng);
-    p += Vec3(dx, dy, dz);
-  }
+  squash_and_shake(state.x, 7);
   const size_t inverted_before = count_inverted(*model, state.x);
   ASSERT_GT(inverted_before, 100u) << "the squash should invert tets, or the test shows nothing";
   SolverSettings s;
@@ -73,13 +79,7 @@ TEST(Inversion, FloorPassesGiveTheSameResultForAnyThreadCount) {
   TetMesh mesh = *builtin_mesh("beam3");
   auto model = build_model(mesh, Material{1e5, 0.4, 1000});
   BodyState start = rest_state(*model);
-  std::mt19937 rng(11);
-  std::uniform_real_distribution<double> shake(-0.002, 0.002);
-  for (Vec3& p : start.x) {
-    p.y() = 0.005 + 0.05 * (p.y() - 0.005);
-    const double dx = shake(rng), dy = shake(rng), dz = shake(rng);
-    p += Vec3(dx, dy, dz);
-  }
+  squash_and_shake(start.x, 11);
   ASSERT_GT(count_inverted(*model, start.x), 100u);
   SolverSettings s;
   s.gravity.setZero();
