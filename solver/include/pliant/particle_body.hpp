@@ -39,6 +39,10 @@ struct ParticleStepReport {
   double wall_ms = 0.0;
 };
 
+// set_state's common check: throws std::invalid_argument naming `kind` and the field when the
+// state's positions or velocities are not one per particle.
+void check_particle_counts(const ParticleState& state, size_t particles, const std::string& kind);
+
 class ParticleBody {
  public:
   virtual ~ParticleBody() = default;

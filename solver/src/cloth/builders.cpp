@@ -6,6 +6,7 @@
 
 #include "pliant/render_mesh.hpp"
 
+#include <spdlog/fmt/fmt.h>
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -16,18 +17,12 @@ namespace pliant {
 
 namespace {
 
-std::string num(double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
-
 }  // namespace
 
 std::unique_ptr<ConstraintBody> ConstraintBody::cloth(std::vector<Vec3> vertices, const std::vector<Triangle>& triangles,
                                                       double mass_per_area, const ConstraintBodySettings& settings) {
   if (!std::isfinite(mass_per_area) || mass_per_area <= 0.0)
-    throw std::invalid_argument("cloth: mass_per_area must be > 0 kg/m^2 (got " + num(mass_per_area) + ")");
+    throw std::invalid_argument("cloth: mass_per_area must be > 0 kg/m^2 (got " + fmt::format("{:g}", mass_per_area) + ")");
   if (vertices.size() < 3) throw std::invalid_argument("cloth: vertices: need at least 3 (got " +
                                                        std::to_string(vertices.size()) + ")");
   if (triangles.empty()) throw std::invalid_argument("cloth: triangles: none given");
@@ -79,9 +74,9 @@ std::unique_ptr<ConstraintBody> ConstraintBody::cloth_grid(const ClothGridSpec& 
   if (spec.ny < 2 || spec.ny > 4096)
     throw std::invalid_argument("cloth grid: ny must be in [2, 4096] (got " + std::to_string(spec.ny) + ")");
   if (!std::isfinite(spec.size_x) || spec.size_x <= 0.0)
-    throw std::invalid_argument("cloth grid: size_x must be > 0 m (got " + num(spec.size_x) + ")");
+    throw std::invalid_argument("cloth grid: size_x must be > 0 m (got " + fmt::format("{:g}", spec.size_x) + ")");
   if (!std::isfinite(spec.size_y) || spec.size_y <= 0.0)
-    throw std::invalid_argument("cloth grid: size_y must be > 0 m (got " + num(spec.size_y) + ")");
+    throw std::invalid_argument("cloth grid: size_y must be > 0 m (got " + fmt::format("{:g}", spec.size_y) + ")");
   if (!spec.origin.allFinite()) throw std::invalid_argument("cloth grid: origin must be finite");
   if (!spec.u.allFinite() || !spec.v.allFinite() || spec.u.cross(spec.v).norm() < 1e-9)
     throw std::invalid_argument("cloth grid: u and v must be finite and not parallel");
@@ -122,7 +117,7 @@ std::unique_ptr<ConstraintBody> ConstraintBody::cloth_from_file(const std::strin
                                                                 double mass_per_area,
                                                                 const ConstraintBodySettings& settings) {
   if (!std::isfinite(scale) || scale <= 0.0)
-    throw std::invalid_argument("cloth file: scale must be > 0 (got " + num(scale) + ")");
+    throw std::invalid_argument("cloth file: scale must be > 0 (got " + fmt::format("{:g}", scale) + ")");
   SurfaceLoadOptions options;
   options.scale = scale;
   options.weld = true;
@@ -137,7 +132,7 @@ std::unique_ptr<ConstraintBody> ConstraintBody::rope(const std::vector<Vec3>& po
   if (segments < 1 || segments > 1000000)
     throw std::invalid_argument("rope: segments must be in [1, 1000000] (got " + std::to_string(segments) + ")");
   if (!std::isfinite(linear_density) || linear_density <= 0.0)
-    throw std::invalid_argument("rope: linear_density must be > 0 kg/m (got " + num(linear_density) + ")");
+    throw std::invalid_argument("rope: linear_density must be > 0 kg/m (got " + fmt::format("{:g}", linear_density) + ")");
   std::vector<double> s{0.0};
   for (size_t k = 0; k < polyline.size(); ++k) {
     if (!polyline[k].allFinite()) throw std::invalid_argument("rope: polyline point " + std::to_string(k) + " is not finite");

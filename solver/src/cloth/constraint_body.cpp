@@ -7,6 +7,7 @@
 
 #include "step/thread_pool.hpp"
 
+#include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -24,16 +25,10 @@ namespace {
 // costs about what the work does (a few microseconds of constraints).
 constexpr size_t kMinParallelColour = 1024;
 
-std::string num(double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
-
 void check_nonneg(const char* field, double v) {
   if (!std::isfinite(v) || v < 0.0)
     throw std::invalid_argument(std::string("ConstraintBodySettings.") + field + " must be a finite number >= 0 (got " +
-                                num(v) + ")");
+                                fmt::format("{:g}", v) + ")");
 }
 
 void validate(const ConstraintBodySettings& s) {
@@ -43,7 +38,7 @@ void validate(const ConstraintBodySettings& s) {
   check_nonneg("volume_compliance", s.volume_compliance);
   check_nonneg("damping", s.damping);
   if (!std::isfinite(s.pressure) || s.pressure <= 0.0)
-    throw std::invalid_argument("ConstraintBodySettings.pressure must be > 0 (got " + num(s.pressure) + ")");
+    throw std::invalid_argument("ConstraintBodySettings.pressure must be > 0 (got " + fmt::format("{:g}", s.pressure) + ")");
   if (!s.gravity.allFinite()) throw std::invalid_argument("ConstraintBodySettings.gravity must be finite");
   if (s.substeps < 1 || s.substeps > 10000)
     throw std::invalid_argument("ConstraintBodySettings.substeps must be in [1, 10000] (got " +
@@ -52,7 +47,7 @@ void validate(const ConstraintBodySettings& s) {
     throw std::invalid_argument("ConstraintBodySettings.iterations must be in [1, 10000] (got " +
                                 std::to_string(s.iterations) + ")");
   if (!std::isfinite(s.thickness) || s.thickness <= 0.0)
-    throw std::invalid_argument("ConstraintBodySettings.thickness must be > 0 m (got " + num(s.thickness) + ")");
+    throw std::invalid_argument("ConstraintBodySettings.thickness must be > 0 m (got " + fmt::format("{:g}", s.thickness) + ")");
   if (s.threads < 1 || s.threads > 256)
     throw std::invalid_argument("ConstraintBodySettings.threads must be in [1, 256] (got " +
                                 std::to_string(s.threads) + ")");
@@ -161,7 +156,7 @@ void ConstraintBody::finish(const ConstraintBodySettings& settings) {
   w_.resize(n);
   for (size_t i = 0; i < n; ++i) {
     if (!(m_[i] > 0.0) || !std::isfinite(m_[i]))
-      throw std::invalid_argument("masses: particle " + std::to_string(i) + " has mass " + num(m_[i]) +
+      throw std::invalid_argument("masses: particle " + std::to_string(i) + " has mass " + fmt::format("{:g}", m_[i]) +
                                   " kg (every particle must carry mass > 0: is it on no triangle/segment?)");
     w_[i] = 1.0 / m_[i];
   }
@@ -246,12 +241,7 @@ double ConstraintBody::volume() const { return cloth_math::enclosed_volume(state
 
 void ConstraintBody::set_state(const ParticleState& s) {
   const size_t n = size();
-  if (s.x.size() != n)
-    throw std::invalid_argument("ParticleState.x has " + std::to_string(s.x.size()) + " positions, the body " +
-                                std::to_string(n) + " particles");
-  if (s.v.size() != n)
-    throw std::invalid_argument("ParticleState.v has " + std::to_string(s.v.size()) + " velocities, the body " +
-                                std::to_string(n) + " particles");
+  check_particle_counts(s, n, kind());
   if (s.lambda.size() != constraint_count())
     throw std::invalid_argument("ParticleState.lambda has " + std::to_string(s.lambda.size()) +
                                 " multipliers, the body " + std::to_string(constraint_count()) + " constraints");
@@ -286,7 +276,7 @@ void ConstraintBody::grab(uint64_t id, size_t particle, const Vec3& target, doub
                                 std::to_string(size()) + ")");
   if (!target.allFinite()) throw std::invalid_argument("grab: target is not finite");
   if (!std::isfinite(compliance) || compliance < 0.0)
-    throw std::invalid_argument("grab: compliance must be a finite number >= 0 m/N (got " + num(compliance) + ")");
+    throw std::invalid_argument("grab: compliance must be a finite number >= 0 m/N (got " + fmt::format("{:g}", compliance) + ")");
   grabs_[id] = Grab{particle, target, compliance};
 }
 
@@ -625,7 +615,7 @@ size_t ConstraintBody::solve_colliders(std::span<const Collider> colliders) {
 }
 
 ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> colliders) {
-  if (!std::isfinite(dt) || dt <= 0.0) throw std::invalid_argument("step: dt must be > 0 s (got " + num(dt) + ")");
+  if (!std::isfinite(dt) || dt <= 0.0) throw std::invalid_argument("step: dt must be > 0 s (got " + fmt::format("{:g}", dt) + ")");
   const auto t0 = std::chrono::steady_clock::now();
   const int ns = settings_.substeps;
   const double h = dt / ns, h2 = h * h;

@@ -9,6 +9,7 @@
 #include "fluid/sph_kernels.hpp"
 #include "step/thread_pool.hpp"
 
+#include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -24,14 +25,8 @@ namespace pliant {
 
 namespace {
 
-std::string num(double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
-
 void require(bool ok, const std::string& field, const std::string& what, double value) {
-  if (!ok) throw std::invalid_argument("fluid: " + field + " " + what + " (got " + num(value) + ")");
+  if (!ok) throw std::invalid_argument("fluid: " + field + " " + what + " (got " + fmt::format("{:g}", value) + ")");
 }
 
 bool finite(const Vec3& v) { return v.allFinite(); }
@@ -509,12 +504,7 @@ double FluidBody::support_radius() const { return impl_->h; }
 void FluidBody::set_state(const ParticleState& st) {
   Impl& m = *impl_;
   const size_t N = m.n();
-  if (st.x.size() != N)
-    throw std::invalid_argument("fluid: state.x has " + std::to_string(st.x.size()) + " positions, the body " +
-                                std::to_string(N) + " particles");
-  if (st.v.size() != N)
-    throw std::invalid_argument("fluid: state.v has " + std::to_string(st.v.size()) + " velocities, the body " +
-                                std::to_string(N) + " particles");
+  check_particle_counts(st, N, "fluid");
   if (!st.lambda.empty() && st.lambda.size() != N)
     throw std::invalid_argument("fluid: state.lambda has " + std::to_string(st.lambda.size()) +
                                 " multipliers, the body " + std::to_string(N) + " particles (or give none)");
