@@ -137,6 +137,8 @@ class NewtonFamily final : public SolverFamily {
   bool keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const;
   // lagged_ = contacts_ with their normal forces at the current positions.
   void remember_normal_forces();
+  // contact_force_ for contacts_ at x (tool contacts need them; empty work without one).
+  void tool_contact_forces(const BodyModel& m, const std::vector<Vec3>& x, double h, ThreadPool& tp);
   // y = H_ x, rows in parallel (H_ stores both triangles, so column c is row c).
   void multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::VectorXd& y) const;
   // d_ from CG on H_ d = -g_ to |H d + g| <= eta |g| in the preconditioner's norm, at most
@@ -171,6 +173,8 @@ class NewtonFamily final : public SolverFamily {
   std::vector<Contact> lagged_;  // the contacts at the end of the last iteration, normal force k depth
   std::vector<double> attachment_k_;
   std::vector<double> contact_k_;  // per vertex: its penalty stiffness in this substep
+  std::vector<Vec3> contact_force_;   // per contact in contacts_: the force on the body at the end
+  std::vector<double> penalty_sum_;   // per vertex: sum of its contacts' k depth (scratch)
   bool inputs_have_obstacles_ = false;
   double tool_time_offset_ = 0;  // the substep's end relative to the step's end (<= 0)
   std::unique_ptr<ThreadPool> pool_;
@@ -501,6 +505,36 @@ Vec3 friction_force(const Contact& c, const std::vector<Vec3>& x, const std::vec
   return u < eps ? Vec3(-bound / eps * ut) : Vec3(-bound * ut / u);
 }
 
+void NewtonFamily::tool_contact_forces(const BodyModel& m, const std::vector<Vec3>& x, double h, ThreadPool& tp) {
+  contact_force_.assign(contacts_.size(), Vec3::Zero());
+  bool touched = false;
+  for (const Contact& c : contacts_) touched = touched || c.tool >= 0;
+  if (!touched) return;
+  // What holds each touching vertex where it is: the inertial and elastic gradient of the
+  // incremental potential at x (at the solution it equals the contacts' penalty and friction
+  // forces, whose gradients cancel it), shared between the vertex's contacts in proportion to
+  // their penalty forces. An iterate short of the solution can leave a vertex a little inside an
+  // obstacle that the iteration did not see (a body springing back after a tool that is lifted
+  // away); its penalty k depth is then far from any force the body exerts (tens of newtons for
+  // a few tens of micrometres), while the balance stays the force the body puts on the tool.
+  assemble(m, x, h, tp, false);
+  const double eps = kStickSpeed * h;
+  penalty_sum_.assign(m.vertex_count(), 0.0);
+  for (const Contact& c : contacts_) penalty_sum_[c.vertex] += contact_k_[c.vertex] * c.depth;
+  for (size_t k = 0; k < contacts_.size(); ++k) {
+    const Contact& c = contacts_[k];
+    const double share = penalty_sum_[c.vertex] > 0 ? contact_k_[c.vertex] * c.depth / penalty_sum_[c.vertex] : 0.0;
+    const Vec3 balance = share * Vec3(g_.segment<3>(dof_[c.vertex]));
+    // An obstacle only pushes, and friction stays inside the cone of that push (bounded by the
+    // penalty's own friction force, which is what the iteration used).
+    const double fn = std::max(0.0, balance.dot(c.normal));
+    Vec3 ft = balance - balance.dot(c.normal) * c.normal;
+    const double ft_max = std::min(c.friction * fn, friction_force(c, x, x_start_, eps).norm());
+    if (ft.norm() > ft_max) ft *= ft_max / ft.norm();
+    contact_force_[k] = fn * c.normal + ft;
+  }
+}
+
 void NewtonFamily::add_interaction(const BodyModel& m, const std::vector<Vec3>& x, double h,
                                    const StepInputs& in, bool hessian) {
   double* values = H_.valuePtr();
@@ -771,13 +805,14 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         break;
       }
     }
-    // Reactions of this substep from the energies' gradients at the final positions.
+    // Reactions of this substep at the final positions.
     const auto t_fin = Clock::now();
-    const double eps = kStickSpeed * h;
     find_contacts(m, x, h, in);
-    for (const Contact& c : contacts_) {
+    tool_contact_forces(m, x, h, tp);
+    for (size_t k = 0; k < contacts_.size(); ++k) {
+      const Contact& c = contacts_[k];
       if (c.tool < 0) continue;
-      const Vec3 f_body = contact_k_[c.vertex] * c.depth * c.normal + friction_force(c, x, x_start_, eps);
+      const Vec3& f_body = contact_force_[k];
       ToolReaction& r = total.tools[c.tool];
       const Vec3 f_tool = -f_body;
       r.force += f_tool;
