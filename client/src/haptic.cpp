@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <fstream>
 #include <sstream>
 
 namespace pliant::haptic {
@@ -60,7 +61,8 @@ Vec3 SimulatedDevice::last_force() const {
 // ---------------------------------------------------------------------------------------
 ForceRenderer::ForceRenderer(SafetyLimits limits, double max_stiffness) : limits_(limits), max_k_(max_stiffness) {}
 
-Vec3 ForceRenderer::update(const Vec3& position, const ServerForce& server, bool lost, double dt) {
+Vec3 ForceRenderer::update(const Vec3& position, const ServerForce& server, bool lost, double dt,
+                           Clock::time_point now) {
   if (lost || !server.valid) {
     // Cut at once: the one change the rate limit never slows.
     k_ = 0;
@@ -86,7 +88,11 @@ Vec3 ForceRenderer::update(const Vec3& position, const ServerForce& server, bool
       last_pose_ = server.pose;
       have_last_ = true;
     }
-    const double deeper = (server.pose - position).dot(n);
+    double deeper = limits_.extrapolate_ms > 0 ? (server.pose - position).dot(n) : 0.0;
+    if (server.pose_time != Clock::time_point{}) {
+      const double age_ms = std::chrono::duration<double, std::milli>(now - server.pose_time).count();
+      if (age_ms > limits_.extrapolate_ms) deeper *= limits_.extrapolate_ms / age_ms;
+    }
     target = std::max(0.0, fn + k_ * deeper) * n;
   } else {
     have_last_ = false;
@@ -232,7 +238,7 @@ void HapticBridge::loop_thread() {
     }
     const bool stale = !sf.valid || now - sf.received > std::chrono::duration<double, std::milli>(opt_.limits.stale_ms);
     const bool lost = !connected_.load() || stale;
-    const Vec3 f = renderer.update(p, sf, lost, dt);
+    const Vec3 f = renderer.update(p, sf, lost, dt, now);
     device_->render(f);
     if (f.isZero() && zero_loop_.load() < loss_loop_.load()) zero_loop_ = i;
 
@@ -292,6 +298,15 @@ bool HapticBridge::ensure_scene(client::Client& c) {
 }
 
 void HapticBridge::network_thread() {
+  std::ofstream trace;
+  if (!opt_.trace_path.empty()) {
+    trace.open(opt_.trace_path, std::ios::trunc);
+    if (!trace)
+      spdlog::error("pliant-haptic: cannot write the trace '{}': {}", opt_.trace_path, std::strerror(errno));
+    else
+      trace << "t_ms,tick,skipped_ticks,pose_seq,pose_age_ms,pose_x,pose_y,pose_z,force_x,force_y,force_z,contacts\n";
+  }
+  const auto t_start = Clock::now();
   bool first_connect = true;
   while (running_.load()) {
     if (!first_connect) {
@@ -354,6 +369,20 @@ void HapticBridge::network_thread() {
         server_.force = Vec3(fb.force().x(), fb.force().y(), fb.force().z());
         server_.pose = pose_history_[fb.pose_seq() % kPoseHistory];
         server_.received = now;
+        // The echoed send time is this process's steady clock (steady_ns), so it is the pose's
+        // time on the loop's clock.
+        server_.pose_time = fb.pose_client_time_ns() > 0
+                                ? Clock::time_point(std::chrono::duration_cast<Clock::duration>(
+                                      std::chrono::nanoseconds(fb.pose_client_time_ns())))
+                                : Clock::time_point{};
+      }
+      if (trace.is_open()) {
+        const Vec3 pose = pose_history_[fb.pose_seq() % kPoseHistory];
+        const double age_ms = fb.pose_client_time_ns() > 0 ? (steady_ns() - fb.pose_client_time_ns()) * 1e-6 : 0.0;
+        trace << fmt::format("{:.3f},{},{},{},{:.3f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{}\n",
+                             std::chrono::duration<double, std::milli>(now - t_start).count(), fb.tick(),
+                             fb.skipped_ticks(), fb.pose_seq(), age_ms, pose.x(), pose.y(), pose.z(),
+                             fb.force().x(), fb.force().y(), fb.force().z(), fb.contacts_size());
       }
       if (!connected_.exchange(true)) spdlog::info("pliant-haptic: streaming with scene '{}'", opt_.scene_id);
       std::lock_guard lk(stats_mu_);

@@ -36,12 +36,12 @@ const char* kUsage = R"(usage: pliant-haptic [flags]
   --clamp bottom|end     how a scene it creates is held: bottom face fixed (default; tissue on
                          a table) or x <= 1 mm fixed (a cantilever)
   --young PA             Young's modulus of a scene it creates (default 1e5: soft tissue;
-                         gravity off). Stiffer materials need more substeps to feel as stiff as
-                         they are (docs/haptics.md)
+                         gravity off)
   --poisson NU           Poisson's ratio of a scene it creates (default 0.49)
-  --substeps N --iterations N   solver of a scene it creates (default 4 x 2)
-  --method M             its method (default xpbd; newton feels the converged force at every
-                         stiffness, docs/haptics.md; any name `pliant --help` lists)
+  --substeps N --iterations N   solver of a scene it creates (default 1 x 1)
+  --method M             its method (default newton: the converged force at every stiffness;
+                         xpbd with 4 x 2 costs half and is right up to about 100 kPa,
+                         docs/haptics.md; any name `pliant --help` lists)
   --rate HZ              device loop rate (default 1000)
   --script press|stroke  simulated device motion (default press)
   --start X,Y,Z          simulated handle start, m (default 0.1,0.025,0.005: over beam1's tip)
@@ -51,8 +51,11 @@ const char* kUsage = R"(usage: pliant-haptic [flags]
   --max-force N          force clamp, N (default 8)
   --max-force-rate N/S   force slew limit, N/s (default 2000)
   --stale-ms MS          no feedback for this long cuts the force (default 100)
+  --extrapolate-ms MS    follow the handle past the server's pose for at most this much of the
+                         pose's age (default 10; 0: never)
   --duration S           stop after S seconds (default: until Ctrl-C)
   --json                 end with one JSON line of statistics on stdout
+  --trace FILE           write one CSV row per server feedback (tick, pose, pose age, force)
   --quiet                no live statistics line
   --no-realtime          do not ask for SCHED_FIFO for the device loop
   --version              print the version and exit
@@ -129,7 +132,12 @@ int main(int argc, char** argv) {
   number("--max-force", 0, 1e4, [&](double d) { opt.limits.max_force = d; });
   number("--max-force-rate", 0, 1e7, [&](double d) { opt.limits.max_force_rate = d; });
   number("--stale-ms", 1, 1e5, [&](double d) { opt.limits.stale_ms = d; });
+  number("--extrapolate-ms", 0, 1e4, [&](double d) { opt.limits.extrapolate_ms = d; });
   number("--duration", 0, 1e7, [&](double d) { duration = d; });
+  text("--trace", [&](const std::string& v) {
+    if (v.empty()) throw CLI::ValidationError("--trace must name a file, got ''");
+    opt.trace_path = v;
+  });
   app.add_flag("--json", json);
   app.add_flag("--quiet", quiet);
   app.add_flag_callback("--no-realtime", [&] { opt.realtime_priority = false; });

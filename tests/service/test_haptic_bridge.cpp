@@ -67,6 +67,34 @@ TEST(ForceRenderer, ExtrapolatesWithTheLearnedStiffnessBetweenUpdates) {
   EXPECT_GE(f2.y(), 0);
 }
 
+TEST(ForceRenderer, ExtrapolatesOverAtMostTheWindowOfAnOldPose) {
+  SafetyLimits lim;
+  lim.max_force_rate = 1e9;
+  lim.max_force = 1e3;
+  lim.extrapolate_ms = 10;
+  ForceRenderer r(lim);
+  for (int i = 0; i < 40; ++i) {  // learn 1000 N/m along +y, as above
+    const double y = i % 2 ? -0.001 : 0.0;
+    r.update(Vec3(0, y, 0), at(1 + i, Vec3(0, i % 2 ? 2 : 1, 0), Vec3(0, y, 0)), false, 1e-3);
+  }
+  const double k = r.stiffness();
+  ASSERT_GT(k, 500);
+  // The handle is 4 mm deeper than the pose the server's last answer used.
+  const Vec3 handle(0, -0.005, 0);
+  const Clock::time_point now = Clock::now();
+  ServerForce last = at(1000, Vec3(0, 2, 0), Vec3(0, -0.001, 0));
+  // A pose 5 ms old is within the window: the whole distance.
+  last.pose_time = now - std::chrono::milliseconds(5);
+  EXPECT_NEAR(r.update(handle, last, false, 1e-3, now).y(), 2 + 0.004 * k, 1e-9);
+  // 40 ms old (a server that fell behind): a quarter of it, the last 10 ms of steady motion.
+  last.pose_time = now - std::chrono::milliseconds(40);
+  EXPECT_NEAR(r.update(handle, last, false, 1e-3, now).y(), 2 + 0.001 * k, 1e-9);
+  // No extrapolation asked for: the server's force as it is.
+  lim.extrapolate_ms = 0;
+  ForceRenderer plain(lim);
+  EXPECT_NEAR(plain.update(handle, last, false, 1e-3, now).y(), 2.0, 1e-12);
+}
+
 TEST(SimulatedDevice, PressesBelowTheSurfaceAndComesBack) {
   SimulatedDevice::Params p;
   p.ramp_s = 0.5;

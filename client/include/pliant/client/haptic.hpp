@@ -70,6 +70,9 @@ struct SafetyLimits {
   double max_force = 8.0;          // N, magnitude clamp
   double max_force_rate = 2000.0;  // N/s, rising slew limit (cutting to zero is never limited)
   double stale_ms = 100.0;         // no feedback for this long: treat the stream as lost
+  // The renderer follows the handle past the server's pose for at most this much of the pose's
+  // age (see ForceRenderer); 0: no extrapolation at all.
+  double extrapolate_ms = 10.0;
 };
 
 // The latest server answer, as the loop sees it.
@@ -79,6 +82,8 @@ struct ServerForce {
   Vec3 force = Vec3::Zero();  // on the tool, N
   Vec3 pose = Vec3::Zero();   // the tool position the tick used
   Clock::time_point received{};
+  // When the device reported that pose (unset: treated as fresh).
+  Clock::time_point pose_time{};
 };
 
 // Force between server updates. The server force F_s was computed for the pose p_s; for the
@@ -86,11 +91,18 @@ struct ServerForce {
 // stiffness estimated from successive server updates (dF/dx along n, clamped to
 // [0, max_stiffness]); with no contact it renders zero. So the device never sees a step when a
 // tick is late: the force keeps following the handle with the local stiffness.
+// The extrapolation is bounded by the pose's age a (now - pose_time): past
+// limits.extrapolate_ms = e, the distance is scaled by e / a, so a handle moving steadily is
+// followed over at most its last e milliseconds of motion. A server that falls behind (an old
+// pose, a long way from the handle) then cannot make the renderer invent a large force from a
+// stiffness estimated at a different depth; the force catches up as fresh answers arrive.
 class ForceRenderer {
  public:
   explicit ForceRenderer(SafetyLimits limits, double max_stiffness = 5000.0);
-  // One loop period: the handle position, the latest server force (or lost = true), dt (s).
-  Vec3 update(const Vec3& position, const ServerForce& server, bool lost, double dt);
+  // One loop period: the handle position, the latest server force (or lost = true), dt (s),
+  // and the loop's clock (for the pose's age).
+  Vec3 update(const Vec3& position, const ServerForce& server, bool lost, double dt,
+              Clock::time_point now = Clock::now());
   double stiffness() const { return k_; }
   const SafetyLimits& limits() const { return limits_; }
 
@@ -120,24 +132,23 @@ struct BridgeOptions {
   enum class Clamp { Bottom, End };
   Clamp create_clamp = Clamp::Bottom;
   // Material of a created scene: soft tissue (E = 100 kPa, nearly incompressible). Gravity is
-  // off so the scripted device finds the surface where it expects. At this stiffness the 4 x 2
-  // budget below gives the force at rest of the converged model within a few percent
-  // (docs/haptics.md: pliant_haptic_fidelity); much stiffer materials need many more
-  // substeps than a 1 ms tick affords to feel as stiff as they are.
+  // off so the scripted device finds the surface where it expects.
   double create_young = 1e5;
   double create_poisson = 0.49;
-  // Solver of a created scene: 4 substeps x 2 iterations, about 0.25 ms per 1 kHz tick for
-  // beam1 on the 2-core development machine.
-  int create_substeps = 4;
-  int create_iterations = 2;
-  // Its method: XPBD by default (the budget above); METHOD_NEWTON gives the converged force at
-  // every stiffness (docs/haptics.md) at a cost per tick that depends on the machine.
-  v1::Method create_method = v1::METHOD_XPBD;
+  // Solver of a created scene: one global Newton iteration per 1 kHz tick, which feels the
+  // converged force at 100 kPa, 1 MPa and 10 MPa alike (docs/haptics.md: pliant_haptic_fidelity),
+  // about 0.5-0.8 ms per tick for beam1 on the 2-core development machine. METHOD_XPBD with
+  // 4 substeps x 2 iterations costs half that and is right up to about 100 kPa only.
+  int create_substeps = 1;
+  int create_iterations = 1;
+  v1::Method create_method = v1::METHOD_NEWTON;
   double loop_hz = 1000;
   double tool_radius = 0.005;
   SafetyLimits limits;
   std::chrono::milliseconds reconnect_delay{200};
   bool realtime_priority = true;  // try SCHED_FIFO for the device loop (falls back quietly)
+  // When set, one CSV row per server feedback is written here (docs/haptics.md "Trace").
+  std::string trace_path;
 };
 
 // The CreateSceneRequest the bridge sends when its scene does not exist (create_builtin,
