@@ -1,0 +1,202 @@
+// SPDX-License-Identifier: Apache-2.0
+// Two-way contact between particles and the soft body's surface: particles end at least the
+// contact radius outside the surface, the corrections carry equal and opposite momentum,
+// fixed vertices stay, and friction takes back tangential slip.
+#include "pliant/builtin_meshes.hpp"
+#include "pliant/coupling.hpp"
+#include "pliant/fluid.hpp"
+#include "pliant/interaction.hpp"
+#include "pliant/stepper.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+using namespace pliant;
+
+namespace {
+
+// beam1 is 0.1 x 0.01 x 0.01 m from the origin: particles over its top face (y = 0.01), some a
+// little inside, some within the radius above it, all moving.
+struct Touching {
+  std::shared_ptr<const BodyModel> model;
+  BodyState body;
+  ParticleState particles;
+  std::vector<double> w;
+};
+
+Touching over_the_top(bool all_fixed) {
+  TetMesh mesh = *builtin_mesh("beam1");
+  FixedSelection fixed;
+  if (all_fixed) fixed.boxes.push_back({Vec3(-1, -1, -1), Vec3(1, 1, 1)});
+  Touching s;
+  s.model = build_model(mesh, Material{1e5, 0.4, 1000}, fixed);
+  s.body = rest_state(*s.model);
+  for (size_t i = 0; i < s.body.v.size(); ++i)
+    if (s.model->inv_mass[i] > 0) s.body.v[i] = Vec3(0.01 * std::sin(double(i)), -0.02, 0.005 * std::cos(double(i)));
+  for (int i = 0; i < 12; ++i)
+    for (int k = 0; k < 4; ++k) {
+      // A third 0.4 mm inside, a third 0.3 mm above (within a 1 mm radius), a third clear.
+      const double y = 0.01 + ((i + k) % 3 == 0 ? -0.0004 : (i + k) % 3 == 1 ? 0.0003 : 0.0015);
+      s.particles.x.push_back(Vec3(0.015 + 0.006 * i, y, 0.002 + 0.002 * k));
+      s.particles.v.push_back(Vec3(0.1, -0.5 - 0.01 * i, 0.02 * k));
+      s.w.push_back(1.0 / 2e-5);  // 20 mg
+    }
+  return s;
+}
+
+Vec3 momentum(const Touching& s) {
+  Vec3 p = Vec3::Zero();
+  for (size_t i = 0; i < s.body.v.size(); ++i)
+    if (s.model->inv_mass[i] > 0) p += s.body.v[i] / s.model->inv_mass[i];
+  for (size_t i = 0; i < s.particles.v.size(); ++i) p += s.particles.v[i] / s.w[i];
+  return p;
+}
+
+// The particle's distance outside the surface (negative inside), by brute force over every
+// surface triangle: the closest one, signed by its outward normal.
+double outside_distance(const BodyModel& m, const std::vector<Vec3>& x, const Vec3& p) {
+  double best = INFINITY, signed_d = 0;
+  for (const Triangle& t : m.surface) {
+    std::array<double, 3> b;
+    const Vec3 q = closest_point_on_triangle(p, x[t[0]], x[t[1]], x[t[2]], b);
+    const double d = (p - q).norm();
+    if (d < best) {
+      best = d;
+      const Vec3 n = (x[t[1]] - x[t[0]]).cross(x[t[2]] - x[t[0]]);
+      signed_d = (p - q).dot(n) >= 0 ? d : -d;
+    }
+  }
+  return signed_d;
+}
+
+}  // namespace
+
+TEST(Coupling, PushesParticlesOutOfTheBodyWithEqualAndOppositeMomentum) {
+  Touching s = over_the_top(false);
+  const Vec3 before = momentum(s);
+  const std::vector<Vec3> particles_start = s.particles.x;
+  CouplingSettings cs;
+  cs.radius = 0.001;
+  cs.iterations = 8;
+  const CouplingReport r = couple_particles_to_body(*s.model, s.body, s.particles, s.w, cs, 1.0 / 60);
+  EXPECT_EQ(r.contacts, 32u);
+  EXPECT_NEAR(r.max_depth, 0.0014, 1e-9);
+  // Momentum: what the particles gained the body lost (free body, no other force).
+  const Vec3 after = momentum(s);
+  double scale = 0;
+  for (size_t i = 0; i < s.particles.v.size(); ++i) scale += s.particles.v[i].norm() / s.w[i];
+  EXPECT_LT((after - before).norm(), 1e-12 * scale);
+  // The body was pushed down: the push on it points down (-y) and it is what the particles'
+  // momentum change says, over dt.
+  EXPECT_LT(r.force_on_body.y(), 0);
+  // Every particle ends about the radius outside (within 5%: a correction tilts the triangle
+  // under the contact and moves its neighbours' triangles), the clear ones untouched.
+  for (size_t i = 0; i < s.particles.x.size(); ++i) {
+    EXPECT_GT(outside_distance(*s.model, s.body.x, s.particles.x[i]), 0.95 * cs.radius) << i;
+    if (particles_start[i].y() > 0.0105) {
+      EXPECT_EQ(s.particles.x[i], particles_start[i]) << i;
+    }
+  }
+}
+
+TEST(Coupling, FixedVerticesStayAndTheParticlesTakeTheWholeCorrection) {
+  Touching s = over_the_top(true);
+  const std::vector<Vec3> body_start = s.body.x;
+  CouplingSettings cs;
+  cs.radius = 0.001;
+  cs.iterations = 1;
+  couple_particles_to_body(*s.model, s.body, s.particles, s.w, cs, 1.0 / 60);
+  EXPECT_EQ(s.body.x, body_start);
+  for (const Vec3& p : s.particles.x) EXPECT_GT(outside_distance(*s.model, s.body.x, p), cs.radius * (1 - 1e-9));
+}
+
+TEST(Coupling, FrictionTakesBackTheSlipOfATouchingParticle) {
+  // One particle 0.2 mm inside the fixed body's top face, having slid 1 cm/s along x over the
+  // step while pressing in.
+  auto slide = [](double friction) {
+    Touching s = over_the_top(true);
+    s.particles.x = {Vec3(0.05, 0.0098, 0.005)};
+    s.particles.v = {Vec3(0.01, -0.05, 0)};
+    s.w = {1.0 / 2e-5};
+    CouplingSettings cs;
+    cs.radius = 0.0005;
+    cs.friction = friction;
+    const double dt = 1.0 / 60;
+    couple_particles_to_body(*s.model, s.body, s.particles, s.w, cs, dt);
+    return s.particles.v[0];
+  };
+  const Vec3 frictionless = slide(0), rough = slide(1.0), sticky = slide(100.0);
+  EXPECT_NEAR(frictionless.x(), 0.01, 1e-12);  // no friction: the slip stays
+  // Pushed out by 0.7 mm over the step: the inward velocity loses 0.7 mm / dt.
+  EXPECT_NEAR(frictionless.y(), -0.05 + 0.0007 * 60, 1e-9);
+  // Friction up to mu x the normal correction (0.7 mm over the step): mu = 1 removes at most
+  // that much of the 0.17 mm slip, so all of it; the tangential velocity goes to zero both times.
+  EXPECT_NEAR(rough.x(), 0.0, 1e-9);
+  EXPECT_NEAR(sticky.x(), 0.0, 1e-9);
+  // A weak friction takes back only its share of the slip.
+  const Vec3 weak = slide(0.1);
+  EXPECT_GT(weak.x(), 0.0);
+  EXPECT_LT(weak.x(), 0.01);
+}
+
+TEST(Coupling, RefusesBadSettingsNamingTheField) {
+  Touching s = over_the_top(false);
+  CouplingSettings cs;
+  cs.radius = -1;
+  try {
+    couple_particles_to_body(*s.model, s.body, s.particles, s.w, cs, 1.0 / 60);
+    FAIL() << "accepted a negative radius";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("coupling.radius"), std::string::npos) << e.what();
+  }
+  cs.radius = 0.001;
+  s.w.pop_back();
+  EXPECT_THROW(couple_particles_to_body(*s.model, s.body, s.particles, s.w, cs, 1.0 / 60), std::invalid_argument);
+}
+
+TEST(Coupling, AFluidThrownAtAFreeBodyPushesItAndTheTotalMomentumStays) {
+  // No gravity, no container, nothing fixed: a 6 x 3 x 3 block of 4 mm fluid particles thrown
+  // down at 0.2 m/s (3.3 mm per tick: less than half the 1 cm beam, which a tick-level contact
+  // needs) onto beam1's top face. Each step: the fluid, the soft body (XPBD, no damping),
+  // then their contact. Every part conserves momentum, so the sum must stay; the body must take
+  // up the fluid's downward momentum.
+  TetMesh mesh = *builtin_mesh("beam1");
+  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+  BodyState body = rest_state(*model);
+  SolverSettings s;
+  s.gravity.setZero();
+  s.damping = Damping::None;
+  FluidSettings fs;
+  fs.spacing = 0.004;
+  fs.gravity.setZero();
+  FluidBody fluid(fs, {FluidBlock{Vec3(0.03, 0.0125, 0.0), Vec3(0.054, 0.0245, 0.012), Vec3(0, -0.2, 0)}});
+  ASSERT_EQ(fluid.size(), 6u * 3u * 3u);
+  const auto w = fluid.inverse_masses();
+  auto total = [&](Vec3* body_part) {
+    Vec3 pb = Vec3::Zero(), pf = Vec3::Zero();
+    for (size_t i = 0; i < body.v.size(); ++i) pb += body.v[i] / model->inv_mass[i];
+    for (size_t i = 0; i < fluid.size(); ++i) pf += fluid.state().v[i] / w[i];
+    if (body_part) *body_part = pb;
+    return Vec3(pb + pf);
+  };
+  const Vec3 p0 = total(nullptr);
+  ASSERT_LT(p0.y(), 0);
+  Stepper stepper;
+  CouplingSettings cs;
+  cs.radius = 0.5 * fs.spacing;
+  size_t touched = 0;
+  for (int k = 0; k < 30; ++k) {
+    const Vec3 before = total(nullptr);
+    fluid.step(s.dt, {});
+    stepper.step(*model, body, s, {});
+    ParticleState ps = fluid.state();
+    touched += couple_particles_to_body(*model, body, ps, w, cs, s.dt).contacts;
+    fluid.set_state(ps);
+    EXPECT_LT((total(nullptr) - before).norm(), 1e-6 * p0.norm()) << "step " << k;
+  }
+  EXPECT_GT(touched, 0u);
+  Vec3 pb;
+  total(&pb);
+  EXPECT_LT(pb.y(), 0.1 * p0.y());  // the body carries a good part of the downward momentum
+}
