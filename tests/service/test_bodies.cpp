@@ -262,6 +262,40 @@ TEST(Bodies, GrabOnARopeParticleHoldsItsWeightAndMovesIt) {
   EXPECT_EQ(c.grab(grab).status.code, kInvalidArgument);
 }
 
+TEST(Bodies, ABodyThatBlowsUpIsRolledBackWithTheScene) {
+  BodiesServer srv;
+  Client c = srv.client();
+  ASSERT_TRUE(c.create_scene(bodies_request("nan")).ok());
+  ASSERT_TRUE(c.step("nan", 3).ok());
+  const v1::Snapshot before = snapshot_of(c, "nan");
+  // A hard grab to a finite but absurd target: the rope's velocities overflow.
+  v1::GrabRequest grab;
+  grab.set_scene_id("nan");
+  grab.set_body("rope");
+  grab.set_vertex(20);
+  set(grab.mutable_target(), 1e300, 0, 0);
+  auto granted = c.grab(grab);
+  ASSERT_TRUE(granted.ok()) << granted.status.to_string();
+  auto st = c.step("nan", 1);
+  ASSERT_TRUE(st.ok()) << st.status.to_string();
+  EXPECT_EQ(st->rollbacks(), 1u);
+  const v1::Frame f = latest_frame(c, "nan");
+  EXPECT_TRUE(f.rolled_back());
+  EXPECT_NE(f.rollback_reason().find("body 'rope'"), std::string::npos) << f.rollback_reason();
+  // Every body and the tet body are as they were before the tick.
+  const v1::Snapshot after = snapshot_of(c, "nan");
+  EXPECT_TRUE(bit_equal(before.x(), after.x()));
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_TRUE(bit_equal(before.bodies(i).x(), after.bodies(i).x())) << before.bodies(i).name();
+    EXPECT_TRUE(bit_equal(before.bodies(i).v(), after.bodies(i).v())) << before.bodies(i).name();
+  }
+  // Without the grab the scene steps on.
+  ASSERT_TRUE(c.release("nan", granted->grab_id()).ok());
+  st = c.step("nan", 1);
+  ASSERT_TRUE(st.ok());
+  EXPECT_EQ(st->rollbacks(), 0u);
+}
+
 TEST(Bodies, SnapshotRestoreContinuesBitIdentically) {
   BodiesServer srv;
   Client c = srv.client();
