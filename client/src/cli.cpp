@@ -59,6 +59,7 @@ Commands:
   step ID [N]                        advance N ticks (default 1; lockstep or paused scenes)
   force ID --vertices I,J,.. --force FX,FY,FZ [--ticks N]   push vertices for N ticks
   grab ID (--vertex I | --tet T --barycentric B0,B1,B2,B3) [--target X,Y,Z] [--compliance C]
+  grab ID --body NAME --vertex I [...]   grab particle I of a particle body
                                      attach a point to a target (default: where it is now)
   move-grab ID GRAB --target X,Y,Z   move a grab's target
   release ID GRAB                    let go
@@ -116,6 +117,11 @@ Scene flags (create and update):
                           sphere:center=X,Y,Z:radius=R
                         each optionally with :friction=MU (static and dynamic) or
                         :friction=MU_S,MU_D (default 0.5,0.4)
+  --rope NAME:from=X,Y,Z:to=X,Y,Z[:segments=N][:density=KG_M][:pin=I,J]
+  --cloth NAME:origin=X,Y,Z:size=SX,SY[:resolution=NX,NY][:pin=I,J]
+  --fluid NAME:min=X,Y,Z:max=X,Y,Z[:spacing=D][:container=CX,CY,CZ,HX,HY,HZ]
+                        particle bodies beside the tet body, repeatable (create only); the
+                        other fields take the server's defaults (docs/service.md)
   --gravity GX,GY,GZ    m/s^2 (default 0,-9.81,0)
   --dt S | --rate HZ    tick length (default 1/60 s)
   --mode realtime|lockstep|as-fast-as-possible
@@ -320,6 +326,102 @@ void print_scene(const v1::Scene& s, bool json) {
               static_cast<unsigned long long>(s.late_ticks()), static_cast<unsigned long long>(s.skipped_ticks()),
               static_cast<unsigned long long>(s.rollbacks()));
   if (!s.pause_reason().empty()) std::printf("paused     %s\n", s.pause_reason().c_str());
+  for (int i = 0; i < s.bodies_size(); ++i) {
+    const v1::BodySummary& b = s.bodies(i);
+    std::printf("%s %s: %s, %u particles", i == 0 ? "bodies    " : "          ", b.name().c_str(), b.kind().c_str(),
+                b.particle_count());
+    if (b.triangle_count()) std::printf(", %u triangles", b.triangle_count());
+    if (b.pinned_count()) std::printf(", %u pinned", b.pinned_count());
+    std::printf("\n");
+  }
+}
+
+// "rope (rope, 21 particles), water (fluid, 512 particles)"
+std::string bodies_line(const v1::Scene& s) {
+  std::string out;
+  for (const v1::BodySummary& b : s.bodies())
+    out += (out.empty() ? "" : ", ") + b.name() + " (" + b.kind() + ", " + std::to_string(b.particle_count()) +
+           " particles)";
+  return out;
+}
+
+// --rope / --cloth / --fluid SPEC: "NAME:key=value:key=value" (see the flags' help), a compact
+// form of the SceneSpec's bodies; every other field takes the server's default.
+v1::BodySpec parse_body(const std::string& kind, const std::string& text) {
+  const std::string flag = "--" + kind + " '" + text + "'";
+  std::vector<std::string> parts;
+  std::stringstream ss(text);
+  for (std::string part; std::getline(ss, part, ':');) parts.push_back(part);
+  if (parts.empty() || parts[0].empty() || parts[0].find('=') != std::string::npos)
+    throw Usage(flag + ": start with the body's name (NAME:key=value:...)");
+  std::map<std::string, std::string> kv;
+  for (size_t i = 1; i < parts.size(); ++i) {
+    const size_t eq = parts[i].find('=');
+    if (eq == std::string::npos || eq == 0) throw Usage(flag + ": '" + parts[i] + "' is not key=value");
+    const std::string key = parts[i].substr(0, eq);
+    if (kv.count(key)) throw Usage(flag + ": " + key + " given twice");
+    kv[key] = parts[i].substr(eq + 1);
+  }
+  auto take = [&](const std::string& key, size_t n) -> std::optional<std::vector<double>> {
+    auto it = kv.find(key);
+    if (it == kv.end()) return std::nullopt;
+    std::vector<double> v;
+    try {
+      v = to_doubles(key, it->second, n);
+    } catch (const Usage& u) {
+      throw Usage(flag + ": " + std::string(u.what()).substr(2));
+    }
+    kv.erase(it);
+    return v;
+  };
+  auto need = [&](const std::string& key, size_t n) {
+    auto v = take(key, n);
+    if (!v) throw Usage(flag + ": a " + kind + " needs " + key + "=");
+    return *v;
+  };
+  auto pins = [&](v1::ParticlePins* p) {
+    if (auto v = take("pin", 0))
+      for (double i : *v) {
+        if (i < 0 || i != std::floor(i)) throw Usage(flag + ": pin needs particle indices I,J,..");
+        p->add_indices(static_cast<uint32_t>(i));
+      }
+  };
+  v1::BodySpec b;
+  b.set_name(parts[0]);
+  if (kind == "rope") {
+    auto* r = b.mutable_rope();
+    set_vec(r->add_points(), need("from", 3));
+    set_vec(r->add_points(), need("to", 3));
+    const double n = take("segments", 1).value_or(std::vector<double>{20})[0];
+    if (n < 1 || n != std::floor(n)) throw Usage(flag + ": segments needs a whole number >= 1");
+    r->set_segments(static_cast<uint32_t>(n));
+    if (auto v = take("density", 1)) r->set_linear_density((*v)[0]);
+    pins(r->mutable_pins());
+  } else if (kind == "cloth") {
+    auto* g = b.mutable_cloth()->mutable_grid();
+    set_vec(g->mutable_origin(), need("origin", 3));
+    const auto size = need("size", 2);
+    g->set_size_x(size[0]);
+    g->set_size_y(size[1]);
+    const auto res = take("resolution", 2).value_or(std::vector<double>{16, 16});
+    if (res[0] < 0 || res[1] < 0) throw Usage(flag + ": resolution needs NX,NY");
+    g->set_resolution_x(static_cast<uint32_t>(res[0]));
+    g->set_resolution_y(static_cast<uint32_t>(res[1]));
+    pins(b.mutable_cloth()->mutable_pins());
+  } else {
+    auto* f = b.mutable_fluid();
+    auto* blk = f->add_blocks();
+    set_vec(blk->mutable_min(), need("min", 3));
+    set_vec(blk->mutable_max(), need("max", 3));
+    if (auto v = take("spacing", 1)) f->set_spacing((*v)[0]);
+    if (auto v = take("container", 6)) {
+      auto* box = f->mutable_container()->mutable_box();
+      set_vec(box->mutable_center(), {(*v)[0], (*v)[1], (*v)[2]});
+      set_vec(box->mutable_half_extent(), {(*v)[3], (*v)[4], (*v)[5]});
+    }
+  }
+  if (!kv.empty()) throw Usage(flag + ": unknown key '" + kv.begin()->first + "'");
+  return b;
 }
 
 // --collider SPEC: "shape:key=value:key=value", vectors as X,Y,Z (see the usage text).
@@ -556,6 +658,8 @@ int cmd_scenes(Client& c, Args& a, bool json) {
       spec->mutable_fixed()->add_groups(g);
     }
     for (const std::string& c : a.get_all("collider")) *spec->add_colliders() = parse_collider(c);
+    for (const char* kind : {"rope", "cloth", "fluid"})
+      for (const std::string& b : a.get_all(kind)) *spec->add_bodies() = parse_body(kind, b);
     if (a.has("paused")) spec->set_start_paused(true);
     auto r = c.create_scene(req);
     if (!r.ok()) return fail(r.status, c.options());
@@ -664,6 +768,10 @@ int cmd_grab(Client& c, Args& a, bool json) {
   auto t = a.get("tet");
   if (!v == !t) throw Usage("grab needs --vertex I, or --tet T with --barycentric B0,B1,B2,B3");
   if (v) req.set_vertex(to_int("vertex", *v));
+  if (auto b = a.get("body")) {
+    if (t) throw Usage("grab --body takes --vertex I (a particle index), not --tet");
+    req.set_body(*b);
+  }
   if (t) {
     req.mutable_tet_point()->set_tet(to_int("tet", *t));
     auto b = a.get("barycentric");
@@ -756,6 +864,10 @@ int cmd_watch(Client& c, Args& a, bool json) {
   a.max_positional(1, "watch");
 
   const bool tty = isatty(STDOUT_FILENO) && !json;
+  // The scene's particle bodies, once (frames without positions do not carry them).
+  v1::Scene scene_info;
+  if (auto got = c.get_scene(a.positional[0]); got.ok()) scene_info = *got;
+  if (!json && scene_info.bodies_size() > 0) std::printf("bodies %s\n", bodies_line(scene_info).c_str());
   auto stream = c.stream_frames(req);
   StreamStopper stopper(*stream, duration);
   const auto start = stopper.start();
@@ -817,6 +929,10 @@ int cmd_watch(Client& c, Args& a, bool json) {
                         {"mean_residual", mean_r},
                         {"p99_residual", p99_r},
                         {"mean_iterations", std::round(mean_it * 1000) / 1000}};
+    nlohmann::json bodies = nlohmann::json::array();
+    for (const v1::BodySummary& b : scene_info.bodies())
+      bodies.push_back({{"name", b.name()}, {"kind", b.kind()}, {"particles", b.particle_count()}});
+    j["bodies"] = bodies;
     std::printf("%s\n", j.dump().c_str());
   } else {
     std::printf("%llu ticks in %.1f s (%.1f ticks/s), %llu late, %llu frames, %llu skipped, residual mean %.3e p99 %.3e, "
@@ -1095,6 +1211,15 @@ std::vector<Opt> create_flags() {
                            "box:center=X,Y,Z:half=HX,HY,HZ | sphere:center=X,Y,Z:radius=R, each with an optional "
                            ":friction=MU or :friction=MU_S,MU_D",
        Kind::Repeated},
+      {"rope", "SPEC", "a rope, repeatable: NAME:from=X,Y,Z:to=X,Y,Z with optional :segments=N (20), "
+                       ":density=KG_PER_M, :pin=I,J,.. (particle indices)",
+       Kind::Repeated},
+      {"cloth", "SPEC", "a cloth grid, repeatable: NAME:origin=X,Y,Z:size=SX,SY (along x and z) with optional "
+                        ":resolution=NX,NY (16,16), :pin=I,J,..",
+       Kind::Repeated},
+      {"fluid", "SPEC", "a fluid block, repeatable: NAME:min=X,Y,Z:max=X,Y,Z with optional :spacing=D (0.02), "
+                        ":container=CX,CY,CZ,HX,HY,HZ (a box the fluid stays in)",
+       Kind::Repeated},
       {"paused", "", "create the scene paused", Kind::Flag},
   };
   for (Opt& s : settings_flags()) o.push_back(std::move(s));
@@ -1124,7 +1249,8 @@ const std::vector<Command>& commands() {
       {{"grab"}, "attach a point to a target (default: where it is now)", {{"ID", "scene id"}},
        {{"vertex", "I", "grab a vertex"}, {"tet", "T", "grab a point in a tet (with --barycentric)"},
         {"barycentric", "B0,B1,B2,B3", "the point's barycentric coordinates in --tet"},
-        {"target", "X,Y,Z", "where to pull it"}, {"compliance", "C", "the grab's compliance"}},
+        {"target", "X,Y,Z", "where to pull it"}, {"compliance", "C", "the grab's compliance"},
+        {"body", "NAME", "grab particle --vertex of this particle body (rope, cloth, fluid)"}},
        cmd_grab},
       {{"move-grab"}, "move a grab's target", {{"ID", "scene id"}, {"GRAB", "grab id"}},
        {{"target", "X,Y,Z", "the new target"}}, cmd_move_grab},

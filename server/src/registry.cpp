@@ -195,8 +195,18 @@ Error SceneRegistry::create(const v1::CreateSceneRequest& req, v1::Scene* out) {
   cfg.method_auto = cfg.settings.method == Method::Auto;
   resolve_auto_method(id, *model, cfg);
   if (Error e = check_work(*model, cfg.settings, "spec.solver"); !e.ok()) return e;
+  if (Error e = bodies_from_spec(spec.bodies(), "spec.bodies", options_.model_path, &cfg.bodies); !e.ok()) return e;
   BodyState state = rest_state(*model);
-  auto scene = std::make_shared<Scene>(id, cfg, model, std::move(state), 0, spec.start_paused());
+  std::shared_ptr<Scene> scene;
+  try {
+    scene = std::make_shared<Scene>(id, cfg, model, std::move(state), 0, spec.start_paused());
+  } catch (const std::invalid_argument& e) {
+    return invalid(std::string("spec.") + e.what());
+  }
+  if (scene->particle_count() > kMaxParticlesPerScene)
+    return Error::make(Code::ResourceExhausted,
+                       fmt::format("spec.bodies hold {} particles, beyond the limit of {} particles per scene",
+                                   scene->particle_count(), kMaxParticlesPerScene));
   if (Error e = add_scene(scene, false); !e.ok()) return e;
   wake_checkpoint();
   spdlog::info("scene '{}' created: {} ({} vertices, {} tets), {} mode, dt {} s, {}", id,
@@ -345,9 +355,41 @@ Error SceneRegistry::apply_force(const v1::ApplyForceRequest& req, v1::ApplyForc
 Error SceneRegistry::grab(const v1::GrabRequest& req, v1::GrabResponse* out) {
   std::shared_ptr<Scene> s;
   if (Error e = find(req.scene_id(), &s); !e.ok()) return e;
+  uint64_t id = 0, first = 0;
+  if (!req.body().empty()) {  // a particle of a particle body
+    const auto& bodies = s->bodies();
+    size_t b = 0;
+    while (b < bodies.size() && bodies[b].name != req.body()) ++b;
+    if (b == bodies.size())
+      return Error::make(Code::NotFound, fmt::format("body {} is not a body of scene '{}'", echo(req.body()), s->id()));
+    if (req.point_case() != v1::GrabRequest::kVertex)
+      return invalid(fmt::format("body {}: set vertex to the particle index (tet_point is for the tet body)",
+                                 echo(req.body())));
+    if (req.vertex() < 0 || static_cast<size_t>(req.vertex()) >= bodies[b].particles)
+      return invalid(fmt::format("vertex {} is out of range for body {} ({} particles)", req.vertex(),
+                                 echo(req.body()), bodies[b].particles));
+    std::optional<Vec3> target;
+    if (req.has_target()) {
+      Vec3 t;
+      if (Error e = finite_from_proto(req.target(), "target", &t); !e.ok()) return e;
+      target = t;
+    }
+    double compliance = 0.0;
+    if (req.has_compliance()) {
+      if (!std::isfinite(req.compliance()) || req.compliance() < 0)
+        return invalid(fmt::format("compliance must be finite and >= 0, got {}", req.compliance()));
+      compliance = req.compliance();
+    }
+    if (Error e = s->grab_particle(b, static_cast<size_t>(req.vertex()), target, compliance, &id, &first,
+                                   std::chrono::seconds(10), static_cast<size_t>(options_.max_grabs_per_scene));
+        !e.ok())
+      return e;
+    out->set_grab_id(id);
+    out->set_first_tick(first);
+    return {};
+  }
   Attachment a;
   if (Error e = grab_from_proto(req, *s, &a); !e.ok()) return e;
-  uint64_t id = 0, first = 0;
   if (Error e = s->grab(a, &id, &first, std::chrono::seconds(10), static_cast<size_t>(options_.max_grabs_per_scene));
       !e.ok())
     return e;
@@ -425,12 +467,17 @@ Error SceneRegistry::restore_snapshot(const v1::RestoreSnapshotRequest& req, v1:
     default: return invalid("source: set snapshot or name");
   }
   SceneSnapshot snap;
-  if (Error e = snapshot_from_proto(*proto, options_.max_threads, options_.max_vertices, &snap); !e.ok())
+  if (Error e = snapshot_from_proto(*proto, options_.max_threads, options_.max_vertices, options_.model_path, &snap); !e.ok())
     return e;
   std::string id = req.scene_id().empty() ? snap.id : req.scene_id();
   if (Error e = check_name("scene_id", id); !e.ok()) return e;
   const uint64_t tick = snap.tick;
-  auto scene = std::make_shared<Scene>(std::move(snap), id);
+  std::shared_ptr<Scene> scene;
+  try {
+    scene = std::make_shared<Scene>(std::move(snap), id);
+  } catch (const std::invalid_argument& e) {
+    return invalid(e.what());
+  }
   if (Error e = add_scene(scene, req.replace()); !e.ok()) return e;
   wake_checkpoint();
   spdlog::info("scene '{}' restored from a snapshot at tick {}", id, tick);
@@ -448,11 +495,16 @@ int SceneRegistry::restore_from_data_dir() {
     v1::Snapshot proto;
     SceneSnapshot snap;
     Error e = SnapshotStore::read(f, &proto);
-    if (e.ok()) e = snapshot_from_proto(proto, options_.max_threads, options_.max_vertices, &snap);
+    if (e.ok()) e = snapshot_from_proto(proto, options_.max_threads, options_.max_vertices, options_.model_path, &snap);
     if (e.ok()) e = check_name("scene_id", snap.id);
     if (e.ok()) {
-      auto scene = std::make_shared<Scene>(snap);
-      e = add_scene(scene, false);
+      std::shared_ptr<Scene> scene;
+      try {
+        scene = std::make_shared<Scene>(snap);
+      } catch (const std::invalid_argument& ex) {
+        e = invalid(ex.what());
+      }
+      if (e.ok()) e = add_scene(scene, false);
       // The file holds this state already: no checkpoint until the scene changes.
       if (e.ok()) store_.mark_written(scene, scene->generation());
     }

@@ -66,6 +66,12 @@ struct Scene::TickState {
   };
   std::map<uint64_t, PosedTool> tools;
   std::vector<Collider> colliders;  // static, from the scene's config
+  // Particle bodies (config order), their states at the start of the tick in progress (for a
+  // rollback) and as built (for a reset), and their grabs by id (ids shared with `grabs`).
+  std::vector<std::unique_ptr<ParticleBody>> bodies;
+  std::vector<ParticleState> bodies_last_good;
+  std::vector<ParticleState> bodies_initial;
+  std::map<uint64_t, ParticleGrab> body_grabs;
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
   Clock::time_point anchor;
@@ -117,6 +123,30 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
   ts_->state = std::move(state);
   ts_->last_good = ts_->state;
   ts_->tick = tick;
+  for (size_t b = 0; b < config.bodies.size(); ++b) {
+    const BodyConfig& bc = config.bodies[b];
+    std::unique_ptr<ParticleBody> body;
+    try {
+      body = make_particle_body(bc, config.settings.gravity);
+    } catch (const std::exception& e) {
+      throw std::invalid_argument("bodies[" + std::to_string(b) + "] ('" + bc.name + "', " + bc.kind +
+                                  "): " + e.what());
+    }
+    BodyInfo info;
+    info.name = bc.name;
+    info.kind = body->kind();
+    info.particles = body->size();
+    const auto tris = body->triangles();
+    info.triangles.assign(tris.begin(), tris.end());
+    const auto w = body->inverse_masses();
+    for (size_t i = 0; i < w.size(); ++i)
+      if (w[i] == 0.0) info.pinned.push_back(static_cast<uint32_t>(i));
+    info.rest = body->state().x;
+    ts_->bodies_initial.push_back(body->state());
+    ts_->bodies.push_back(std::move(body));
+    bodies_info_.push_back(std::move(info));
+  }
+  ts_->bodies_last_good = ts_->bodies_initial;
   config_ = std::move(config);
   model_shared_ = std::move(model);
   publish_status();
@@ -128,7 +158,40 @@ Scene::Scene(SceneSnapshot snapshot, std::string id)
   uint64_t next = std::max<uint64_t>(snapshot.next_grab_id, 1);
   for (const auto& [gid, a] : snapshot.grabs) next = std::max(next, gid + 1);
   ts_->grabs = std::move(snapshot.grabs);
+  if (!snapshot.body_states.empty()) {
+    if (snapshot.body_states.size() != ts_->bodies.size())
+      throw std::invalid_argument("snapshot.bodies has " + std::to_string(snapshot.body_states.size()) +
+                                  " states, snapshot.spec.bodies " + std::to_string(ts_->bodies.size()) + " bodies");
+    for (size_t b = 0; b < ts_->bodies.size(); ++b) {
+      try {
+        ts_->bodies[b]->set_state(snapshot.body_states[b]);
+      } catch (const std::exception& e) {
+        throw std::invalid_argument("snapshot.bodies[" + std::to_string(b) + "] ('" + bodies_info_[b].name +
+                                    "'): " + e.what());
+      }
+      ts_->bodies_last_good[b] = ts_->bodies[b]->state();
+    }
+  }
+  for (const auto& [gid, g] : snapshot.body_grabs) {
+    if (g.body >= ts_->bodies.size() || g.particle >= ts_->bodies[g.body]->size())
+      throw std::invalid_argument("snapshot.bodies: grab " + std::to_string(gid) + " names particle " +
+                                  std::to_string(g.particle) + " of a body that does not have it");
+    ts_->bodies[g.body]->grab(gid, g.particle, g.target, g.compliance);
+    next = std::max(next, gid + 1);
+  }
+  ts_->body_grabs = std::move(snapshot.body_grabs);
   ts_->next_grab_id = next;
+}
+
+size_t Scene::particle_count() const {
+  size_t n = 0;
+  for (const BodyInfo& b : bodies_info_) n += b.particles;
+  return n;
+}
+
+void Scene::restore_bodies() {
+  TickState& t = *ts_;
+  for (size_t b = 0; b < t.bodies.size(); ++b) t.bodies[b]->set_state(t.bodies_last_good[b]);
 }
 
 Scene::~Scene() { stop(); }
@@ -281,13 +344,43 @@ Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* fir
   } granted;
   Error e = call(
       [this, attachment, max_grabs](Granted& out) {
-        if (ts_->grabs.size() >= max_grabs)
+        if (ts_->grabs.size() + ts_->body_grabs.size() >= max_grabs)
           return Error::make(Code::ResourceExhausted,
-                             "scene '" + id_ + "' already has " + std::to_string(ts_->grabs.size()) +
+                             "scene '" + id_ + "' already has " + std::to_string(ts_->grabs.size() + ts_->body_grabs.size()) +
                                  " grabs (--max-grabs-per-scene " + std::to_string(max_grabs) + "); release one first");
         out.id = ts_->next_grab_id++;
         ts_->grabs[out.id] = attachment;
         ++generation_;  // grabs are saved: a checkpoint is due
+        out.first_tick = ts_->tick + 1;
+        return Error{};
+      },
+      &granted, Clock::now() + timeout);
+  if (e.ok()) {
+    if (grab_id) *grab_id = granted.id;
+    if (first_tick) *first_tick = granted.first_tick;
+  }
+  return e;
+}
+
+Error Scene::grab_particle(size_t body, size_t particle, std::optional<Vec3> target, double compliance,
+                          uint64_t* grab_id, uint64_t* first_tick, std::chrono::milliseconds timeout,
+                          size_t max_grabs) {
+  struct Granted {
+    uint64_t id = 0, first_tick = 0;
+  } granted;
+  Error e = call(
+      [this, body, particle, target, compliance, max_grabs](Granted& out) {
+        const size_t held = ts_->grabs.size() + ts_->body_grabs.size();
+        if (held >= max_grabs)
+          return Error::make(Code::ResourceExhausted,
+                             "scene '" + id_ + "' already has " + std::to_string(held) + " grabs (--max-grabs-per-scene " +
+                                 std::to_string(max_grabs) + "); release one first");
+        ParticleBody& b = *ts_->bodies.at(body);
+        ParticleGrab g{body, particle, target.value_or(b.state().x.at(particle)), compliance};
+        out.id = ts_->next_grab_id++;
+        b.grab(out.id, g.particle, g.target, g.compliance);
+        ts_->body_grabs[out.id] = g;
+        ++generation_;
         out.first_tick = ts_->tick + 1;
         return Error{};
       },
@@ -308,9 +401,15 @@ Error Scene::move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tic
   Error e = call(
       [this, grab_id, target](Moved& out) {
         auto it = ts_->grabs.find(grab_id);
-        if (it == ts_->grabs.end())
+        auto bit = ts_->body_grabs.find(grab_id);
+        if (it == ts_->grabs.end() && bit == ts_->body_grabs.end())
           return Error::make(Code::NotFound, "grab_id " + std::to_string(grab_id) + " is not a grab of scene '" + id_ + "'");
-        it->second.target = target;
+        if (it != ts_->grabs.end()) {
+          it->second.target = target;
+        } else {
+          bit->second.target = target;
+          ts_->bodies[bit->second.body]->move_grab(grab_id, target);
+        }
         ++generation_;
         if (auto f = ts_->grab_forces.find(grab_id); f != ts_->grab_forces.end()) out.force = f->second;
         out.first_tick = ts_->tick + 1;
@@ -327,7 +426,10 @@ Error Scene::move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tic
 Error Scene::release(uint64_t grab_id, std::chrono::milliseconds timeout) {
   return call(
       [this, grab_id] {
-        if (ts_->grabs.erase(grab_id) == 0)
+        if (auto bit = ts_->body_grabs.find(grab_id); bit != ts_->body_grabs.end()) {
+          ts_->bodies[bit->second.body]->release(grab_id);
+          ts_->body_grabs.erase(bit);
+        } else if (ts_->grabs.erase(grab_id) == 0)
           return Error::make(Code::NotFound, "grab_id " + std::to_string(grab_id) + " is not a grab of scene '" + id_ + "'");
         ts_->grab_forces.erase(grab_id);
         ++generation_;
@@ -394,6 +496,10 @@ Error Scene::reset(std::chrono::milliseconds timeout) {
         ts_->forces.clear();
         ts_->grabs.clear();
         ts_->grab_forces.clear();
+        for (const auto& [gid, g] : ts_->body_grabs) ts_->bodies[g.body]->release(gid);
+        ts_->body_grabs.clear();
+        ts_->bodies_last_good = ts_->bodies_initial;
+        restore_bodies();
         ts_->schedule_valid = false;
         ts_->consecutive_rollbacks = 0;
         publish_status();
@@ -500,6 +606,9 @@ SceneSnapshot Scene::snapshot_now() const {
   out.paused = !ts_->running;
   out.grabs = ts_->grabs;
   out.next_grab_id = ts_->next_grab_id;
+  out.body_states.reserve(ts_->bodies.size());
+  for (const auto& b : ts_->bodies) out.body_states.push_back(b->state());
+  out.body_grabs = ts_->body_grabs;
   return out;
 }
 
@@ -587,6 +696,7 @@ void Scene::run() {
 void Scene::cancelled_tick(const std::string& abort_reason) {
   TickState& t = *ts_;
   t.state = t.last_good;  // as if the tick had not started
+  restore_bodies();
   if (abort_reason.empty()) return;  // a command or stop interrupted it: they act next
   spdlog::error("scene '{}': tick {} stopped: {}", id_, t.tick + 1, abort_reason);
   if (t.mode != TickMode::Lockstep && t.running) {
@@ -653,6 +763,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   }
 
   t.last_good = t.state;  // copy-assign reuses the buffers
+  for (size_t b = 0; b < t.bodies.size(); ++b) t.bodies_last_good[b] = t.bodies[b]->state();
   StepReport report;
   std::string failure;
   inputs.cancel = &cancel_tick_;
@@ -671,6 +782,24 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   } catch (const std::exception& e) {
     failure = std::string("solver error: ") + e.what();
   }
+  // The particle bodies, after the tet body, with the tick's dt against the same colliders;
+  // a cancelled tick stops between bodies (a body's own step is not interrupted).
+  for (size_t b = 0; b < t.bodies.size() && failure.empty() && !report.cancelled; ++b) {
+    if (cancel_tick_.load()) {
+      report.cancelled = true;
+      break;
+    }
+    const std::string& name = bodies_info_[b].name;
+    try {
+      t.bodies[b]->step(t.settings.dt, t.colliders);
+      const ParticleState& st = t.bodies[b]->state();
+      bool finite = true;
+      for (size_t i = 0; i < st.x.size() && finite; ++i) finite = st.x[i].allFinite() && st.v[i].allFinite();
+      if (!finite) failure = "body '" + name + "': non-finite positions or velocities";
+    } catch (const std::exception& e) {
+      failure = "body '" + name + "': " + e.what();
+    }
+  }
   std::string abort_reason;
   {
     std::lock_guard lk(abort_mu_);
@@ -687,6 +816,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   const bool rolled_back = !failure.empty();
   if (rolled_back) {
     t.state = t.last_good;
+    restore_bodies();
     ++t.counters.rollbacks;
     ++t.consecutive_rollbacks;
     spdlog::warn("scene '{}': tick {}: {}; rolled back to the state of tick {}", id_, t.tick,
@@ -742,6 +872,17 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   for (size_t i = 0; i < t.state.x.size(); ++i)
     for (int k = 0; k < 3; ++k) frame->positions[3 * i + k] = static_cast<float>(t.state.x[i][k]);
   carry_report(std::move(report), rolled_back, *frame);
+  for (const auto& [gid, g] : t.body_grabs)
+    t.grab_forces[gid] = rolled_back ? Vec3(Vec3::Zero()) : t.bodies[g.body]->grab_force(gid);
+  frame->bodies.resize(t.bodies.size());
+  for (size_t b = 0; b < t.bodies.size(); ++b) {
+    const auto& x = t.bodies[b]->state().x;
+    frame->bodies[b].name = bodies_info_[b].name;
+    auto& out = frame->bodies[b].positions;
+    out.resize(x.size() * 3);
+    for (size_t i = 0; i < x.size(); ++i)
+      for (int k = 0; k < 3; ++k) out[3 * i + k] = static_cast<float>(x[i][k]);
+  }
   t.step_wall_ms_sum += step_wall_ms;
   ++t.stepped_ticks;
   frame->step_wall_ms_sum = t.step_wall_ms_sum;

@@ -3,6 +3,7 @@
 // removes them, and knows which checkpoint holds which state.
 #include "pliant/server/snapshot_store.hpp"
 
+#include "pliant/server/edge.hpp"
 #include "pliant/server/spec_proto.hpp"
 
 #include <spdlog/fmt/fmt.h>
@@ -114,6 +115,28 @@ Error snapshot_to_proto(const SceneSnapshot& s, v1::Snapshot* out) {
     g->set_compliance(a.compliance);
   }
   out->set_next_grab_id(s.next_grab_id);
+  for (size_t b = 0; b < s.body_states.size(); ++b) {
+    const ParticleState& st = s.body_states[b];
+    auto* pb = out->add_bodies();
+    pb->set_name(b < s.config.bodies.size() ? s.config.bodies[b].name : std::string());
+    pb->mutable_x()->Reserve(static_cast<int>(3 * st.x.size()));
+    for (const auto& x : st.x)
+      for (int k = 0; k < 3; ++k) pb->add_x(x[k]);
+    pb->mutable_v()->Reserve(static_cast<int>(3 * st.v.size()));
+    for (const auto& v : st.v)
+      for (int k = 0; k < 3; ++k) pb->add_v(v[k]);
+    pb->mutable_lambda()->Add(st.lambda.begin(), st.lambda.end());
+    pb->set_time(st.time);
+    pb->set_steps(st.steps);
+    for (const auto& [gid, g] : s.body_grabs) {
+      if (g.body != b) continue;
+      auto* pg = pb->add_grabs();
+      pg->set_grab_id(gid);
+      pg->set_particle(static_cast<uint32_t>(g.particle));
+      to_proto(g.target, pg->mutable_target());
+      pg->set_compliance(g.compliance);
+    }
+  }
   out->set_saved_unix_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(
                              std::chrono::system_clock::now().time_since_epoch())
                              .count());
@@ -124,7 +147,7 @@ Error snapshot_to_proto(const SceneSnapshot& s, v1::Snapshot* out) {
 constexpr uint64_t kMaxTick = uint64_t{1} << 53;
 
 Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_vertices,
-                          SceneSnapshot* out) {
+                          const std::vector<std::string>& model_path, SceneSnapshot* out) {
   if (p.format_version() != 1)
     return invalid(fmt::format("snapshot.format_version {} is not supported (this server reads 1)",
                                p.format_version()));
@@ -147,6 +170,55 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
   cfg.mesh_scale = spec.mesh().has_scale() && spec.mesh().scale() > 0 ? spec.mesh().scale() : 1.0;
   Material material;
   if (Error e = config_from_spec(spec, "snapshot.spec", max_threads, &cfg, &material); !e.ok()) return e;
+  if (Error e = bodies_from_spec(spec.bodies(), "snapshot.spec.bodies", model_path, &cfg.bodies); !e.ok()) return e;
+  // The bodies' states: one per spec body, named alike (none: the bodies as built).
+  std::vector<ParticleState> body_states;
+  std::map<uint64_t, ParticleGrab> body_grabs;
+  if (p.bodies_size() != 0 && p.bodies_size() != static_cast<int>(cfg.bodies.size()))
+    return invalid(fmt::format("snapshot.bodies has {} states, snapshot.spec.bodies {} bodies", p.bodies_size(),
+                               cfg.bodies.size()));
+  for (int b = 0; b < p.bodies_size(); ++b) {
+    const auto& pb = p.bodies(b);
+    const std::string f = fmt::format("snapshot.bodies[{}]", b);
+    if (pb.name() != cfg.bodies[b].name)
+      return invalid(fmt::format("{}.name {} does not match snapshot.spec.bodies[{}].name '{}'", f, echo(pb.name()), b,
+                                 cfg.bodies[b].name));
+    if (pb.x_size() % 3 != 0 || pb.x_size() != pb.v_size())
+      return invalid(fmt::format("{}.x/v have {}/{} values, expected as many, 3 per particle", f, pb.x_size(),
+                                 pb.v_size()));
+    ParticleState st;
+    const size_t n = static_cast<size_t>(pb.x_size()) / 3;
+    st.x.resize(n);
+    st.v.resize(n);
+    for (size_t i = 0; i < n; ++i) {
+      st.x[i] = Vec3(pb.x(3 * i), pb.x(3 * i + 1), pb.x(3 * i + 2));
+      st.v[i] = Vec3(pb.v(3 * i), pb.v(3 * i + 1), pb.v(3 * i + 2));
+      if (!st.x[i].allFinite() || !st.v[i].allFinite())
+        return invalid(fmt::format("{}: particle {} has a non-finite position or velocity", f, i));
+    }
+    st.lambda.assign(pb.lambda().begin(), pb.lambda().end());
+    for (size_t i = 0; i < st.lambda.size(); ++i)
+      if (!std::isfinite(st.lambda[i])) return invalid(fmt::format("{}.lambda[{}] is not finite", f, i));
+    if (!std::isfinite(pb.time()) || pb.time() < 0)
+      return invalid(fmt::format("{}.time must be a finite value >= 0 s, got {}", f, pb.time()));
+    st.time = pb.time();
+    st.steps = pb.steps();
+    for (int g = 0; g < pb.grabs_size(); ++g) {
+      const auto& pg = pb.grabs(g);
+      const std::string gf = fmt::format("{}.grabs[{}]", f, g);
+      if (pg.grab_id() == 0 || pg.grab_id() > kMaxTick)
+        return invalid(fmt::format("{}.grab_id must be in [1, {}], got {}", gf, kMaxTick, pg.grab_id()));
+      if (body_grabs.count(pg.grab_id()))
+        return invalid(fmt::format("{}.grab_id = {} appears twice", gf, pg.grab_id()));
+      if (pg.particle() >= n)
+        return invalid(fmt::format("{}.particle {} is out of range ({} particles)", gf, pg.particle(), n));
+      ParticleGrab grab{static_cast<size_t>(b), pg.particle(), from_proto(pg.target()), pg.compliance()};
+      if (!grab.target.allFinite() || !std::isfinite(grab.compliance) || grab.compliance < 0)
+        return invalid(fmt::format("{}: target must be finite and compliance finite and >= 0", gf));
+      body_grabs[pg.grab_id()] = grab;
+    }
+    body_states.push_back(std::move(st));
+  }
   FixedSelection fixed;
   fixed.indices.assign(p.fixed_vertices().begin(), p.fixed_vertices().end());
   std::shared_ptr<const BodyModel> model;
@@ -207,8 +279,13 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
     return invalid(fmt::format("snapshot.next_grab_id = {} is larger than {}", p.next_grab_id(), kMaxTick));
   uint64_t next_grab_id = std::max<uint64_t>(p.next_grab_id(), 1);
   for (const auto& [gid, a] : grabs) next_grab_id = std::max(next_grab_id, gid + 1);
+  for (const auto& [gid, g] : body_grabs)
+    if (grabs.count(gid))
+      return invalid(fmt::format("snapshot.bodies: grab_id {} is also a grab of the tet body", gid));
   out->grabs = std::move(grabs);
   out->next_grab_id = next_grab_id;
+  out->body_states = std::move(body_states);
+  out->body_grabs = std::move(body_grabs);
   out->id = p.scene_id();
   out->config = std::move(cfg);
   out->model = std::move(model);

@@ -458,6 +458,7 @@ void spec_to_proto(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec
   spec->mutable_tick()->set_dt(s.dt);
   spec->mutable_tick()->set_mode(tick_mode_to(cfg.mode));
   colliders_to(cfg.colliders, spec);
+  bodies_to_spec(cfg.bodies, spec);
 }
 
 v1::SceneState scene_state_of(TickMode mode, bool running) {
@@ -488,6 +489,14 @@ void scene_to_proto(const Scene& scene, v1::Scene* out) {
   out->set_floored_vertices(static_cast<uint32_t>(model->floored_vertices()));
   out->set_added_inertia(model->added_inertia());
   out->set_method_choice(cfg.method_choice);
+  for (const BodyInfo& b : scene.bodies()) {
+    auto* pb = out->add_bodies();
+    pb->set_name(b.name);
+    pb->set_kind(b.kind);
+    pb->set_particle_count(static_cast<uint32_t>(b.particles));
+    pb->set_triangle_count(static_cast<uint32_t>(b.triangles.size()));
+    pb->set_pinned_count(static_cast<uint32_t>(b.pinned.size()));
+  }
 }
 
 }  // namespace pliant::server

@@ -72,6 +72,11 @@ void frame_to_proto(const Frame& f, const FrameSelection& sel, const std::vector
       pos->Add(f.positions.begin(), f.positions.end());
     }
     out->set_surface_only(sel.surface_only);
+    for (const auto& b : f.bodies) {
+      auto* pb = out->add_bodies();
+      pb->set_name(b.name);
+      pb->mutable_positions()->Add(b.positions.begin(), b.positions.end());
+    }
   }
   if (sel.residuals) out->mutable_residuals()->Add(f.solver.residuals.begin(), f.solver.residuals.end());
   solver_stats_to_proto(f.solver, sel.solver_stats, out->mutable_solver());
@@ -224,6 +229,18 @@ void topology_to_proto(const Scene& scene, v1::Topology* out) {
   for (int32_t v : scene.surface_vertices()) out->add_surface_vertices(v);
   for (size_t i = 0; i < m->fixed.size(); ++i)
     if (m->fixed[i]) out->add_fixed_vertices(static_cast<int32_t>(i));
+  for (const BodyInfo& b : scene.bodies()) {
+    auto* pb = out->add_bodies();
+    pb->set_name(b.name);
+    pb->set_kind(b.kind);
+    pb->set_particle_count(static_cast<uint32_t>(b.particles));
+    pb->mutable_rest_positions()->Reserve(static_cast<int>(3 * b.rest.size()));
+    for (const auto& x : b.rest)
+      for (int k = 0; k < 3; ++k) pb->add_rest_positions(static_cast<float>(x[k]));
+    for (const auto& t : b.triangles)
+      for (int k = 0; k < 3; ++k) pb->add_triangles(t[k]);
+    pb->mutable_pinned()->Add(b.pinned.begin(), b.pinned.end());
+  }
 }
 
 }  // namespace pliant::server

@@ -248,6 +248,10 @@ def mode_examples(args):
                 check(len(got.get("colliders", [])) == len(spec.get("colliders", [])),
                       f"{path}: GetScene shows {len(got.get('colliders', []))} colliders, the file has "
                       f"{len(spec.get('colliders', []))}")
+                bodies = scene.get("bodies", [])
+                check([b["name"] for b in bodies] == [b["name"] for b in spec.get("bodies", [])],
+                      f"{path}: the scene has bodies {bodies}, the file {spec.get('bodies', [])}")
+                check(all(b.get("particle_count", 0) > 0 for b in bodies), f"{path}: a body without particles: {bodies}")
                 for key in ("young_modulus", "poisson_ratio", "density"):
                     if key in spec.get("material", {}):
                         check(abs(got["material"][key] - spec["material"][key]) <= 1e-12 * abs(spec["material"][key]),
@@ -268,6 +272,21 @@ def mode_examples(args):
                   and cols[1]["dynamic_friction"] == 0.3, f"--collider box: {cols[1]}")
             check(cols[2]["sphere"]["radius"] == 0.05 and cols[2]["static_friction"] == 0.5, f"--collider sphere: {cols[2]}")
             check(got["tick"]["mode"] == "TICK_MODE_LOCKSTEP", f"--mode over the file: {got['tick']['mode']}")
+            # --rope / --cloth / --fluid: compact particle bodies.
+            r = cli(args, server, "--json", "scenes", "create", "bodies", "--mode", "lockstep",
+                    "--rope", "r:from=0.2,0,0:to=0.4,0,0:segments=10:pin=0",
+                    "--cloth", "c:origin=0.5,0,0:size=0.2,0.2:resolution=5,6",
+                    "--fluid", "w:min=1,0,0:max=1.1,0.1,0.1:spacing=0.025")
+            got = json.loads(r.stdout)
+            check([(b["name"], b["kind"], b["particle_count"]) for b in got.get("bodies", [])] ==
+                  [("r", "rope", 11), ("c", "cloth", 30), ("w", "fluid", 64)], f"body flags: {got.get('bodies')}")
+            check(got["bodies"][0].get("pinned_count") == 1, f"--rope pin: {got['bodies'][0]}")
+            r = cli(args, server, "scenes", "get", "bodies")
+            check("r: rope, 11 particles" in r.stdout, f"scenes get shows the bodies: {r.stdout!r}")
+            r = cli(args, server, "scenes", "create", "--rope", "r:from=0,0,0", ok=False)
+            check(r.returncode == 2 and "to=" in r.stderr, f"--rope without to: rc {r.returncode}, {r.stderr!r}")
+            r = cli(args, server, "scenes", "create", "--rope", "r:from=0,0,0:to=1,0,0:segments=0", ok=False)
+            check(r.returncode == 2 and "segments" in r.stderr, f"--rope segments=0: rc {r.returncode}, {r.stderr!r}")
             for bad_flag, needle in (("plane:point=0,0,0", "normal="), ("cone:center=0,0,0", "cone"),
                                      ("sphere:center=0,0:radius=1", "center needs 3")):
                 r = cli(args, server, "scenes", "create", "--collider", bad_flag, ok=False)

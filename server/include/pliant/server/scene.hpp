@@ -4,6 +4,7 @@
 // latest immutable Frame, published atomically after every tick. No gRPC in here.
 #pragma once
 
+#include "pliant/server/bodies.hpp"
 #include "pliant/server/error.hpp"
 
 #include "pliant/colliders.hpp"
@@ -47,6 +48,8 @@ struct SceneConfig {
   // Method auto: settings.method is the chosen one; method_choice says what was measured.
   bool method_auto = false;
   std::string method_choice;
+  // Particle bodies, stepped after the tet body in every tick (spec order).
+  std::vector<BodyConfig> bodies;
 };
 
 // A tool's reaction in a tick, with the pose that produced it.
@@ -87,6 +90,12 @@ struct Frame {
   TickMode mode = TickMode::Realtime;
   std::vector<FrameTool> tools;                        // every tool in the scene, by id
   std::vector<std::pair<uint64_t, Vec3>> grab_forces;  // force on the body per grab id
+  // Each particle body's positions (float32, packed xyz), in the scene's body order.
+  struct BodyPositions {
+    std::string name;
+    std::vector<float> positions;
+  };
+  std::vector<BodyPositions> bodies;
 };
 
 // residual_final / residual_initial of the tick's last substep; 0 when nothing was left to solve.
@@ -109,6 +118,14 @@ struct StepResult {
   uint64_t rollbacks = 0;
 };
 
+// A grab on a particle body (InteractionService.Grab with `body`).
+struct ParticleGrab {
+  size_t body = 0;      // index in SceneConfig::bodies
+  size_t particle = 0;
+  Vec3 target = Vec3::Zero();
+  double compliance = 0.0;
+};
+
 // Everything needed to recreate the scene exactly.
 struct SceneSnapshot {
   std::string id;
@@ -119,7 +136,10 @@ struct SceneSnapshot {
   bool paused = false;
   // Grabs by id (tools are not saved: they live only while their stream is open).
   std::map<uint64_t, Attachment> grabs;
-  uint64_t next_grab_id = 1;  // always > every id in grabs
+  uint64_t next_grab_id = 1;  // always > every id in grabs (and in body_grabs)
+  // The particle bodies' states, in config.bodies order (empty: as built), and their grabs.
+  std::vector<ParticleState> body_states;
+  std::map<uint64_t, ParticleGrab> body_grabs;
 };
 
 // A live change of settings; unset parts are kept.
@@ -136,9 +156,12 @@ class Scene {
   // Consecutive blow-ups after which the scene pauses itself instead of retrying forever.
   static constexpr int kMaxConsecutiveRollbacks = 20;
 
+  // Builds the particle bodies of config.bodies: throws std::invalid_argument naming the body
+  // when one cannot be built.
   Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel> model,
         BodyState state, uint64_t tick, bool paused);
-  // A scene recreated from a snapshot, its grabs included (same ids).
+  // A scene recreated from a snapshot, its grabs included (same ids). Throws
+  // std::invalid_argument naming snapshot.bodies[i] when a body's state does not fit it.
   explicit Scene(SceneSnapshot snapshot, std::string id = {});
   ~Scene();
   Scene(const Scene&) = delete;
@@ -167,6 +190,9 @@ class Scene {
   // Positions the scene was created or restored with (what "where it is now" means before the
   // first tick publishes a frame).
   const std::vector<Vec3>& initial_positions() const { return initial_positions_; }
+  // The particle bodies as built (fixed for the scene's lifetime), in config order.
+  const std::vector<BodyInfo>& bodies() const { return bodies_info_; }
+  size_t particle_count() const;
 
   // Commands, executed by the tick thread; each waits for it up to `timeout`.
   Error pause(std::chrono::milliseconds timeout = std::chrono::seconds(10));
@@ -185,6 +211,11 @@ class Scene {
   // At most max_grabs at once (RESOURCE_EXHAUSTED).
   Error grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
              std::chrono::milliseconds timeout = std::chrono::seconds(10), size_t max_grabs = SIZE_MAX);
+  // A grab on particle `particle` of body `body` (an index in bodies(), validated by the
+  // caller), held where the particle is when the grab starts unless `target` is given.
+  Error grab_particle(size_t body, size_t particle, std::optional<Vec3> target, double compliance,
+                      uint64_t* grab_id, uint64_t* first_tick,
+                      std::chrono::milliseconds timeout = std::chrono::seconds(10), size_t max_grabs = SIZE_MAX);
   Error move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tick, Vec3* last_force,
                   std::chrono::milliseconds timeout = std::chrono::seconds(10));
   Error release(uint64_t grab_id, std::chrono::milliseconds timeout = std::chrono::seconds(10));
@@ -258,10 +289,13 @@ class Scene {
   // A tick the cancel flag stopped: undone; with a reason from abort_tick, also pauses.
   void cancelled_tick(const std::string& abort_reason);
   void publish_status();
+  // Puts every particle body back to its state at the start of the tick.
+  void restore_bodies();
 
   const std::string id_;
   std::vector<int32_t> surface_vertices_;
   std::vector<Vec3> initial_positions_;
+  std::vector<BodyInfo> bodies_info_;
 
   // Shared with callers (under mu_).
   mutable std::mutex mu_;

@@ -22,8 +22,14 @@
 namespace pliant::server {
 
 Error snapshot_to_proto(const SceneSnapshot& snapshot, v1::Snapshot* out);
+// model_path: where a cloth body's model_path file is looked up again.
 Error snapshot_from_proto(const v1::Snapshot& snapshot, int max_threads, int64_t max_vertices,
-                          SceneSnapshot* out);
+                          const std::vector<std::string>& model_path, SceneSnapshot* out);
+// Without a model path (a cloth body read from a file cannot be rebuilt).
+inline Error snapshot_from_proto(const v1::Snapshot& snapshot, int max_threads, int64_t max_vertices,
+                                 SceneSnapshot* out) {
+  return snapshot_from_proto(snapshot, max_threads, max_vertices, {}, out);
+}
 
 class SnapshotStore {
  public:

@@ -57,6 +57,14 @@ Error fixed_from(const v1::FixedSelection& p, const std::string& prefix, FixedSe
 Error colliders_from(const google::protobuf::RepeatedPtrField<v1::Collider>& p, const std::string& prefix,
                      std::vector<Collider>* out);
 
+// SceneSpec.bodies: each body's fields range-checked (errors name `prefix`[i].kind.field and the
+// value), names unique, at most kMaxBodiesPerScene bodies and kMaxParticlesPerScene particles
+// (RESOURCE_EXHAUSTED; a cloth read from a file is counted once built). A cloth's model_path is
+// resolved in `model_path`.
+Error bodies_from_spec(const google::protobuf::RepeatedPtrField<v1::BodySpec>& bodies, const std::string& prefix,
+                       const std::vector<std::string>& model_path, std::vector<BodyConfig>* out);
+void bodies_to_spec(const std::vector<BodyConfig>& bodies, v1::SceneSpec* spec);
+
 // Builds the body model; the solver's std::invalid_argument becomes INVALID_ARGUMENT naming
 // the spec's field.
 Error build_body(const TetMesh& mesh, const Material& material, const FixedSelection& fixed,

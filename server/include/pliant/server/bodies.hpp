@@ -1,0 +1,57 @@
+// SPDX-License-Identifier: Apache-2.0
+// Particle bodies in a scene (fluids, cloth, ropes): how each was asked for, in the solver's own
+// option structs, and how it is built. The scene keeps the configs so that reset, snapshots and
+// GetScene can rebuild or echo them. No protobuf in here (body_proto.cpp converts).
+#pragma once
+
+#include "pliant/cloth.hpp"
+#include "pliant/fluid.hpp"
+#include "pliant/particle_body.hpp"
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace pliant::server {
+
+// Limits per scene (docs/service.md).
+constexpr size_t kMaxBodiesPerScene = 16;
+constexpr size_t kMaxParticlesPerScene = 200'000;
+
+struct BodyConfig {
+  std::string name;
+  std::string kind;  // "fluid" | "cloth" | "rope"
+  // fluid
+  FluidSettings fluid;
+  std::vector<FluidBlock> blocks;
+  // cloth and rope
+  ConstraintBodySettings constraint;
+  double mass_per_area = 0.2;      // cloth, kg/m^2
+  ClothGridSpec grid;              // cloth without a mesh file
+  std::string mesh_name;           // cloth from a model-path file: the name the request gave
+  std::string mesh_file;           // ... and the file it resolved to
+  double mesh_scale = 1.0;
+  std::vector<Vec3> rope_points;   // rope polyline, m
+  int segments = 0;
+  double linear_density = 0.1;     // rope, kg/m
+  std::vector<uint32_t> pin_indices;
+  std::vector<std::pair<Vec3, Vec3>> pin_boxes;  // (min, max)
+};
+
+// Builds the body with the scene's gravity and pins it. Throws std::invalid_argument naming
+// what is wrong (the solver's checks, a pin index out of range).
+std::unique_ptr<ParticleBody> make_particle_body(const BodyConfig& config, const Vec3& gravity);
+
+// What readers outside the tick thread know of a body (fixed once the scene is built).
+struct BodyInfo {
+  std::string name;
+  std::string kind;
+  size_t particles = 0;
+  std::vector<std::array<uint32_t, 3>> triangles;
+  std::vector<uint32_t> pinned;  // ascending
+  std::vector<Vec3> rest;        // positions at creation
+};
+
+}  // namespace pliant::server

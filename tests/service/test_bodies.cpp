@@ -1,0 +1,444 @@
+// SPDX-License-Identifier: Apache-2.0
+// Particle bodies (ropes, cloth, fluids) in a server scene: created with the scene, stepped by
+// its tick under gravity, carried by frames, topology and GetScene, grabbed through the
+// InteractionService, kept bit for bit by snapshots and across a restart, and refused with the
+// field named when their spec is bad.
+#include "pliant/client/client.hpp"
+#include "pliant/server/server.hpp"
+
+#include "in_process_server.hpp"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <functional>
+#include <unistd.h>
+
+using namespace pliant;
+using client::Client;
+namespace fs = std::filesystem;
+
+namespace {
+
+using namespace test::grpc_codes;
+
+struct BodiesServer : test::InProcessServer {
+  explicit BodiesServer(server::ServerOptions o = {}) : InProcessServer(std::move(o), {std::chrono::seconds(60)}) {}
+};
+
+void set(v1::Vec3* v, double x, double y, double z) {
+  v->set_x(x);
+  v->set_y(y);
+  v->set_z(z);
+}
+
+// beam1 clamped at x <= 0.01 beside a rope pinned at one end (21 particles), a cloth pinned at
+// two corners (8 x 8) and a fluid block in a container (4 x 4 x 4), lockstep.
+v1::CreateSceneRequest bodies_request(const std::string& id) {
+  v1::CreateSceneRequest r;
+  r.set_scene_id(id);
+  auto* s = r.mutable_spec();
+  s->mutable_mesh()->set_builtin("beam1");
+  client::clamp_below_x(*s, 0.01);
+  s->mutable_solver()->set_method(v1::METHOD_XPBD);
+  s->mutable_solver()->set_substeps(2);
+  s->mutable_solver()->set_iterations(2);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+  s->mutable_tick()->set_dt(1.0 / 60);
+
+  auto* rope = s->add_bodies();
+  rope->set_name("rope");
+  auto* rs = rope->mutable_rope();
+  set(rs->add_points(), 0, 2, 0);
+  set(rs->add_points(), 1, 2, 0);
+  rs->set_segments(20);
+  rs->set_substeps(8);
+  rs->mutable_pins()->add_indices(0);
+
+  auto* cloth = s->add_bodies();
+  cloth->set_name("cloth");
+  auto* cs = cloth->mutable_cloth();
+  auto* g = cs->mutable_grid();
+  g->set_resolution_x(8);
+  g->set_resolution_y(8);
+  g->set_size_x(0.4);
+  g->set_size_y(0.4);
+  set(g->mutable_origin(), 3, 2, 0);
+  cs->set_substeps(8);
+  cs->set_self_collision(false);
+  cs->mutable_pins()->add_indices(0);
+  cs->mutable_pins()->add_indices(7);
+
+  auto* fluid = s->add_bodies();
+  fluid->set_name("water");
+  auto* fs_ = fluid->mutable_fluid();
+  fs_->set_spacing(0.05);
+  auto* blk = fs_->add_blocks();
+  set(blk->mutable_min(), -3.1, 0.0, -0.1);
+  set(blk->mutable_max(), -2.9, 0.2, 0.1);
+  auto* box = fs_->mutable_container()->mutable_box();
+  set(box->mutable_center(), -3, 0.2, 0);
+  set(box->mutable_half_extent(), 0.3, 0.3, 0.3);
+  return r;
+}
+
+v1::Frame latest_frame(Client& c, const std::string& id) {
+  v1::StreamFramesRequest q;
+  q.set_scene_id(id);
+  auto s = c.stream_frames(q);
+  v1::Frame f;
+  EXPECT_TRUE(s->next(&f));
+  s->cancel();
+  return f;
+}
+
+v1::Snapshot snapshot_of(Client& c, const std::string& id) {
+  v1::SaveSnapshotRequest req;
+  req.set_scene_id(id);
+  auto s = c.save_snapshot(req);
+  EXPECT_TRUE(s.ok()) << s.status.to_string();
+  return s->snapshot();
+}
+
+template <class R>
+bool bit_equal(const R& a, const R& b) {
+  if (a.size() != b.size()) return false;
+  return a.size() == 0 || std::memcmp(a.data(), b.data(), sizeof(a[0]) * a.size()) == 0;
+}
+
+double y_of(const google::protobuf::RepeatedField<float>& p, int i) { return p[3 * i + 1]; }
+
+fs::path temp_dir(const std::string& name) {
+  fs::path p = fs::temp_directory_path() / ("pliant_bodies_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(p);
+  fs::create_directories(p);
+  return p;
+}
+
+TEST(Bodies, SceneCarriesItsBodiesWhichFallUnderGravityWhilePinsHold) {
+  BodiesServer srv;
+  Client c = srv.client();
+  auto created = c.create_scene(bodies_request("b"));
+  ASSERT_TRUE(created.ok()) << created.status.to_string();
+  ASSERT_EQ(created->bodies_size(), 3);
+  EXPECT_EQ(created->bodies(0).name(), "rope");
+  EXPECT_EQ(created->bodies(0).kind(), "rope");
+  EXPECT_EQ(created->bodies(0).particle_count(), 21u);
+  EXPECT_EQ(created->bodies(0).pinned_count(), 1u);
+  EXPECT_EQ(created->bodies(1).kind(), "cloth");
+  EXPECT_EQ(created->bodies(1).particle_count(), 64u);
+  EXPECT_EQ(created->bodies(1).pinned_count(), 2u);
+  EXPECT_GT(created->bodies(1).triangle_count(), 0u);
+  EXPECT_EQ(created->bodies(2).kind(), "fluid");
+  EXPECT_EQ(created->bodies(2).particle_count(), 64u);
+  // The effective spec echoes every body with its values in use.
+  ASSERT_EQ(created->spec().bodies_size(), 3);
+  EXPECT_EQ(created->spec().bodies(0).rope().segments(), 20u);
+  EXPECT_EQ(created->spec().bodies(0).rope().substeps(), 8);
+  EXPECT_DOUBLE_EQ(created->spec().bodies(2).fluid().rest_density(), 1000.0);
+
+  auto topo = c.topology("b");
+  ASSERT_TRUE(topo.ok()) << topo.status.to_string();
+  ASSERT_EQ(topo->bodies_size(), 3);
+  const auto& rope_topo = topo->bodies(0);
+  EXPECT_EQ(rope_topo.rest_positions_size(), 3 * 21);
+  ASSERT_EQ(rope_topo.pinned_size(), 1);
+  EXPECT_EQ(rope_topo.pinned(0), 0u);
+  EXPECT_EQ(topo->bodies(1).triangles_size() % 3, 0);
+  EXPECT_GT(topo->bodies(1).triangles_size(), 0);
+  EXPECT_EQ(topo->bodies(2).triangles_size(), 0);
+
+  ASSERT_TRUE(c.step("b", 30).ok());
+  const v1::Frame f = latest_frame(c, "b");
+  EXPECT_EQ(f.tick(), 30u);
+  ASSERT_EQ(f.bodies_size(), 3);
+  for (int b = 0; b < 3; ++b) {
+    EXPECT_EQ(f.bodies(b).name(), topo->bodies(b).name());
+    EXPECT_EQ(f.bodies(b).positions_size(), topo->bodies(b).rest_positions_size());
+  }
+  // Rope: the pinned end stays where it was built, the free end fell.
+  const auto& rope = f.bodies(0).positions();
+  for (int k = 0; k < 3; ++k) EXPECT_EQ(rope[k], rope_topo.rest_positions(k));
+  EXPECT_LT(y_of(rope, 20), y_of(rope_topo.rest_positions(), 20) - 0.1);
+  // Cloth: both pinned corners stay, the far corner fell.
+  const auto& cloth = f.bodies(1).positions();
+  for (int i : {0, 7})
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(cloth[3 * i + k], topo->bodies(1).rest_positions(3 * i + k));
+  EXPECT_LT(y_of(cloth, 63), y_of(topo->bodies(1).rest_positions(), 63) - 0.05);
+  // Fluid: the block sank toward its container's floor (y = -0.1) and stays inside it.
+  double mean_now = 0, mean_rest = 0, min_y = 1e9;
+  for (int i = 0; i < 64; ++i) {
+    mean_now += y_of(f.bodies(2).positions(), i) / 64;
+    mean_rest += y_of(topo->bodies(2).rest_positions(), i) / 64;
+    min_y = std::min(min_y, y_of(f.bodies(2).positions(), i));
+  }
+  EXPECT_LT(mean_now, mean_rest - 0.02);
+  EXPECT_GE(min_y, -0.1 - 1e-3);
+
+  // Reset puts every body back where it was built.
+  ASSERT_TRUE(c.reset_scene("b").ok());
+  ASSERT_TRUE(c.step("b", 1).ok());
+  auto snap = snapshot_of(c, "b");
+  ASSERT_EQ(snap.bodies_size(), 3);
+  EXPECT_EQ(snap.bodies(0).steps(), 1u);
+  EXPECT_NEAR(snap.bodies(0).x(3 * 20 + 1), 2.0, 0.01);
+
+  // Frames without positions carry no bodies.
+  v1::StreamFramesRequest q;
+  q.set_scene_id("b");
+  q.add_fields(v1::FRAME_FIELD_SOLVER_STATS);
+  auto s = c.stream_frames(q);
+  v1::Frame g;
+  ASSERT_TRUE(s->next(&g));
+  s->cancel();
+  EXPECT_EQ(g.bodies_size(), 0);
+  EXPECT_EQ(g.positions_size(), 0);
+}
+
+TEST(Bodies, GrabOnARopeParticleHoldsItsWeightAndMovesIt) {
+  BodiesServer srv;
+  Client c = srv.client();
+  v1::CreateSceneRequest r;
+  r.set_scene_id("g");
+  auto* s = r.mutable_spec();
+  s->mutable_mesh()->set_builtin("beam1");
+  client::clamp_below_x(*s, 0.01);
+  s->mutable_solver()->set_method(v1::METHOD_XPBD);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+  auto* rope = s->add_bodies();
+  rope->set_name("rope");
+  auto* rs = rope->mutable_rope();
+  set(rs->add_points(), 0, 3, 0);
+  set(rs->add_points(), 0, 2, 0);  // hanging straight down, 1 m
+  rs->set_segments(10);
+  rs->set_linear_density(0.2);     // 0.2 kg in all: weight 1.962 N
+  rs->set_damping(5.0);
+  ASSERT_TRUE(c.create_scene(r).ok());
+
+  v1::GrabRequest grab;
+  grab.set_scene_id("g");
+  grab.set_body("rope");
+  grab.set_vertex(0);  // the top particle, held where it is
+  auto granted = c.grab(grab);
+  ASSERT_TRUE(granted.ok()) << granted.status.to_string();
+  ASSERT_TRUE(c.step("g", 120).ok());
+
+  v1::MoveGrabRequest move;
+  move.set_scene_id("g");
+  move.set_grab_id(granted->grab_id());
+  set(move.mutable_target(), 0.3, 3, 0);
+  auto moved = c.move_grab(move);
+  ASSERT_TRUE(moved.ok()) << moved.status.to_string();
+  // The grab holds the whole rope: its force on the body is the rope's weight, upward.
+  const double weight = 0.2 * 9.81;
+  EXPECT_NEAR(moved->force().y(), weight, 0.05 * weight);
+  EXPECT_NEAR(moved->force().x(), 0.0, 0.05 * weight);
+
+  ASSERT_TRUE(c.step("g", 60).ok());
+  const v1::Frame f = latest_frame(c, "g");
+  ASSERT_EQ(f.bodies_size(), 1);
+  EXPECT_NEAR(f.bodies(0).positions(0), 0.3, 1e-3);
+  EXPECT_NEAR(f.bodies(0).positions(1), 3.0, 1e-3);
+  EXPECT_GT(f.bodies(0).positions(3 * 10), 0.05);  // the bottom follows
+
+  // Release: the rope falls.
+  ASSERT_TRUE(c.release("g", granted->grab_id()).ok());
+  ASSERT_TRUE(c.step("g", 30).ok());
+  const v1::Frame after = latest_frame(c, "g");
+  EXPECT_LT(after.bodies(0).positions(1), 3.0 - 0.3);
+
+  // Bad grabs: an unknown body, a particle out of range, a tet point on a body.
+  grab.set_body("nope");
+  EXPECT_EQ(c.grab(grab).status.code, kNotFound);
+  grab.set_body("rope");
+  grab.set_vertex(11);
+  auto bad = c.grab(grab);
+  EXPECT_EQ(bad.status.code, kInvalidArgument);
+  EXPECT_NE(bad.status.message.find("vertex 11"), std::string::npos) << bad.status.message;
+  grab.mutable_tet_point()->set_tet(0);
+  EXPECT_EQ(c.grab(grab).status.code, kInvalidArgument);
+}
+
+TEST(Bodies, ABodyThatBlowsUpIsRolledBackWithTheScene) {
+  BodiesServer srv;
+  Client c = srv.client();
+  ASSERT_TRUE(c.create_scene(bodies_request("nan")).ok());
+  ASSERT_TRUE(c.step("nan", 3).ok());
+  const v1::Snapshot before = snapshot_of(c, "nan");
+  // A hard grab to a finite but absurd target: the rope's velocities overflow.
+  v1::GrabRequest grab;
+  grab.set_scene_id("nan");
+  grab.set_body("rope");
+  grab.set_vertex(20);
+  set(grab.mutable_target(), 1e300, 0, 0);
+  auto granted = c.grab(grab);
+  ASSERT_TRUE(granted.ok()) << granted.status.to_string();
+  auto st = c.step("nan", 1);
+  ASSERT_TRUE(st.ok()) << st.status.to_string();
+  EXPECT_EQ(st->rollbacks(), 1u);
+  const v1::Frame f = latest_frame(c, "nan");
+  EXPECT_TRUE(f.rolled_back());
+  EXPECT_NE(f.rollback_reason().find("body 'rope'"), std::string::npos) << f.rollback_reason();
+  // Every body and the tet body are as they were before the tick.
+  const v1::Snapshot after = snapshot_of(c, "nan");
+  EXPECT_TRUE(bit_equal(before.x(), after.x()));
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_TRUE(bit_equal(before.bodies(i).x(), after.bodies(i).x())) << before.bodies(i).name();
+    EXPECT_TRUE(bit_equal(before.bodies(i).v(), after.bodies(i).v())) << before.bodies(i).name();
+  }
+  // Without the grab the scene steps on.
+  ASSERT_TRUE(c.release("nan", granted->grab_id()).ok());
+  st = c.step("nan", 1);
+  ASSERT_TRUE(st.ok());
+  EXPECT_EQ(st->rollbacks(), 0u);
+}
+
+TEST(Bodies, SnapshotRestoreContinuesBitIdentically) {
+  BodiesServer srv;
+  Client c = srv.client();
+  ASSERT_TRUE(c.create_scene(bodies_request("orig")).ok());
+  v1::GrabRequest grab;
+  grab.set_scene_id("orig");
+  grab.set_body("rope");
+  grab.set_vertex(20);
+  set(grab.mutable_target(), 1, 1.5, 0);
+  grab.set_compliance(1e-3);
+  ASSERT_TRUE(c.grab(grab).ok());
+  ASSERT_TRUE(c.step("orig", 10).ok());
+  v1::RestoreSnapshotRequest restore;
+  *restore.mutable_snapshot() = snapshot_of(c, "orig");
+  restore.set_scene_id("copy");
+  auto copy = c.restore_snapshot(restore);
+  ASSERT_TRUE(copy.ok()) << copy.status.to_string();
+  ASSERT_EQ(copy->bodies_size(), 3);
+  ASSERT_TRUE(c.step("orig", 10).ok());
+  ASSERT_TRUE(c.step("copy", 10).ok());
+  const v1::Snapshot a = snapshot_of(c, "orig"), b = snapshot_of(c, "copy");
+  EXPECT_TRUE(bit_equal(a.x(), b.x()));
+  ASSERT_EQ(a.bodies_size(), 3);
+  ASSERT_EQ(b.bodies_size(), 3);
+  for (int i = 0; i < 3; ++i) {
+    SCOPED_TRACE(a.bodies(i).name());
+    EXPECT_EQ(a.bodies(i).steps(), 20u);
+    EXPECT_TRUE(bit_equal(a.bodies(i).x(), b.bodies(i).x()));
+    EXPECT_TRUE(bit_equal(a.bodies(i).v(), b.bodies(i).v()));
+    EXPECT_TRUE(bit_equal(a.bodies(i).lambda(), b.bodies(i).lambda()));
+    EXPECT_EQ(a.bodies(i).time(), b.bodies(i).time());
+  }
+  ASSERT_EQ(b.bodies(0).grabs_size(), 1);
+
+  // A snapshot whose body state does not fit its spec is refused, naming it.
+  v1::Snapshot broken = a;
+  broken.mutable_bodies(1)->mutable_x()->RemoveLast();
+  broken.mutable_bodies(1)->mutable_x()->RemoveLast();
+  broken.mutable_bodies(1)->mutable_x()->RemoveLast();
+  broken.mutable_bodies(1)->mutable_v()->RemoveLast();
+  broken.mutable_bodies(1)->mutable_v()->RemoveLast();
+  broken.mutable_bodies(1)->mutable_v()->RemoveLast();
+  *restore.mutable_snapshot() = broken;
+  restore.set_scene_id("broken");
+  auto refused = c.restore_snapshot(restore);
+  EXPECT_EQ(refused.status.code, kInvalidArgument);
+  EXPECT_NE(refused.status.message.find("snapshot.bodies[1]"), std::string::npos) << refused.status.message;
+  broken = a;
+  broken.mutable_bodies(2)->set_x(4, NAN);
+  *restore.mutable_snapshot() = broken;
+  refused = c.restore_snapshot(restore);
+  EXPECT_EQ(refused.status.code, kInvalidArgument);
+  EXPECT_NE(refused.status.message.find("snapshot.bodies[2]"), std::string::npos) << refused.status.message;
+}
+
+TEST(Bodies, RestartKeepsTheBodies) {
+  const fs::path dir = temp_dir("restart");
+  server::ServerOptions o;
+  o.data_dir = dir.string();
+  v1::Snapshot before;
+  {
+    BodiesServer a(o);
+    Client c = a.client();
+    ASSERT_TRUE(c.create_scene(bodies_request("keep")).ok());
+    ASSERT_TRUE(c.step("keep", 7).ok());
+    before = snapshot_of(c, "keep");
+    EXPECT_EQ(a.server->shutdown(), 1);
+  }
+  {
+    BodiesServer b(o);
+    Client c = b.client();
+    auto got = c.get_scene("keep");
+    ASSERT_TRUE(got.ok()) << got.status.to_string();
+    ASSERT_EQ(got->bodies_size(), 3);
+    const v1::Snapshot after = snapshot_of(c, "keep");
+    ASSERT_EQ(after.bodies_size(), 3);
+    for (int i = 0; i < 3; ++i) {
+      EXPECT_TRUE(bit_equal(before.bodies(i).x(), after.bodies(i).x()));
+      EXPECT_TRUE(bit_equal(before.bodies(i).v(), after.bodies(i).v()));
+    }
+  }
+  fs::remove_all(dir);
+}
+
+TEST(Bodies, BadSpecsAreRefusedNamingTheField) {
+  BodiesServer srv;
+  Client c = srv.client();
+  struct Case {
+    std::function<void(v1::SceneSpec*)> edit;
+    int code;
+    std::string field, value;
+  };
+  const std::vector<Case> cases = {
+      {[](v1::SceneSpec* s) { s->mutable_bodies(1)->mutable_cloth()->mutable_grid()->set_resolution_x(1); },
+       kInvalidArgument, "spec.bodies[1].cloth.grid.resolution_x", "got 1"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(1)->set_name("rope"); }, kInvalidArgument, "spec.bodies[1].name",
+       "rope"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(0)->set_name(""); }, kInvalidArgument, "spec.bodies[0].name",
+       "empty"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(0)->mutable_rope()->set_segments(0); }, kInvalidArgument,
+       "spec.bodies[0].rope.segments", "got 0"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(0)->mutable_rope()->set_bend_compliance(-1); }, kInvalidArgument,
+       "spec.bodies[0].rope.bend_compliance", "got -1"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(0)->mutable_rope()->mutable_pins()->add_indices(21); },
+       kInvalidArgument, "spec.bodies[0]", "21"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(2)->mutable_fluid()->set_spacing(-0.5); }, kInvalidArgument,
+       "spec.bodies[2].fluid.spacing", "got -0.5"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(2)->mutable_fluid()->clear_blocks(); }, kInvalidArgument,
+       "spec.bodies[2].fluid.blocks", "empty"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(2)->mutable_fluid()->mutable_container()->mutable_sphere()->set_radius(1); },
+       kInvalidArgument, "spec.bodies[2].fluid.container", "box"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(2)->mutable_fluid()->set_substeps(0); }, kInvalidArgument,
+       "spec.bodies[2].fluid.substeps", "got 0"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(1)->mutable_cloth()->set_mass_per_area(0); }, kInvalidArgument,
+       "spec.bodies[1].cloth.mass_per_area", "got 0"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(1)->mutable_cloth()->set_model_path("../etc/passwd"); },
+       kInvalidArgument, "spec.bodies[1].cloth.model_path", ""},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(1)->clear_cloth(); }, kInvalidArgument, "spec.bodies[1]",
+       "fluid, cloth, rope"},
+      {[](v1::SceneSpec* s) {  // 501 x 501 = 251,001 particles
+         auto* g = s->mutable_bodies(1)->mutable_cloth()->mutable_grid();
+         g->set_resolution_x(501);
+         g->set_resolution_y(501);
+       },
+       kResourceExhausted, "spec.bodies[1]", "200000"},
+      {[](v1::SceneSpec* s) {
+         for (int i = 0; i < 14; ++i) *s->add_bodies() = s->bodies(0);
+       },
+       kResourceExhausted, "spec.bodies", "16 bodies"},
+  };
+  for (size_t i = 0; i < cases.size(); ++i) {
+    SCOPED_TRACE(cases[i].field);
+    auto req = bodies_request("bad");
+    cases[i].edit(req.mutable_spec());
+    auto got = c.create_scene(req);
+    EXPECT_EQ(got.status.code, cases[i].code) << got.status.to_string();
+    EXPECT_NE(got.status.message.find(cases[i].field), std::string::npos) << got.status.message;
+    EXPECT_NE(got.status.message.find(cases[i].value), std::string::npos) << got.status.message;
+  }
+  // Nothing was created by the refused requests.
+  auto list = c.list_scenes();
+  ASSERT_TRUE(list.ok());
+  EXPECT_TRUE(list->empty());
+}
+
+}  // namespace
