@@ -43,4 +43,8 @@ std::unique_ptr<ParticleBody> make_particle_body(const BodyConfig& c, const Vec3
   return body;
 }
 
+double contact_radius(const BodyConfig& c) {
+  return c.kind == "fluid" ? c.fluid.particle_radius * c.fluid.spacing : c.constraint.thickness;
+}
+
 }  // namespace pliant::server

@@ -248,6 +248,12 @@ Error bodies_from_spec(const google::protobuf::RepeatedPtrField<v1::BodySpec>& b
       default: return invalid(p + ": no kind set; set one of fluid, cloth, rope");
     }
     if (!e.ok()) return e;
+    if (b.has_soft_body_contact()) c.soft_body_contact = b.soft_body_contact();
+    if (b.has_soft_body_friction()) {
+      if (Error fe = in_range(p + ".soft_body_friction", b.soft_body_friction(), 0.0, 10.0, false, ""); !fe.ok())
+        return fe;
+      c.soft_body_friction = b.soft_body_friction();
+    }
     total += particles;
     if (total > kMaxParticlesPerScene)
       return Error::make(Code::ResourceExhausted,
@@ -262,6 +268,8 @@ void bodies_to_spec(const std::vector<BodyConfig>& bodies, v1::SceneSpec* spec) 
   for (const BodyConfig& c : bodies) {
     auto* b = spec->add_bodies();
     b->set_name(c.name);
+    b->set_soft_body_contact(c.soft_body_contact);
+    b->set_soft_body_friction(c.soft_body_friction);
     if (c.kind == "fluid") {
       auto* f = b->mutable_fluid();
       const FluidSettings& s = c.fluid;

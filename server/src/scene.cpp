@@ -3,6 +3,7 @@
 // publishes frames.
 #include "pliant/server/scene.hpp"
 
+#include "pliant/coupling.hpp"
 #include "pliant/stepper.hpp"
 
 #include <spdlog/spdlog.h>
@@ -11,6 +12,7 @@
 #include <cmath>
 #include <future>
 #include <map>
+#include <optional>
 #include <set>
 
 namespace pliant::server {
@@ -72,6 +74,9 @@ struct Scene::TickState {
   std::vector<ParticleState> bodies_last_good;
   std::vector<ParticleState> bodies_initial;
   std::map<uint64_t, ParticleGrab> body_grabs;
+  // Each body's two-way contact with the tet body (nullopt: none).
+  std::vector<std::optional<CouplingSettings>> body_contact;
+  std::vector<Vec3> particle_start;  // scratch: a body's positions before its step
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
   Clock::time_point anchor;
@@ -142,6 +147,13 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
     for (size_t i = 0; i < w.size(); ++i)
       if (w[i] == 0.0) info.pinned.push_back(static_cast<uint32_t>(i));
     info.rest = body->state().x;
+    std::optional<CouplingSettings> contact;
+    if (bc.soft_body_contact) {
+      contact.emplace();
+      contact->radius = contact_radius(bc);
+      contact->friction = bc.soft_body_friction;
+    }
+    ts_->body_contact.push_back(contact);
     ts_->bodies_initial.push_back(body->state());
     ts_->bodies.push_back(std::move(body));
     bodies_info_.push_back(std::move(info));
@@ -791,7 +803,16 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     }
     const std::string& name = bodies_info_[b].name;
     try {
+      const auto& contact = t.body_contact[b];
+      if (contact) t.particle_start = t.bodies[b]->state().x;
       t.bodies[b]->step(t.settings.dt, t.colliders);
+      if (contact) {
+        // Two-way with the soft body: both sides move (the tet body's state is this tick's).
+        ParticleState ps = t.bodies[b]->state();
+        couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, t.settings.dt,
+                                 t.particle_start);
+        t.bodies[b]->set_state(ps);
+      }
       const ParticleState& st = t.bodies[b]->state();
       bool finite = true;
       for (size_t i = 0; i < st.x.size() && finite; ++i) finite = st.x[i].allFinite() && st.v[i].allFinite();

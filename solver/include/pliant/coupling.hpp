@@ -1,12 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
 // Two-way contact between a particle body (fluid, cloth, rope) and the tetrahedral body: each
-// particle is kept at least `radius` outside the soft body's surface. A touching particle and
-// the surface triangle under it share one unilateral constraint C = (p - q).n - radius >= 0,
-// q = sum b_i x_i the closest point of the triangle (barycentric b), projected with both sides'
-// inverse masses (position-based dynamics), so the corrections carry equal and opposite
-// momentum: the particle pushes the body as much as the body pushes it. Coulomb friction
-// limits the tangential slip of the contact in the same way. Velocities change by the
-// corrections over dt, as a position-based step's do.
+// particle is kept at least `radius` outside the soft body's surface. A touching particle is
+// put back outside the surface triangle it entered (or the closest one), with Coulomb friction
+// limiting its slip, and the momentum that correction gave it is taken from the triangle's
+// vertices as a change of velocity shared by the barycentric weights: the particle pushes the
+// body exactly as much as the body pushes it, and the body's own next step spreads that push
+// through its elasticity.
 #pragma once
 
 #include "pliant/model.hpp"
@@ -20,22 +19,24 @@ namespace pliant {
 struct CouplingSettings {
   double radius = 0.0;    // m, how far outside the surface a particle's centre stays (> 0)
   double friction = 0.0;  // Coulomb coefficient of the contact, >= 0
-  int iterations = 2;     // Gauss-Seidel passes over the contacts found
 };
 
 struct CouplingReport {
   size_t contacts = 0;               // particle-triangle contacts found
   double max_depth = 0.0;            // m, the deepest penetration of radius before correction
-  Vec3 force_on_body = Vec3::Zero(); // N, the particles' push on the soft body over dt
+  Vec3 force_on_body = Vec3::Zero(); // N, the particles' push on the soft body's free vertices over dt
 };
 
-// Finds the particles within `radius` of the body's surface or inside it (up to about one
-// surface-triangle size deep) and pushes them apart from the surface, moving both. `dt` is the
-// step the positions were reached in (velocities change by the corrections / dt). Particles with
-// inverse mass 0 and fixed vertices do not move. Throws std::invalid_argument naming the field
-// when sizes disagree or settings are out of range.
+// Finds the particles within `radius` of the body's surface or inside it and pushes them apart
+// from the surface: the particle moves, the body's velocities change. A particle whose path over the step (from `particle_start`, or
+// when that is empty from x - dt v, to x) entered a surface triangle goes back out through that
+// triangle, however deep it got; the others are measured against the closest triangle (so one
+// that started inside a thin body may leave through the far side). `dt` is the step the
+// positions were reached in (a particle's velocity changes by its correction / dt). Particles
+// with inverse mass 0 are left alone; fixed vertices take no momentum. Throws std::invalid_argument naming the field when
+// sizes disagree or settings are out of range.
 CouplingReport couple_particles_to_body(const BodyModel& model, BodyState& body, ParticleState& particles,
                                         std::span<const double> particle_inv_mass, const CouplingSettings& settings,
-                                        double dt);
+                                        double dt, std::span<const Vec3> particle_start = {});
 
 }  // namespace pliant

@@ -48,6 +48,22 @@ class TriangleGrid {
     return {triangles_.data() + it->second.first, it->second.second - it->second.first};
   }
 
+  // The triangles near a segment: those of every cell its box touches (with repeats), or
+  // nothing when that box spans more than max_cells cells.
+  void near_segment(const Vec3& a, const Vec3& b, size_t max_cells, std::vector<int32_t>& out) const {
+    out.clear();
+    const auto lo = cell_of(a.cwiseMin(b)), hi = cell_of(a.cwiseMax(b));
+    const double cells = double(hi[0] - lo[0] + 1) * double(hi[1] - lo[1] + 1) * double(hi[2] - lo[2] + 1);
+    if (cells > double(max_cells)) return;
+    for (int64_t i = lo[0]; i <= hi[0]; ++i)
+      for (int64_t j = lo[1]; j <= hi[1]; ++j)
+        for (int64_t l = lo[2]; l <= hi[2]; ++l) {
+          const auto it = ranges_.find(key({i, j, l}));
+          if (it != ranges_.end())
+            out.insert(out.end(), triangles_.begin() + it->second.first, triangles_.begin() + it->second.second);
+        }
+  }
+
  private:
   std::array<int64_t, 3> cell_of(const Vec3& p) const {
     return {int64_t(std::floor(p.x() / cell_)), int64_t(std::floor(p.y() / cell_)), int64_t(std::floor(p.z() / cell_))};
@@ -68,20 +84,44 @@ struct Contact {
   int32_t triangle;
   std::array<double, 3> b;  // barycentric weights of the closest point
   Vec3 n;                   // from the surface towards where the particle belongs
-  double denominator;       // w_p + sum b_i^2 w_i
 };
+
+// Where segment a -> b enters triangle (p0, p1, p2) from its front (outward) side: the fraction
+// along the segment, or -1.
+double entering_fraction(const Vec3& a, const Vec3& b, const Vec3& p0, const Vec3& p1, const Vec3& p2,
+                         std::array<double, 3>& bary) {
+  const Vec3 e1 = p1 - p0, e2 = p2 - p0, d = b - a;
+  const Vec3 n = e1.cross(e2);
+  if (!(d.dot(n) < 0)) return -1;  // parallel, or leaving through the back
+  const Vec3 pv = d.cross(e2);
+  const double det = e1.dot(pv);
+  if (std::abs(det) < 1e-300) return -1;
+  const Vec3 tv = a - p0;
+  const double u = tv.dot(pv) / det;
+  if (u < 0 || u > 1) return -1;
+  const Vec3 qv = tv.cross(e1);
+  const double v = d.dot(qv) / det;
+  if (v < 0 || u + v > 1) return -1;
+  const double t = e2.dot(qv) / det;
+  if (t < 0 || t > 1) return -1;
+  bary = {1 - u - v, u, v};
+  return t;
+}
 
 }  // namespace
 
 CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, ParticleState& ps,
-                                        std::span<const double> wp, const CouplingSettings& s, double dt) {
+                                        std::span<const double> wp, const CouplingSettings& s, double dt,
+                                        std::span<const Vec3> particle_start) {
   if (!(s.radius > 0) || !std::isfinite(s.radius))
     throw std::invalid_argument(fmt::format("coupling.radius must be > 0, got {}", s.radius));
   if (!(s.friction >= 0) || !std::isfinite(s.friction))
     throw std::invalid_argument(fmt::format("coupling.friction must be >= 0, got {}", s.friction));
-  if (s.iterations < 1) throw std::invalid_argument(fmt::format("coupling.iterations must be >= 1, got {}", s.iterations));
   if (!(dt > 0)) throw std::invalid_argument(fmt::format("coupling dt must be > 0, got {}", dt));
   check_particle_counts(ps, wp.size(), "coupling");
+  if (!particle_start.empty() && particle_start.size() != ps.x.size())
+    throw std::invalid_argument(fmt::format("coupling: {} start positions for {} particles", particle_start.size(),
+                                            ps.x.size()));
   if (body.x.size() != m.vertex_count() || body.v.size() != m.vertex_count())
     throw std::invalid_argument(fmt::format("coupling: the body state has {} positions and {} velocities, the model {} vertices",
                                             body.x.size(), body.v.size(), m.vertex_count()));
@@ -91,8 +131,35 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   // Contacts at the positions the step reached.
   const TriangleGrid grid(m, body.x, s.radius);
   std::vector<Contact> contacts;
+  std::vector<int32_t> swept;
   for (size_t p = 0; p < ps.x.size(); ++p) {
     const Vec3& xp = ps.x[p];
+    // A particle that crossed the surface during the step (from where its velocity says it
+    // started) goes back out through the face it entered, however deep it got: the closest
+    // face of a thin body may be the far one.
+    const Vec3 start = particle_start.empty() ? Vec3(xp - dt * ps.v[p]) : particle_start[p];
+    grid.near_segment(start, xp, 4096, swept);
+    double first = INFINITY;
+    Contact entered{};
+    for (int32_t k : swept) {
+      const Triangle& t = m.surface[k];
+      std::array<double, 3> b;
+      const double f = entering_fraction(start, xp, body.x[t[0]], body.x[t[1]], body.x[t[2]], b);
+      if (f >= 0 && f < first) {
+        first = f;
+        entered = Contact{uint32_t(p), k, b, Vec3::Zero()};
+      }
+    }
+    if (first < INFINITY) {
+      const Triangle& t = m.surface[entered.triangle];
+      entered.n = (body.x[t[1]] - body.x[t[0]]).cross(body.x[t[2]] - body.x[t[0]]).normalized();
+      if (wp[p] > 0) {
+        const Vec3 q = entered.b[0] * body.x[t[0]] + entered.b[1] * body.x[t[1]] + entered.b[2] * body.x[t[2]];
+        rep.max_depth = std::max(rep.max_depth, s.radius - (xp - q).dot(entered.n));
+        contacts.push_back(entered);
+        continue;
+      }
+    }
     double best = INFINITY;
     Contact c{};
     for (int32_t k : grid.near(xp)) {
@@ -102,7 +169,7 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
       const double d = (xp - q).norm();
       if (d < best) {
         best = d;
-        c = Contact{uint32_t(p), k, b, Vec3::Zero(), 0.0};
+        c = Contact{uint32_t(p), k, b, Vec3::Zero()};
       }
     }
     if (!(best < INFINITY)) continue;
@@ -117,63 +184,47 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
     // Outside: apart along the line to the closest point (the face normal when on it); inside:
     // back out through the closest face.
     c.n = side >= 0 && d.norm() > 1e-12 * s.radius ? Vec3(d.normalized()) : outward;
-    c.denominator = wp[p];
-    for (int a = 0; a < 3; ++a) c.denominator += c.b[a] * c.b[a] * m.inv_mass[t[a]];
-    if (!(c.denominator > 0)) continue;  // a pinned particle on fixed vertices
+    if (!(wp[p] > 0)) continue;  // a pinned particle stays where its pin holds it
     rep.max_depth = std::max(rep.max_depth, s.radius - d.dot(c.n));
     contacts.push_back(c);
   }
   rep.contacts = contacts.size();
   if (contacts.empty()) return rep;
 
-  // Where each side was before the coupling, and where it came from over the step (for slip).
-  std::vector<Vec3> body_before(body.x), particles_before(contacts.size());
-  for (size_t k = 0; k < contacts.size(); ++k) particles_before[k] = ps.x[contacts[k].particle];
-  // The surface point and the particle at the start of the step (velocities are the step's).
-  auto start_point = [&](const Contact& c) {
-    const Triangle& t = m.surface[c.triangle];
-    Vec3 q = Vec3::Zero();
-    for (int a = 0; a < 3; ++a) q += c.b[a] * (body_before[t[a]] - dt * body.v[t[a]]);
-    return q;
-  };
-  for (int it = 0; it < s.iterations; ++it)
-    for (size_t k = 0; k < contacts.size(); ++k) {
-      const Contact& c = contacts[k];
-      const Triangle& t = m.surface[c.triangle];
-      Vec3& xp = ps.x[c.particle];
-      const Vec3 q = c.b[0] * body.x[t[0]] + c.b[1] * body.x[t[1]] + c.b[2] * body.x[t[2]];
-      const double C = (xp - q).dot(c.n) - s.radius;
-      if (C >= 0) continue;
-      const double dl = -C / c.denominator;
-      xp += wp[c.particle] * dl * c.n;
-      for (int a = 0; a < 3; ++a) body.x[t[a]] -= m.inv_mass[t[a]] * c.b[a] * dl * c.n;
-      if (s.friction > 0) {
-        // The particle's slip against the surface point over the step, tangential part, taken
-        // back by at most friction x the normal correction.
-        const Vec3 qn = c.b[0] * body.x[t[0]] + c.b[1] * body.x[t[1]] + c.b[2] * body.x[t[2]];
-        const Vec3 slip = (xp - (particles_before[k] - dt * ps.v[c.particle])) - (qn - start_point(c));
-        const Vec3 tangential = slip - slip.dot(c.n) * c.n;
-        const double tn = tangential.norm();
-        if (tn > 0) {
-          const double dt_l = std::min(tn / c.denominator, s.friction * dl);
-          const Vec3 dir = tangential / tn;
-          xp -= wp[c.particle] * dt_l * dir;
-          for (int a = 0; a < 3; ++a) body.x[t[a]] += m.inv_mass[t[a]] * c.b[a] * dt_l * dir;
-        }
-      }
-    }
-  // Velocities follow the corrections.
+  // The particle takes the whole position correction; the body takes the momentum that the
+  // correction gave the particle, as a change of its vertices' velocities (shared by the
+  // barycentric weights). The body's positions stay: its own next step spreads the push through
+  // its elasticity, which a position correction of a few light surface vertices would not (a
+  // heavy rope landing on a light beam would dent it through). Momentum is exact at once:
+  // what the particles gain, the body loses.
   const double inv_dt = 1.0 / dt;
-  for (size_t i = 0; i < body.x.size(); ++i) {
-    const Vec3 dx = body.x[i] - body_before[i];
-    if (dx.isZero(0)) continue;
-    body.v[i] += dx * inv_dt;
-    if (m.inv_mass[i] > 0) rep.force_on_body += dx * (inv_dt * inv_dt / m.inv_mass[i]);
+  std::vector<Vec3> body_dv(body.v.size(), Vec3::Zero());  // applied after every contact's slip is measured
+  for (const Contact& c : contacts) {
+    const Triangle& t = m.surface[c.triangle];
+    Vec3& xp = ps.x[c.particle];
+    const Vec3 before = xp;
+    const Vec3 q = c.b[0] * body.x[t[0]] + c.b[1] * body.x[t[1]] + c.b[2] * body.x[t[2]];
+    const double C = (xp - q).dot(c.n) - s.radius;
+    if (C >= 0) continue;
+    xp -= C * c.n;
+    if (s.friction > 0) {
+      // The particle's slip against the surface point over the step, tangential part, taken back
+      // by at most friction x the normal correction.
+      Vec3 q_start = Vec3::Zero();
+      for (int a = 0; a < 3; ++a) q_start += c.b[a] * (body.x[t[a]] - dt * body.v[t[a]]);
+      const Vec3 slip = (xp - (before - dt * ps.v[c.particle])) - (q - q_start);
+      const Vec3 tangential = slip - slip.dot(c.n) * c.n;
+      const double tn = tangential.norm();
+      if (tn > 0) xp -= std::min(tn, s.friction * -C) * (tangential / tn);
+    }
+    const Vec3 dv = (xp - before) * inv_dt;
+    ps.v[c.particle] += dv;
+    const Vec3 impulse = dv / wp[c.particle];  // the particle's momentum change
+    for (int a = 0; a < 3; ++a) body_dv[t[a]] -= c.b[a] * m.inv_mass[t[a]] * impulse;
+    for (int a = 0; a < 3; ++a)
+      if (m.inv_mass[t[a]] > 0) rep.force_on_body -= c.b[a] * impulse * inv_dt;
   }
-  for (size_t k = 0; k < contacts.size(); ++k) {
-    const uint32_t p = contacts[k].particle;
-    ps.v[p] += (ps.x[p] - particles_before[k]) * inv_dt;
-  }
+  for (size_t i = 0; i < body.v.size(); ++i) body.v[i] += body_dv[i];
   return rep;
 }
 

@@ -36,9 +36,15 @@ struct BodyConfig {
   std::vector<Vec3> rope_points;   // rope polyline, m
   int segments = 0;
   double linear_density = 0.1;     // rope, kg/m
+  bool soft_body_contact = true;   // two-way contact with the scene's tet body
+  double soft_body_friction = 0.3;
   std::vector<uint32_t> pin_indices;
   std::vector<std::pair<Vec3, Vec3>> pin_boxes;  // (min, max)
 };
+
+// How far outside the soft body's surface the body's particles stay (fluid: particle_radius x
+// spacing; cloth and rope: thickness), m.
+double contact_radius(const BodyConfig& config);
 
 // Builds the body with the scene's gravity and pins it. Throws std::invalid_argument naming
 // what is wrong (the solver's checks, a pin index out of range).
