@@ -87,6 +87,14 @@ struct FluidBody::Impl {
   fluid::NeighbourGrid grid;
   std::unique_ptr<ThreadPool> pool;
   uint64_t substeps_done = 0;
+  FluidPhaseTimes times;
+
+  // Adds the time since *t to the phase's total and moves *t on.
+  static void lap(std::chrono::steady_clock::time_point& t, double& total) {
+    const auto now = std::chrono::steady_clock::now();
+    total += std::chrono::duration<double, std::milli>(now - t).count();
+    t = now;
+  }
 
   explicit Impl(const FluidSettings& settings) : s(settings), k(settings.spacing * settings.support_ratio) {}
 
@@ -207,8 +215,11 @@ struct FluidBody::Impl {
 
   void substep(double dt, std::span<const Collider> inflated, ParticleStepReport& rep) {
     emit(dt);
+    auto clock = std::chrono::steady_clock::now();
     if (s.sort_interval > 0 && substeps_done % static_cast<uint64_t>(s.sort_interval) == 0) reorder();
+    lap(clock, times.sort_ms);
     ++substeps_done;
+    ++times.substeps;
     last_dt = dt;
     const size_t N = n();
     p.resize(N);
@@ -230,7 +241,9 @@ struct FluidBody::Impl {
         collide(i, inflated);
       }
     });
+    lap(clock, times.predict_ms);
     grid.build(p, h, pool.get());
+    lap(clock, times.neighbours_ms);
     for (auto& [id, gr] : grabs) gr.lambda = 0.0;
 
     const double sw = mass / s.rest_density;  // m / rho0
@@ -276,6 +289,7 @@ struct FluidBody::Impl {
           lam[i] = c > 0.0 ? -c / (gi.squaredNorm() + sq + epsilon) : 0.0;
         }
       });
+      lap(clock, times.density_ms);
       // Corrections: sum_j (lam_i + lam_j + s_corr) grad W, and the walls' share of grad_i C_i.
       parallel(N, [&](size_t b, size_t e) {
         for (size_t i = b; i < e; ++i) {
@@ -289,6 +303,7 @@ struct FluidBody::Impl {
           dp[i] = sw * d + li * wall_grad[i];
         }
       });
+      lap(clock, times.correction_ms);
       parallel(N, [&](size_t b, size_t e) {
         for (size_t i = b; i < e; ++i) {
           p[i] += dp[i];
@@ -308,6 +323,7 @@ struct FluidBody::Impl {
         pg += w * dl * gr.normal;
         gr.lambda += dl;
       }
+      lap(clock, times.collide_ms);
     }
     for (auto& [id, gr] : grabs) gr.force = gr.normal * gr.lambda / (dt * dt);
 
@@ -331,6 +347,7 @@ struct FluidBody::Impl {
         v[i] = (p[i] - x_prev[i]) / dt;
       }
     });
+    lap(clock, times.velocity_ms);
     // XSPH viscosity (Jacobi: from the velocities before it), symmetric weights.
     if (s.xsph > 0.0) {
       parallel(N, [&](size_t b, size_t e) {
@@ -343,6 +360,7 @@ struct FluidBody::Impl {
       });
       std::swap(v, dp);
     }
+    lap(clock, times.xsph_ms);
     if (s.vorticity > 0.0) {
       omega.resize(N);
       parallel(N, [&](size_t b, size_t e) {
@@ -363,6 +381,7 @@ struct FluidBody::Impl {
       });
       for (size_t i = 0; i < N; ++i) v[i] += dp[i];
     }
+    lap(clock, times.vorticity_ms);
     std::swap(x, p);
     rep.contacts = contacts;
   }
@@ -589,6 +608,9 @@ std::vector<double> FluidBody::pressure() const {
   for (size_t i = 0; i < m.n(); ++i) out[i] = -m.state.lambda[i] * m.s.rest_density * m.gradient_scale / (m.last_dt * m.last_dt);
   return out;
 }
+
+const FluidPhaseTimes& FluidBody::phase_times() const { return impl_->times; }
+void FluidBody::reset_phase_times() { impl_->times = FluidPhaseTimes{}; }
 
 std::vector<double> FluidBody::density_ratios() const {
   const Impl& m = *impl_;
