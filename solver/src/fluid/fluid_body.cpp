@@ -42,6 +42,36 @@ void basis(const Vec3& n, Vec3& u, Vec3& w) {
   w = n.cross(u);
 }
 
+// The SIMD loops of the pair terms, over arrays that do not overlap (__restrict lets the
+// compiler vectorise without run-time overlap checks). Selects are written as max(a, 0) of an
+// already computed a, the one conditional form the compiler turns into vector code here.
+// r2 = |r|^2 and poly6 W = pc max(h^2 - r^2, 0)^3 (0 from h on, and for NaN).
+void poly6_terms(size_t m, const double* __restrict rx, const double* __restrict ry,
+                 const double* __restrict rz, double h2, double pc, double* __restrict r2,
+                 double* __restrict w) {
+  for (size_t q = 0; q < m; ++q) {
+    const double ax = rx[q], ay = ry[q], az = rz[q];
+    const double d2 = ax * ax + ay * ay + az * az;
+    r2[q] = d2;
+    const double t0 = h2 - d2;
+    const double t = t0 > 0.0 ? t0 : 0.0;
+    w[q] = pc * t * t * t;
+  }
+}
+// The spiky gradient sg max(h - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)).
+void spiky_terms(size_t m, const double* __restrict rx, const double* __restrict ry,
+                 const double* __restrict rz, const double* __restrict len, double h, double sg,
+                 double* __restrict gx, double* __restrict gy, double* __restrict gz) {
+  for (size_t q = 0; q < m; ++q) {
+    const double u0 = h - len[q];
+    const double u = u0 > 0.0 ? u0 : 0.0;
+    const double c = sg * u * u / len[q];
+    gx[q] = c * rx[q];
+    gy[q] = c * ry[q];
+    gz[q] = c * rz[q];
+  }
+}
+
 }  // namespace
 
 struct FluidBody::Impl {
@@ -75,8 +105,11 @@ struct FluidBody::Impl {
   std::vector<Vec3> x, v, p, x_prev, dp, omega;
   std::vector<double> lam, lam_sum, ratio, depth, mu_s, mu_k;
   std::vector<Vec3> contact_n;
-  std::vector<Vec3> pair_grad, wall_grad;  // per pair / particle, within one iteration
-  std::vector<double> pair_scorr;
+  std::vector<Vec3> wall_grad;       // per particle, within one iteration
+  std::vector<double> px, py, pz;    // p as three arrays, for the neighbour loops
+  // Per pair, within one iteration: grad W and s_corr, in single precision (half the memory
+  // traffic; the pair's two entries stay exactly opposite, so momentum is still conserved).
+  std::vector<float> pair_gx, pair_gy, pair_gz, pair_sc;
   std::vector<uint32_t> perm;  // internal -> creation order
   std::vector<uint32_t> inv;   // creation order -> internal
 
@@ -106,6 +139,202 @@ struct FluidBody::Impl {
   }
 
   size_t n() const { return x.size(); }
+
+  void store_p(size_t i) {
+    px[i] = p[i].x();
+    py[i] = p[i].y();
+    pz[i] = p[i].z();
+  }
+
+  // One particle's pair terms, in arrays the compiler vectorises: the offsets r = p_i - p_j,
+  // poly6 W(r), with Gradient the pair gradient grad W (fluid::pair_gradient; the same values
+  // bit for bit whichever pass asks), and with Scorr the artificial pressure
+  // s_corr = -scale (W / W(dq))^n (n = ScorrN when > 0, else the setting).
+  struct PairScratch {
+    std::vector<double> rx, ry, rz, r2, len, w, gx, gy, gz, sc, dg;
+    void fit(size_t m) {
+      if (rx.size() >= m) return;
+      for (auto* a : {&rx, &ry, &rz, &r2, &len, &w, &gx, &gy, &gz, &sc, &dg}) a->resize(m + 64);
+    }
+  };
+  // The offsets of particle i to its neighbours nb, from scratch index `at` on. The gather
+  // stays scalar (no vector gathers for this target); the arithmetic after it is SIMD. dg: the
+  // gradient of two particles on the same point (fluid::pair_gradient's signed diagonal).
+  template <bool Gradient>
+  void gather(size_t i, std::span<const uint32_t> nb, PairScratch& ps, size_t at) const {
+    const uint32_t* J = nb.data();
+    const size_t m = nb.size();
+    const double xi = px[i], yi = py[i], zi = pz[i];
+    const double* X = px.data();
+    const double* Y = py.data();
+    const double* Z = pz.data();
+    double* rx = ps.rx.data() + at;
+    double* ry = ps.ry.data() + at;
+    double* rz = ps.rz.data() + at;
+    double* dg = ps.dg.data() + at;
+    const double diag = k.spiky_g * k.h2 / std::sqrt(3.0);
+    const uint32_t self = static_cast<uint32_t>(i);
+    for (size_t q = 0; q < m; ++q) {
+      const uint32_t j = J[q];
+      rx[q] = xi - X[j];
+      ry[q] = yi - Y[j];
+      rz[q] = zi - Z[j];
+      if constexpr (Gradient) dg[q] = self < j ? diag : -diag;
+    }
+  }
+
+  template <bool Gradient, bool Scorr, int ScorrN>
+  void pair_terms(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
+    ps.fit(nb.size());
+    gather<Gradient>(i, nb, ps, 0);
+    kernel_terms<Gradient, Scorr, ScorrN>(nb.size(), ps);
+  }
+
+  // The kernel terms of the m pairs whose offsets are in ps.
+  template <bool Gradient, bool Scorr, int ScorrN>
+  void kernel_terms(size_t m, PairScratch& ps) const {
+    const double* rx = ps.rx.data();
+    const double* ry = ps.ry.data();
+    const double* rz = ps.rz.data();
+    double* r2 = ps.r2.data();
+    double* w = ps.w.data();
+    const double* dg = ps.dg.data();
+    const double h2 = k.h2, pc = k.poly6_c;
+    poly6_terms(m, rx, ry, rz, h2, pc, r2, w);
+    if constexpr (Gradient) {
+      double* len = ps.len.data();
+      // Eigen's packet sqrt (std::sqrt in a loop keeps errno handling, which blocks SIMD).
+      Eigen::Map<Eigen::ArrayXd>(len, static_cast<Eigen::Index>(m)) =
+          Eigen::Map<const Eigen::ArrayXd>(r2, static_cast<Eigen::Index>(m)).sqrt();
+      double* gx = ps.gx.data();
+      double* gy = ps.gy.data();
+      double* gz = ps.gz.data();
+      const double same = 1e-18 * h2;
+      spiky_terms(m, rx, ry, rz, len, k.h, k.spiky_g, gx, gy, gz);
+      int coincident = 0;
+      for (size_t q = 0; q < m; ++q) coincident |= static_cast<int>(!(r2[q] > same));
+      if (coincident)  // particles on the same point (rare)
+        for (size_t q = 0; q < m; ++q)
+          if (!(r2[q] > same)) gx[q] = gy[q] = gz[q] = dg[q];
+    }
+    if constexpr (Scorr) {
+      double* sc = ps.sc.data();
+      const double wq = wdq, scale = scorr_scale;
+      const int n_exp = s.scorr_n;
+      for (size_t q = 0; q < m; ++q) {
+        const double t = w[q] / wq;
+        double tn = t;
+        if constexpr (ScorrN > 0) {
+          for (int e = 1; e < ScorrN; ++e) tn *= t;
+        } else {
+          for (int e = 1; e < n_exp; ++e) tn *= t;
+        }
+        sc[q] = -scale * tn;
+      }
+    }
+  }
+
+  // lambda_i of the particles at grid slots [b, e), with their density ratio and wall
+  // gradient; the pairs' gradients and s_corr go to pair_g* and pair_sc for the correction
+  // pass. The kernel terms are computed for blocks of particles at once (long SIMD loops).
+  template <bool Scorr, int ScorrN>
+  void density_pass(size_t b, size_t e, PairScratch& ps) {
+    const double sw = mass / s.rest_density;  // m / rho0
+    const double w0 = mass * k.poly6(0.0);
+    constexpr size_t kBlock = 32;
+    for (size_t s0 = b; s0 < e; s0 += kBlock) {
+      const size_t s1 = std::min(e, s0 + kBlock);
+      const size_t f0 = grid.slot_first(s0);
+      const size_t m_all = grid.slot_first(s1) - f0;
+      ps.fit(m_all);
+      for (size_t sl = s0; sl < s1; ++sl)
+        gather<true>(grid.point(sl), grid.slot_neighbours(sl), ps, grid.slot_first(sl) - f0);
+      kernel_terms<true, Scorr, ScorrN>(m_all, ps);
+      auto to_float = [](const double* a, size_t m, float* out) {
+        for (size_t q = 0; q < m; ++q) out[q] = static_cast<float>(a[q]);
+      };
+      to_float(ps.gx.data(), m_all, pair_gx.data() + f0);
+      to_float(ps.gy.data(), m_all, pair_gy.data() + f0);
+      to_float(ps.gz.data(), m_all, pair_gz.data() + f0);
+      if constexpr (Scorr) to_float(ps.sc.data(), m_all, pair_sc.data() + f0);
+      for (size_t sl = s0; sl < s1; ++sl) {
+        const size_t i = grid.point(sl);
+        const size_t at = grid.slot_first(sl) - f0;
+        const size_t m = grid.slot_first(sl + 1) - f0 - at;
+        const double* w = ps.w.data() + at;
+        const double* gxs = ps.gx.data() + at;
+        const double* gys = ps.gy.data() + at;
+        const double* gzs = ps.gz.data() + at;
+        // Sums in four lanes (SIMD), the constant factors applied once.
+        double a_w[4] = {}, a_x[4] = {}, a_y[4] = {}, a_z[4] = {}, a_s[4] = {};
+        size_t q = 0;
+        for (; q + 4 <= m; q += 4)
+          for (int l = 0; l < 4; ++l) {
+            const double gxq = gxs[q + l], gyq = gys[q + l], gzq = gzs[q + l];
+            a_w[l] += w[q + l];
+            a_x[l] += gxq;
+            a_y[l] += gyq;
+            a_z[l] += gzq;
+            a_s[l] += gxq * gxq + gyq * gyq + gzq * gzq;
+          }
+        for (int l = 0; q < m; ++q, ++l) {
+          const double gxq = gxs[q], gyq = gys[q], gzq = gzs[q];
+          a_w[l] += w[q];
+          a_x[l] += gxq;
+          a_y[l] += gyq;
+          a_z[l] += gzq;
+          a_s[l] += gxq * gxq + gyq * gyq + gzq * gzq;
+        }
+        auto total = [](const double* a) { return (a[0] + a[1]) + (a[2] + a[3]); };
+        const double rho = w0 + mass * total(a_w);
+        const double gx = sw * total(a_x), gy = sw * total(a_y), gz = sw * total(a_z);
+        const double sq = sw * sw * total(a_s);
+        Vec3 gw;
+        const double c = rho / s.rest_density + wall_density(p[i], gw) - 1.0;
+        wall_grad[i] = gw;
+        const Vec3 gi = Vec3(gx, gy, gz) + gw;
+        ratio[i] = c + 1.0;
+        // Only compression is corrected (C clamped at 0): multipliers stay <= 0.
+        lam[i] = c > 0.0 ? -c / (gi.squaredNorm() + sq + epsilon) : 0.0;
+      }
+    }
+  }
+
+  // Corrections of particles [b, e): sum_j (lam_i + lam_j + s_corr) grad W, and the walls'
+  // share of grad_i C_i (pair terms from the density pass, the same positions).
+  template <bool Scorr>
+  void correction_pass(size_t b, size_t e) {
+    const double sw = mass / s.rest_density;
+    for (size_t i = b; i < e; ++i) {
+      const std::span<const uint32_t> nb = grid.neighbours(i);
+      const size_t f = grid.first(i);
+      const float* gxs = pair_gx.data() + f;
+      const float* gys = pair_gy.data() + f;
+      const float* gzs = pair_gz.data() + f;
+      const float* scs = pair_sc.data() + f;
+      const size_t m = nb.size();
+      const double li = lam[i];
+      const uint32_t* J = nb.data();
+      const double* L = lam.data();
+      double a_x[4] = {}, a_y[4] = {}, a_z[4] = {};  // four lanes (SIMD)
+      size_t q = 0;
+      for (; q + 4 <= m; q += 4)
+        for (int l = 0; l < 4; ++l) {
+          const double c = Scorr ? li + L[J[q + l]] + scs[q + l] : li + L[J[q + l]];
+          a_x[l] += c * gxs[q + l];
+          a_y[l] += c * gys[q + l];
+          a_z[l] += c * gzs[q + l];
+        }
+      for (int l = 0; q < m; ++q, ++l) {
+        const double c = Scorr ? li + L[J[q]] + scs[q] : li + L[J[q]];
+        a_x[l] += c * gxs[q];
+        a_y[l] += c * gys[q];
+        a_z[l] += c * gzs[q];
+      }
+      auto total = [](const double* a) { return (a[0] + a[1]) + (a[2] + a[3]); };
+      dp[i] = sw * Vec3(total(a_x), total(a_y), total(a_z)) + li * wall_grad[i];
+    }
+  }
 
   void add_particle(const Vec3& xi, const Vec3& vi) {
     const uint32_t id = static_cast<uint32_t>(state.x.size());
@@ -227,6 +456,9 @@ struct FluidBody::Impl {
     dp.resize(N);
     lam.resize(N);
     ratio.resize(N);
+    px.resize(N);
+    py.resize(N);
+    pz.resize(N);
     depth.assign(N, 0.0);
     contact_n.resize(N);
     mu_s.resize(N);
@@ -239,6 +471,7 @@ struct FluidBody::Impl {
         p[i] = x[i] + dt * v[i];
         lam_sum[i] = 0.0;
         collide(i, inflated);
+        store_p(i);
       }
     });
     lap(clock, times.predict_ms);
@@ -247,61 +480,29 @@ struct FluidBody::Impl {
     for (auto& [id, gr] : grabs) gr.lambda = 0.0;
 
     const double sw = mass / s.rest_density;  // m / rho0
-    const double w0 = mass * k.poly6(0.0);
-    const int n_exp = s.scorr_n;
+    wall_grad.resize(N);
     // Each iteration: the multipliers, then the corrections from the same positions, so the
     // pairs' kernel gradients and s_corr are computed once and kept for the second pass.
-    pair_grad.resize(grid.pairs());
-    pair_scorr.resize(grid.pairs());
-    wall_grad.resize(N);
+    pair_gx.resize(grid.pairs());
+    pair_gy.resize(grid.pairs());
+    pair_gz.resize(grid.pairs());
+    pair_sc.resize(grid.pairs());
     for (int it = 0; it < s.iterations; ++it) {
       parallel(N, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) {
-          const Vec3 pi = p[i];
-          double rho = w0;
-          Vec3 gi = Vec3::Zero();
-          double sq = 0.0;
-          size_t idx = grid.first(i);
-          for (uint32_t j : grid.neighbours(i)) {
-            const Vec3 r = pi - p[j];
-            const double w = k.poly6(r.squaredNorm());
-            rho += mass * w;
-            const Vec3 g = fluid::pair_gradient(k, r, static_cast<uint32_t>(i), j);
-            pair_grad[idx] = g;
-            double sc = 0.0;
-            if (scorr_scale > 0.0) {
-              const double t = w / wdq;
-              double tn = t;
-              for (int q = 1; q < n_exp; ++q) tn *= t;
-              sc = -scorr_scale * tn;
-            }
-            pair_scorr[idx] = sc;
-            ++idx;
-            gi += sw * g;
-            sq += sw * sw * g.squaredNorm();
-          }
-          Vec3 gw;
-          const double c = rho / s.rest_density + wall_density(pi, gw) - 1.0;
-          wall_grad[i] = gw;
-          gi += gw;
-          ratio[i] = c + 1.0;
-          // Only compression is corrected (C clamped at 0): multipliers stay <= 0.
-          lam[i] = c > 0.0 ? -c / (gi.squaredNorm() + sq + epsilon) : 0.0;
-        }
+        PairScratch ps;
+        if (!(scorr_scale > 0.0))
+          density_pass<false, 0>(b, e, ps);
+        else if (s.scorr_n == 4)
+          density_pass<true, 4>(b, e, ps);
+        else
+          density_pass<true, 0>(b, e, ps);
       });
       lap(clock, times.density_ms);
-      // Corrections: sum_j (lam_i + lam_j + s_corr) grad W, and the walls' share of grad_i C_i.
       parallel(N, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) {
-          const double li = lam[i];
-          Vec3 d = Vec3::Zero();
-          size_t idx = grid.first(i);
-          for (uint32_t j : grid.neighbours(i)) {
-            d += (li + lam[j] + pair_scorr[idx]) * pair_grad[idx];
-            ++idx;
-          }
-          dp[i] = sw * d + li * wall_grad[i];
-        }
+        if (scorr_scale > 0.0)
+          correction_pass<true>(b, e);
+        else
+          correction_pass<false>(b, e);
       });
       lap(clock, times.correction_ms);
       parallel(N, [&](size_t b, size_t e) {
@@ -309,6 +510,7 @@ struct FluidBody::Impl {
           p[i] += dp[i];
           lam_sum[i] += lam[i];
           collide(i, inflated);
+          store_p(i);
         }
       });
       const double w = 1.0 / mass;
@@ -345,17 +547,27 @@ struct FluidBody::Impl {
           }
         }
         v[i] = (p[i] - x_prev[i]) / dt;
+        store_p(i);
       }
     });
     lap(clock, times.velocity_ms);
     // XSPH viscosity (Jacobi: from the velocities before it), symmetric weights.
     if (s.xsph > 0.0) {
       parallel(N, [&](size_t b, size_t e) {
+        PairScratch ps;
         for (size_t i = b; i < e; ++i) {
-          Vec3 acc = Vec3::Zero();
+          const std::span<const uint32_t> nb = grid.neighbours(i);
+          pair_terms<false, false, 0>(i, nb, ps);
+          double ax = 0.0, ay = 0.0, az = 0.0;
           const Vec3 vi = v[i];
-          for (uint32_t j : grid.neighbours(i)) acc += (v[j] - vi) * k.poly6((p[i] - p[j]).squaredNorm());
-          dp[i] = vi + s.xsph * sw * acc;
+          for (size_t q = 0; q < nb.size(); ++q) {
+            const Vec3& vj = v[nb[q]];
+            const double w = ps.w[q];
+            ax += (vj.x() - vi.x()) * w;
+            ay += (vj.y() - vi.y()) * w;
+            az += (vj.z() - vi.z()) * w;
+          }
+          dp[i] = vi + s.xsph * sw * Vec3(ax, ay, az);
         }
       });
       std::swap(v, dp);
