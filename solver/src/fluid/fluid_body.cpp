@@ -106,7 +106,6 @@ struct FluidBody::Impl {
   std::vector<double> lam, lam_sum, ratio, depth, mu_s, mu_k;
   std::vector<Vec3> contact_n;
   std::vector<Vec3> wall_grad;       // per particle, within one iteration
-  std::vector<double> px, py, pz;    // p as three arrays, for the neighbour loops
   // Per pair, within one iteration: grad W and s_corr, in single precision (half the memory
   // traffic; the pair's two entries stay exactly opposite, so momentum is still conserved).
   std::vector<float> pair_gx, pair_gy, pair_gz, pair_sc;
@@ -140,12 +139,6 @@ struct FluidBody::Impl {
 
   size_t n() const { return x.size(); }
 
-  void store_p(size_t i) {
-    px[i] = p[i].x();
-    py[i] = p[i].y();
-    pz[i] = p[i].z();
-  }
-
   // One particle's pair terms, in arrays the compiler vectorises: the offsets r = p_i - p_j,
   // poly6 W(r), with Gradient the pair gradient grad W (fluid::pair_gradient; the same values
   // bit for bit whichever pass asks), and with Scorr the artificial pressure
@@ -164,10 +157,9 @@ struct FluidBody::Impl {
   void gather(size_t i, std::span<const uint32_t> nb, PairScratch& ps, size_t at) const {
     const uint32_t* J = nb.data();
     const size_t m = nb.size();
-    const double xi = px[i], yi = py[i], zi = pz[i];
-    const double* X = px.data();
-    const double* Y = py.data();
-    const double* Z = pz.data();
+    // From p itself: a neighbour's three coordinates share a cache line.
+    const double xi = p[i].x(), yi = p[i].y(), zi = p[i].z();
+    const Vec3* P = p.data();
     double* rx = ps.rx.data() + at;
     double* ry = ps.ry.data() + at;
     double* rz = ps.rz.data() + at;
@@ -176,9 +168,9 @@ struct FluidBody::Impl {
     const uint32_t self = static_cast<uint32_t>(i);
     for (size_t q = 0; q < m; ++q) {
       const uint32_t j = J[q];
-      rx[q] = xi - X[j];
-      ry[q] = yi - Y[j];
-      rz[q] = zi - Z[j];
+      rx[q] = xi - P[j].x();
+      ry[q] = yi - P[j].y();
+      rz[q] = zi - P[j].z();
       if constexpr (Gradient) dg[q] = self < j ? diag : -diag;
     }
   }
@@ -456,9 +448,6 @@ struct FluidBody::Impl {
     dp.resize(N);
     lam.resize(N);
     ratio.resize(N);
-    px.resize(N);
-    py.resize(N);
-    pz.resize(N);
     depth.assign(N, 0.0);
     contact_n.resize(N);
     mu_s.resize(N);
@@ -471,7 +460,6 @@ struct FluidBody::Impl {
         p[i] = x[i] + dt * v[i];
         lam_sum[i] = 0.0;
         collide(i, inflated);
-        store_p(i);
       }
     });
     lap(clock, times.predict_ms);
@@ -510,8 +498,7 @@ struct FluidBody::Impl {
           p[i] += dp[i];
           lam_sum[i] += lam[i];
           collide(i, inflated);
-          store_p(i);
-        }
+          }
       });
       const double w = 1.0 / mass;
       for (auto& [id, gr] : grabs) {
@@ -547,7 +534,6 @@ struct FluidBody::Impl {
           }
         }
         v[i] = (p[i] - x_prev[i]) / dt;
-        store_p(i);
       }
     });
     lap(clock, times.velocity_ms);
