@@ -58,17 +58,23 @@ void poly6_terms(size_t m, const double* __restrict rx, const double* __restrict
     w[q] = pc * t * t * t;
   }
 }
-// The spiky gradient sg max(h - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)).
+// The spiky gradient sg max(h - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)), also rounded to
+// single precision into f*.
 void spiky_terms(size_t m, const double* __restrict rx, const double* __restrict ry,
                  const double* __restrict rz, const double* __restrict len, double h, double sg,
-                 double* __restrict gx, double* __restrict gy, double* __restrict gz) {
+                 double* __restrict gx, double* __restrict gy, double* __restrict gz,
+                 float* __restrict fx, float* __restrict fy, float* __restrict fz) {
   for (size_t q = 0; q < m; ++q) {
     const double u0 = h - len[q];
     const double u = u0 > 0.0 ? u0 : 0.0;
     const double c = sg * u * u / len[q];
-    gx[q] = c * rx[q];
-    gy[q] = c * ry[q];
-    gz[q] = c * rz[q];
+    const double ax = c * rx[q], ay = c * ry[q], az = c * rz[q];
+    gx[q] = ax;
+    gy[q] = ay;
+    gz[q] = az;
+    fx[q] = static_cast<float>(ax);
+    fy[q] = static_cast<float>(ay);
+    fz[q] = static_cast<float>(az);
   }
 }
 
@@ -144,16 +150,15 @@ struct FluidBody::Impl {
   // bit for bit whichever pass asks), and with Scorr the artificial pressure
   // s_corr = -scale (W / W(dq))^n (n = ScorrN when > 0, else the setting).
   struct PairScratch {
-    std::vector<double> rx, ry, rz, r2, len, w, gx, gy, gz, sc, dg;
+    std::vector<double> rx, ry, rz, r2, len, w, gx, gy, gz;
+    bool coincident = false;  // some pair on the same point (its gradient is left to the caller)
     void fit(size_t m) {
       if (rx.size() >= m) return;
-      for (auto* a : {&rx, &ry, &rz, &r2, &len, &w, &gx, &gy, &gz, &sc, &dg}) a->resize(m + 64);
+      for (auto* a : {&rx, &ry, &rz, &r2, &len, &w, &gx, &gy, &gz}) a->resize(m + 64);
     }
   };
   // The offsets of particle i to its neighbours nb, from scratch index `at` on. The gather
-  // stays scalar (no vector gathers for this target); the arithmetic after it is SIMD. dg: the
-  // gradient of two particles on the same point (fluid::pair_gradient's signed diagonal).
-  template <bool Gradient>
+  // stays scalar (no vector gathers for this target); the arithmetic after it is SIMD.
   void gather(size_t i, std::span<const uint32_t> nb, PairScratch& ps, size_t at) const {
     const uint32_t* J = nb.data();
     const size_t m = nb.size();
@@ -163,34 +168,31 @@ struct FluidBody::Impl {
     double* rx = ps.rx.data() + at;
     double* ry = ps.ry.data() + at;
     double* rz = ps.rz.data() + at;
-    double* dg = ps.dg.data() + at;
-    const double diag = k.spiky_g * k.h2 / std::sqrt(3.0);
-    const uint32_t self = static_cast<uint32_t>(i);
     for (size_t q = 0; q < m; ++q) {
       const uint32_t j = J[q];
       rx[q] = xi - P[j].x();
       ry[q] = yi - P[j].y();
       rz[q] = zi - P[j].z();
-      if constexpr (Gradient) dg[q] = self < j ? diag : -diag;
     }
   }
 
   template <bool Gradient, bool Scorr, int ScorrN>
   void pair_terms(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
     ps.fit(nb.size());
-    gather<Gradient>(i, nb, ps, 0);
+    gather(i, nb, ps, 0);
     kernel_terms<Gradient, Scorr, ScorrN>(nb.size(), ps);
   }
 
-  // The kernel terms of the m pairs whose offsets are in ps.
+  // The kernel terms of the m pairs whose offsets are in ps; with Gradient, the gradients also
+  // in single precision to f*, and with Scorr s_corr to fsc.
   template <bool Gradient, bool Scorr, int ScorrN>
-  void kernel_terms(size_t m, PairScratch& ps) const {
+  void kernel_terms(size_t m, PairScratch& ps, float* fx = nullptr, float* fy = nullptr, float* fz = nullptr,
+                    float* fsc = nullptr) const {
     const double* rx = ps.rx.data();
     const double* ry = ps.ry.data();
     const double* rz = ps.rz.data();
     double* r2 = ps.r2.data();
     double* w = ps.w.data();
-    const double* dg = ps.dg.data();
     const double h2 = k.h2, pc = k.poly6_c;
     poly6_terms(m, rx, ry, rz, h2, pc, r2, w);
     if constexpr (Gradient) {
@@ -202,15 +204,13 @@ struct FluidBody::Impl {
       double* gy = ps.gy.data();
       double* gz = ps.gz.data();
       const double same = 1e-18 * h2;
-      spiky_terms(m, rx, ry, rz, len, k.h, k.spiky_g, gx, gy, gz);
+      spiky_terms(m, rx, ry, rz, len, k.h, k.spiky_g, gx, gy, gz, fx, fy, fz);
       int coincident = 0;
       for (size_t q = 0; q < m; ++q) coincident |= static_cast<int>(!(r2[q] > same));
-      if (coincident)  // particles on the same point (rare)
-        for (size_t q = 0; q < m; ++q)
-          if (!(r2[q] > same)) gx[q] = gy[q] = gz[q] = dg[q];
+      ps.coincident = coincident != 0;
     }
     if constexpr (Scorr) {
-      double* sc = ps.sc.data();
+      float* sc = fsc;
       const double wq = wdq, scale = scorr_scale;
       const int n_exp = s.scorr_n;
       for (size_t q = 0; q < m; ++q) {
@@ -221,7 +221,7 @@ struct FluidBody::Impl {
         } else {
           for (int e = 1; e < n_exp; ++e) tn *= t;
         }
-        sc[q] = -scale * tn;
+        sc[q] = static_cast<float>(-scale * tn);
       }
     }
   }
@@ -240,15 +240,25 @@ struct FluidBody::Impl {
       const size_t m_all = grid.slot_first(s1) - f0;
       ps.fit(m_all);
       for (size_t sl = s0; sl < s1; ++sl)
-        gather<true>(grid.point(sl), grid.slot_neighbours(sl), ps, grid.slot_first(sl) - f0);
-      kernel_terms<true, Scorr, ScorrN>(m_all, ps);
-      auto to_float = [](const double* a, size_t m, float* out) {
-        for (size_t q = 0; q < m; ++q) out[q] = static_cast<float>(a[q]);
-      };
-      to_float(ps.gx.data(), m_all, pair_gx.data() + f0);
-      to_float(ps.gy.data(), m_all, pair_gy.data() + f0);
-      to_float(ps.gz.data(), m_all, pair_gz.data() + f0);
-      if constexpr (Scorr) to_float(ps.sc.data(), m_all, pair_sc.data() + f0);
+        gather(grid.point(sl), grid.slot_neighbours(sl), ps, grid.slot_first(sl) - f0);
+      kernel_terms<true, Scorr, ScorrN>(m_all, ps, pair_gx.data() + f0, pair_gy.data() + f0, pair_gz.data() + f0,
+                                        pair_sc.data() + f0);
+      if (ps.coincident) {
+        // Particles on the same point (a container's corner can put several there): the
+        // signed diagonal of fluid::pair_gradient instead of 0 / 0.
+        const double diag = k.spiky_g * k.h2 / std::sqrt(3.0), same = 1e-18 * k.h2;
+        for (size_t sl = s0; sl < s1; ++sl) {
+          const uint32_t i = grid.point(sl);
+          const std::span<const uint32_t> nb = grid.slot_neighbours(sl);
+          const size_t at = grid.slot_first(sl) - f0;
+          for (size_t q = 0; q < nb.size(); ++q) {
+            if (ps.r2[at + q] > same) continue;
+            const double d = i < nb[q] ? diag : -diag;
+            ps.gx[at + q] = ps.gy[at + q] = ps.gz[at + q] = d;
+            pair_gx[f0 + at + q] = pair_gy[f0 + at + q] = pair_gz[f0 + at + q] = static_cast<float>(d);
+          }
+        }
+      }
       for (size_t sl = s0; sl < s1; ++sl) {
         const size_t i = grid.point(sl);
         const size_t at = grid.slot_first(sl) - f0;
