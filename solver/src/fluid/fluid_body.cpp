@@ -267,30 +267,19 @@ struct FluidBody::Impl {
         const double* gxs = ps.gx.data() + at;
         const double* gys = ps.gy.data() + at;
         const double* gzs = ps.gz.data() + at;
-        // Sums in four lanes (SIMD), the constant factors applied once.
-        double a_w[4] = {}, a_x[4] = {}, a_y[4] = {}, a_z[4] = {}, a_s[4] = {};
-        size_t q = 0;
-        for (; q + 4 <= m; q += 4)
-          for (int l = 0; l < 4; ++l) {
-            const double gxq = gxs[q + l], gyq = gys[q + l], gzq = gzs[q + l];
-            a_w[l] += w[q + l];
-            a_x[l] += gxq;
-            a_y[l] += gyq;
-            a_z[l] += gzq;
-            a_s[l] += gxq * gxq + gyq * gyq + gzq * gzq;
-          }
-        for (int l = 0; q < m; ++q, ++l) {
+        // Sums with the constant factors applied once.
+        double a_w = 0.0, a_x = 0.0, a_y = 0.0, a_z = 0.0, a_s = 0.0;
+        for (size_t q = 0; q < m; ++q) {
           const double gxq = gxs[q], gyq = gys[q], gzq = gzs[q];
-          a_w[l] += w[q];
-          a_x[l] += gxq;
-          a_y[l] += gyq;
-          a_z[l] += gzq;
-          a_s[l] += gxq * gxq + gyq * gyq + gzq * gzq;
+          a_w += w[q];
+          a_x += gxq;
+          a_y += gyq;
+          a_z += gzq;
+          a_s += gxq * gxq + gyq * gyq + gzq * gzq;
         }
-        auto total = [](const double* a) { return (a[0] + a[1]) + (a[2] + a[3]); };
-        const double rho = w0 + mass * total(a_w);
-        const double gx = sw * total(a_x), gy = sw * total(a_y), gz = sw * total(a_z);
-        const double sq = sw * sw * total(a_s);
+        const double rho = w0 + mass * a_w;
+        const double gx = sw * a_x, gy = sw * a_y, gz = sw * a_z;
+        const double sq = sw * sw * a_s;
         Vec3 gw;
         const double c = rho / s.rest_density + wall_density(p[i], gw) - 1.0;
         wall_grad[i] = gw;
@@ -318,23 +307,14 @@ struct FluidBody::Impl {
       const double li = lam[i];
       const uint32_t* J = nb.data();
       const double* L = lam.data();
-      double a_x[4] = {}, a_y[4] = {}, a_z[4] = {};  // four lanes (SIMD)
-      size_t q = 0;
-      for (; q + 4 <= m; q += 4)
-        for (int l = 0; l < 4; ++l) {
-          const double c = Scorr ? li + L[J[q + l]] + scs[q + l] : li + L[J[q + l]];
-          a_x[l] += c * gxs[q + l];
-          a_y[l] += c * gys[q + l];
-          a_z[l] += c * gzs[q + l];
-        }
-      for (int l = 0; q < m; ++q, ++l) {
+      double dx = 0.0, dy = 0.0, dz = 0.0;
+      for (size_t q = 0; q < m; ++q) {
         const double c = Scorr ? li + L[J[q]] + scs[q] : li + L[J[q]];
-        a_x[l] += c * gxs[q];
-        a_y[l] += c * gys[q];
-        a_z[l] += c * gzs[q];
+        dx += c * gxs[q];
+        dy += c * gys[q];
+        dz += c * gzs[q];
       }
-      auto total = [](const double* a) { return (a[0] + a[1]) + (a[2] + a[3]); };
-      dp[i] = sw * Vec3(total(a_x), total(a_y), total(a_z)) + li * wall_grad[i];
+      dp[i] = sw * Vec3(dx, dy, dz) + li * wall_grad[i];
     }
   }
 
