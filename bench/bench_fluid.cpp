@@ -9,7 +9,7 @@
 // iteration costs: ns_per_particle_iter = wall time / (particles x iterations) of the whole step.
 // step_60hz: one 1/60 s step of 4 substeps x 4 iterations (the real-time target) from the same
 // state, with the split of its wall time by phase in ms per step (FluidBody::phase_times):
-// sort, predict, neighbours, density, correction, collide, velocity, xsph.
+// sort, predict, neighbours, density, correction, grabs, velocity, xsph.
 #include "fluid/neighbour_grid.hpp"
 #include "pliant/fluid.hpp"
 #include "step/thread_pool.hpp"
@@ -97,7 +97,7 @@ void BM_FluidStep60Hz(benchmark::State& state) {
   state.counters["neighbours"] = t.neighbours_ms / steps;
   state.counters["density"] = t.density_ms / steps;
   state.counters["correction"] = t.correction_ms / steps;
-  state.counters["collide"] = t.collide_ms / steps;
+  state.counters["grabs"] = t.grabs_ms / steps;
   state.counters["velocity"] = t.velocity_ms / steps;
   state.counters["xsph"] = t.xsph_ms / steps;
 }

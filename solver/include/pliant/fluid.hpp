@@ -78,8 +78,9 @@ struct FluidPhaseTimes {
   double predict_ms = 0.0;     // gravity, prediction, colliders and container
   double neighbours_ms = 0.0;  // grid and neighbour lists
   double density_ms = 0.0;     // densities and multipliers lambda (all iterations)
-  double correction_ms = 0.0;  // position corrections with s_corr (all iterations)
-  double collide_ms = 0.0;     // applying the corrections, colliders, container, grabs
+  double correction_ms = 0.0;  // position corrections with s_corr, applied, then colliders and
+                               // container (all iterations)
+  double grabs_ms = 0.0;       // grabs (all iterations)
   double velocity_ms = 0.0;    // friction and velocities
   double xsph_ms = 0.0;        // XSPH viscosity
   double vorticity_ms = 0.0;   // vorticity confinement

@@ -292,9 +292,10 @@ struct FluidBody::Impl {
   }
 
   // Corrections of particles [b, e): sum_j (lam_i + lam_j + s_corr) grad W, and the walls'
-  // share of grad_i C_i (pair terms from the density pass, the same positions).
+  // share of grad_i C_i (pair terms from the density pass, the same positions), applied to p,
+  // then the colliders and the container.
   template <bool Scorr>
-  void correction_pass(size_t b, size_t e) {
+  void correction_pass(size_t b, size_t e, std::span<const Collider> inflated) {
     const double sw = mass / s.rest_density;
     for (size_t i = b; i < e; ++i) {
       const std::span<const uint32_t> nb = grid.neighbours(i);
@@ -314,7 +315,9 @@ struct FluidBody::Impl {
         dy += c * gys[q];
         dz += c * gzs[q];
       }
-      dp[i] = sw * Vec3(dx, dy, dz) + li * wall_grad[i];
+      p[i] += sw * Vec3(dx, dy, dz) + li * wall_grad[i];
+      lam_sum[i] += li;
+      collide(i, inflated);
     }
   }
 
@@ -476,20 +479,15 @@ struct FluidBody::Impl {
           density_pass<true, 0>(b, e, ps);
       });
       lap(clock, times.density_ms);
+      // The corrections read multipliers and pair terms only, never positions, so each
+      // particle's is applied (with its colliders) as soon as it is known: one pass.
       parallel(N, [&](size_t b, size_t e) {
         if (scorr_scale > 0.0)
-          correction_pass<true>(b, e);
+          correction_pass<true>(b, e, inflated);
         else
-          correction_pass<false>(b, e);
+          correction_pass<false>(b, e, inflated);
       });
       lap(clock, times.correction_ms);
-      parallel(N, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) {
-          p[i] += dp[i];
-          lam_sum[i] += lam[i];
-          collide(i, inflated);
-          }
-      });
       const double w = 1.0 / mass;
       for (auto& [id, gr] : grabs) {
         Vec3& pg = p[inv[gr.particle]];
@@ -502,7 +500,7 @@ struct FluidBody::Impl {
         pg += w * dl * gr.normal;
         gr.lambda += dl;
       }
-      lap(clock, times.collide_ms);
+      lap(clock, times.grabs_ms);
     }
     for (auto& [id, gr] : grabs) gr.force = gr.normal * gr.lambda / (dt * dt);
 
