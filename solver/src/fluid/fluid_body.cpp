@@ -42,6 +42,9 @@ void basis(const Vec3& n, Vec3& u, Vec3& w) {
   w = n.cross(u);
 }
 
+// The precision of the per-pair terms kept from the density pass for the correction pass.
+using PairReal = float;
+
 // The SIMD loops of the pair terms, over arrays that do not overlap (__restrict lets the
 // compiler vectorise without run-time overlap checks). Selects are written as max(a, 0) of an
 // already computed a, the one conditional form the compiler turns into vector code here.
@@ -63,7 +66,7 @@ void poly6_terms(size_t m, const double* __restrict rx, const double* __restrict
 void spiky_terms(size_t m, const double* __restrict rx, const double* __restrict ry,
                  const double* __restrict rz, const double* __restrict len, double h, double sg,
                  double* __restrict gx, double* __restrict gy, double* __restrict gz,
-                 float* __restrict fx, float* __restrict fy, float* __restrict fz) {
+                 PairReal* __restrict fx, PairReal* __restrict fy, PairReal* __restrict fz) {
   for (size_t q = 0; q < m; ++q) {
     const double u0 = h - len[q];
     const double u = u0 > 0.0 ? u0 : 0.0;
@@ -72,9 +75,9 @@ void spiky_terms(size_t m, const double* __restrict rx, const double* __restrict
     gx[q] = ax;
     gy[q] = ay;
     gz[q] = az;
-    fx[q] = static_cast<float>(ax);
-    fy[q] = static_cast<float>(ay);
-    fz[q] = static_cast<float>(az);
+    fx[q] = static_cast<PairReal>(ax);
+    fy[q] = static_cast<PairReal>(ay);
+    fz[q] = static_cast<PairReal>(az);
   }
 }
 
@@ -114,7 +117,7 @@ struct FluidBody::Impl {
   std::vector<Vec3> wall_grad;       // per particle, within one iteration
   // Per pair, within one iteration: grad W and s_corr, in single precision (half the memory
   // traffic; the pair's two entries stay exactly opposite, so momentum is still conserved).
-  std::vector<float> pair_gx, pair_gy, pair_gz, pair_sc;
+  std::vector<PairReal> pair_gx, pair_gy, pair_gz, pair_sc;
   std::vector<uint32_t> perm;  // internal -> creation order
   std::vector<uint32_t> inv;   // creation order -> internal
 
@@ -186,8 +189,8 @@ struct FluidBody::Impl {
   // The kernel terms of the m pairs whose offsets are in ps; with Gradient, the gradients also
   // in single precision to f*, and with Scorr s_corr to fsc.
   template <bool Gradient, bool Scorr, int ScorrN>
-  void kernel_terms(size_t m, PairScratch& ps, float* fx = nullptr, float* fy = nullptr, float* fz = nullptr,
-                    float* fsc = nullptr) const {
+  void kernel_terms(size_t m, PairScratch& ps, PairReal* fx = nullptr, PairReal* fy = nullptr, PairReal* fz = nullptr,
+                    PairReal* fsc = nullptr) const {
     const double* rx = ps.rx.data();
     const double* ry = ps.ry.data();
     const double* rz = ps.rz.data();
@@ -210,7 +213,7 @@ struct FluidBody::Impl {
       ps.coincident = coincident != 0;
     }
     if constexpr (Scorr) {
-      float* sc = fsc;
+      PairReal* sc = fsc;
       const double wq = wdq, scale = scorr_scale;
       const int n_exp = s.scorr_n;
       for (size_t q = 0; q < m; ++q) {
@@ -221,7 +224,7 @@ struct FluidBody::Impl {
         } else {
           for (int e = 1; e < n_exp; ++e) tn *= t;
         }
-        sc[q] = static_cast<float>(-scale * tn);
+        sc[q] = static_cast<PairReal>(-scale * tn);
       }
     }
   }
@@ -255,7 +258,7 @@ struct FluidBody::Impl {
             if (ps.r2[at + q] > same) continue;
             const double d = i < nb[q] ? diag : -diag;
             ps.gx[at + q] = ps.gy[at + q] = ps.gz[at + q] = d;
-            pair_gx[f0 + at + q] = pair_gy[f0 + at + q] = pair_gz[f0 + at + q] = static_cast<float>(d);
+            pair_gx[f0 + at + q] = pair_gy[f0 + at + q] = pair_gz[f0 + at + q] = static_cast<PairReal>(d);
           }
         }
       }
@@ -300,10 +303,10 @@ struct FluidBody::Impl {
     for (size_t i = b; i < e; ++i) {
       const std::span<const uint32_t> nb = grid.neighbours(i);
       const size_t f = grid.first(i);
-      const float* gxs = pair_gx.data() + f;
-      const float* gys = pair_gy.data() + f;
-      const float* gzs = pair_gz.data() + f;
-      const float* scs = pair_sc.data() + f;
+      const PairReal* gxs = pair_gx.data() + f;
+      const PairReal* gys = pair_gy.data() + f;
+      const PairReal* gzs = pair_gz.data() + f;
+      const PairReal* scs = pair_sc.data() + f;
       const size_t m = nb.size();
       const double li = lam[i];
       const uint32_t* J = nb.data();
