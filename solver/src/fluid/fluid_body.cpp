@@ -148,10 +148,10 @@ struct FluidBody::Impl {
 
   size_t n() const { return x.size(); }
 
-  // One particle's pair terms, in arrays the compiler vectorises: the offsets r = p_i - p_j,
-  // poly6 W(r), with Gradient the pair gradient grad W (fluid::pair_gradient; the same values
-  // bit for bit whichever pass asks), and with Scorr the artificial pressure
-  // s_corr = -scale (W / W(dq))^n (n = ScorrN when > 0, else the setting).
+  // Pair terms of one particle or of a block of particles, in arrays the compiler vectorises:
+  // the offsets r = p_i - p_j, |r|^2, |r|, poly6 W(r) and, with Gradient, the spiky gradient
+  // grad W (fluid::pair_gradient except for pairs on the same point, which the caller patches;
+  // s_corr goes straight to the caller's per-pair array).
   struct PairScratch {
     std::vector<double> rx, ry, rz, r2, len, w, gx, gy, gz;
     bool coincident = false;  // some pair on the same point (its gradient is left to the caller)
@@ -179,6 +179,7 @@ struct FluidBody::Impl {
     }
   }
 
+  // One particle's terms (XSPH: poly6 only).
   template <bool Gradient, bool Scorr, int ScorrN>
   void pair_terms(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
     ps.fit(nb.size());
@@ -187,7 +188,8 @@ struct FluidBody::Impl {
   }
 
   // The kernel terms of the m pairs whose offsets are in ps; with Gradient, the gradients also
-  // in single precision to f*, and with Scorr s_corr to fsc.
+  // in PairReal precision to f*, and with Scorr s_corr = -scale (W / W(dq))^n to fsc (n =
+  // ScorrN when > 0, else the setting).
   template <bool Gradient, bool Scorr, int ScorrN>
   void kernel_terms(size_t m, PairScratch& ps, PairReal* fx = nullptr, PairReal* fy = nullptr, PairReal* fz = nullptr,
                     PairReal* fsc = nullptr) const {
