@@ -7,6 +7,9 @@
 // step_1it / step_4it: one substep of 1/120 s with 1 or 4 density iterations (prediction,
 // neighbour search, iterations, friction, velocities, XSPH); the difference over 3 is what one
 // iteration costs: ns_per_particle_iter = wall time / (particles x iterations) of the whole step.
+// step_60hz: one 1/60 s step of 4 substeps x 4 iterations (the real-time target) from the same
+// state, with the split of its wall time by phase in ms per step (FluidBody::phase_times):
+// sort, predict, neighbours, density, correction, grabs, velocity, xsph.
 #include "fluid/neighbour_grid.hpp"
 #include "pliant/fluid.hpp"
 #include "step/thread_pool.hpp"
@@ -73,10 +76,37 @@ void BM_FluidStep(benchmark::State& state) {
       n * iterations * 1e-9, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
 }
 
+void BM_FluidStep60Hz(benchmark::State& state) {
+  const int threads = static_cast<int>(state.range(0));
+  FluidSettings s = dam_settings(threads, 4);
+  s.substeps = 4;
+  FluidBody f(s, {FluidBlock{Vec3(0, 0, 0), Vec3(0.34, 0.68, 0.34)}});
+  const ParticleState& st = disordered_state();
+  f.reset_phase_times();
+  for (auto _ : state) {
+    state.PauseTiming();
+    f.set_state(st);
+    state.ResumeTiming();
+    benchmark::DoNotOptimize(f.step(1.0 / 60.0, {}));
+  }
+  const FluidPhaseTimes& t = f.phase_times();
+  const double steps = static_cast<double>(state.iterations());
+  state.counters["particles"] = static_cast<double>(f.size());
+  state.counters["sort"] = t.sort_ms / steps;
+  state.counters["predict"] = t.predict_ms / steps;
+  state.counters["neighbours"] = t.neighbours_ms / steps;
+  state.counters["density"] = t.density_ms / steps;
+  state.counters["correction"] = t.correction_ms / steps;
+  state.counters["grabs"] = t.grabs_ms / steps;
+  state.counters["velocity"] = t.velocity_ms / steps;
+  state.counters["xsph"] = t.xsph_ms / steps;
+}
+
 }  // namespace
 
 BENCHMARK(BM_FluidNeighbourSearch)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_FluidStep)->ArgNames({"threads", "iterations"})->Args({1, 1})->Args({1, 4})->Args({2, 1})->Args({2, 4})
     ->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_FluidStep60Hz)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 BENCHMARK_MAIN();

@@ -71,6 +71,22 @@ struct FluidEmitter {
   size_t max_particles = 100000;
 };
 
+// Wall time spent in each phase of the substeps since construction (or the last reset), ms,
+// all threads together (a parallel phase counts once): the profile of docs/fluids.md.
+struct FluidPhaseTimes {
+  double sort_ms = 0.0;        // re-sorting particles by grid cell (every sort_interval substeps)
+  double predict_ms = 0.0;     // gravity, prediction, colliders and container
+  double neighbours_ms = 0.0;  // grid and neighbour lists
+  double density_ms = 0.0;     // densities and multipliers lambda (all iterations)
+  double correction_ms = 0.0;  // position corrections with s_corr, applied, then colliders and
+                               // container (all iterations)
+  double grabs_ms = 0.0;       // grabs (all iterations)
+  double velocity_ms = 0.0;    // friction and velocities
+  double xsph_ms = 0.0;        // XSPH viscosity
+  double vorticity_ms = 0.0;   // vorticity confinement
+  uint64_t substeps = 0;
+};
+
 class FluidBody final : public ParticleBody {
  public:
   // Throws std::invalid_argument naming the field for bad settings (d <= 0, NaN, ...), or when
@@ -104,6 +120,8 @@ class FluidBody final : public ParticleBody {
   std::vector<double> pressure() const;
   // rho_i / rho0 of each particle at the current positions (creation order).
   std::vector<double> density_ratios() const;
+  const FluidPhaseTimes& phase_times() const;
+  void reset_phase_times();
 
   struct Impl;
 

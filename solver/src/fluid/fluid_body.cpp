@@ -42,6 +42,45 @@ void basis(const Vec3& n, Vec3& u, Vec3& w) {
   w = n.cross(u);
 }
 
+// The precision of the per-pair terms kept from the density pass for the correction pass.
+using PairReal = float;
+
+// The SIMD loops of the pair terms, over arrays that do not overlap (__restrict lets the
+// compiler vectorise without run-time overlap checks). Selects are written as max(a, 0) of an
+// already computed a, the one conditional form the compiler turns into vector code here.
+// r2 = |r|^2 and poly6 W = pc max(h^2 - r^2, 0)^3 (0 from h on, and for NaN).
+void poly6_terms(size_t m, const double* __restrict rx, const double* __restrict ry,
+                 const double* __restrict rz, double h2, double pc, double* __restrict r2,
+                 double* __restrict w) {
+  for (size_t q = 0; q < m; ++q) {
+    const double ax = rx[q], ay = ry[q], az = rz[q];
+    const double d2 = ax * ax + ay * ay + az * az;
+    r2[q] = d2;
+    const double t0 = h2 - d2;
+    const double t = t0 > 0.0 ? t0 : 0.0;
+    w[q] = pc * t * t * t;
+  }
+}
+// The spiky gradient sg max(h - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)), also rounded to
+// single precision into f*.
+void spiky_terms(size_t m, const double* __restrict rx, const double* __restrict ry,
+                 const double* __restrict rz, const double* __restrict len, double h, double sg,
+                 double* __restrict gx, double* __restrict gy, double* __restrict gz,
+                 PairReal* __restrict fx, PairReal* __restrict fy, PairReal* __restrict fz) {
+  for (size_t q = 0; q < m; ++q) {
+    const double u0 = h - len[q];
+    const double u = u0 > 0.0 ? u0 : 0.0;
+    const double c = sg * u * u / len[q];
+    const double ax = c * rx[q], ay = c * ry[q], az = c * rz[q];
+    gx[q] = ax;
+    gy[q] = ay;
+    gz[q] = az;
+    fx[q] = static_cast<PairReal>(ax);
+    fy[q] = static_cast<PairReal>(ay);
+    fz[q] = static_cast<PairReal>(az);
+  }
+}
+
 }  // namespace
 
 struct FluidBody::Impl {
@@ -75,8 +114,10 @@ struct FluidBody::Impl {
   std::vector<Vec3> x, v, p, x_prev, dp, omega;
   std::vector<double> lam, lam_sum, ratio, depth, mu_s, mu_k;
   std::vector<Vec3> contact_n;
-  std::vector<Vec3> pair_grad, wall_grad;  // per pair / particle, within one iteration
-  std::vector<double> pair_scorr;
+  std::vector<Vec3> wall_grad;       // per particle, within one iteration
+  // Per pair, within one iteration: grad W and s_corr, in single precision (half the memory
+  // traffic; the pair's two entries stay exactly opposite, so momentum is still conserved).
+  std::vector<PairReal> pair_gx, pair_gy, pair_gz, pair_sc;
   std::vector<uint32_t> perm;  // internal -> creation order
   std::vector<uint32_t> inv;   // creation order -> internal
 
@@ -87,6 +128,14 @@ struct FluidBody::Impl {
   fluid::NeighbourGrid grid;
   std::unique_ptr<ThreadPool> pool;
   uint64_t substeps_done = 0;
+  FluidPhaseTimes times;
+
+  // Adds the time since *t to the phase's total and moves *t on.
+  static void lap(std::chrono::steady_clock::time_point& t, double& total) {
+    const auto now = std::chrono::steady_clock::now();
+    total += std::chrono::duration<double, std::milli>(now - t).count();
+    t = now;
+  }
 
   explicit Impl(const FluidSettings& settings) : s(settings), k(settings.spacing * settings.support_ratio) {}
 
@@ -98,6 +147,184 @@ struct FluidBody::Impl {
   }
 
   size_t n() const { return x.size(); }
+
+  // Pair terms of one particle or of a block of particles, in arrays the compiler vectorises:
+  // the offsets r = p_i - p_j, |r|^2, |r|, poly6 W(r) and, with Gradient, the spiky gradient
+  // grad W (fluid::pair_gradient except for pairs on the same point, which the caller patches;
+  // s_corr goes straight to the caller's per-pair array).
+  struct PairScratch {
+    std::vector<double> rx, ry, rz, r2, len, w, gx, gy, gz;
+    bool coincident = false;  // some pair on the same point (its gradient is left to the caller)
+    void fit(size_t m) {
+      if (rx.size() >= m) return;
+      for (auto* a : {&rx, &ry, &rz, &r2, &len, &w, &gx, &gy, &gz}) a->resize(m + 64);
+    }
+  };
+  // The offsets of particle i to its neighbours nb, from scratch index `at` on. The gather
+  // stays scalar (no vector gathers for this target); the arithmetic after it is SIMD.
+  void gather(size_t i, std::span<const uint32_t> nb, PairScratch& ps, size_t at) const {
+    const uint32_t* J = nb.data();
+    const size_t m = nb.size();
+    // From p itself: a neighbour's three coordinates share a cache line.
+    const double xi = p[i].x(), yi = p[i].y(), zi = p[i].z();
+    const Vec3* P = p.data();
+    double* rx = ps.rx.data() + at;
+    double* ry = ps.ry.data() + at;
+    double* rz = ps.rz.data() + at;
+    for (size_t q = 0; q < m; ++q) {
+      const uint32_t j = J[q];
+      rx[q] = xi - P[j].x();
+      ry[q] = yi - P[j].y();
+      rz[q] = zi - P[j].z();
+    }
+  }
+
+  // One particle's terms (XSPH: poly6 only).
+  template <bool Gradient, bool Scorr, int ScorrN>
+  void pair_terms(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
+    ps.fit(nb.size());
+    gather(i, nb, ps, 0);
+    kernel_terms<Gradient, Scorr, ScorrN>(nb.size(), ps);
+  }
+
+  // The kernel terms of the m pairs whose offsets are in ps; with Gradient, the gradients also
+  // in PairReal precision to f*, and with Scorr s_corr = -scale (W / W(dq))^n to fsc (n =
+  // ScorrN when > 0, else the setting).
+  template <bool Gradient, bool Scorr, int ScorrN>
+  void kernel_terms(size_t m, PairScratch& ps, PairReal* fx = nullptr, PairReal* fy = nullptr, PairReal* fz = nullptr,
+                    PairReal* fsc = nullptr) const {
+    const double* rx = ps.rx.data();
+    const double* ry = ps.ry.data();
+    const double* rz = ps.rz.data();
+    double* r2 = ps.r2.data();
+    double* w = ps.w.data();
+    const double h2 = k.h2, pc = k.poly6_c;
+    poly6_terms(m, rx, ry, rz, h2, pc, r2, w);
+    if constexpr (Gradient) {
+      double* len = ps.len.data();
+      // Eigen's packet sqrt (std::sqrt in a loop keeps errno handling, which blocks SIMD).
+      Eigen::Map<Eigen::ArrayXd>(len, static_cast<Eigen::Index>(m)) =
+          Eigen::Map<const Eigen::ArrayXd>(r2, static_cast<Eigen::Index>(m)).sqrt();
+      double* gx = ps.gx.data();
+      double* gy = ps.gy.data();
+      double* gz = ps.gz.data();
+      const double same = 1e-18 * h2;
+      spiky_terms(m, rx, ry, rz, len, k.h, k.spiky_g, gx, gy, gz, fx, fy, fz);
+      int coincident = 0;
+      for (size_t q = 0; q < m; ++q) coincident |= static_cast<int>(!(r2[q] > same));
+      ps.coincident = coincident != 0;
+    }
+    if constexpr (Scorr) {
+      PairReal* sc = fsc;
+      const double wq = wdq, scale = scorr_scale;
+      const int n_exp = s.scorr_n;
+      for (size_t q = 0; q < m; ++q) {
+        const double t = w[q] / wq;
+        double tn = t;
+        if constexpr (ScorrN > 0) {
+          for (int e = 1; e < ScorrN; ++e) tn *= t;
+        } else {
+          for (int e = 1; e < n_exp; ++e) tn *= t;
+        }
+        sc[q] = static_cast<PairReal>(-scale * tn);
+      }
+    }
+  }
+
+  // lambda_i of the particles at grid slots [b, e), with their density ratio and wall
+  // gradient; the pairs' gradients and s_corr go to pair_g* and pair_sc for the correction
+  // pass. The kernel terms are computed for blocks of particles at once (long SIMD loops).
+  template <bool Scorr, int ScorrN>
+  void density_pass(size_t b, size_t e, PairScratch& ps) {
+    const double sw = mass / s.rest_density;  // m / rho0
+    const double w0 = mass * k.poly6(0.0);
+    constexpr size_t kBlock = 32;
+    for (size_t s0 = b; s0 < e; s0 += kBlock) {
+      const size_t s1 = std::min(e, s0 + kBlock);
+      const size_t f0 = grid.slot_first(s0);
+      const size_t m_all = grid.slot_first(s1) - f0;
+      ps.fit(m_all);
+      for (size_t sl = s0; sl < s1; ++sl)
+        gather(grid.point(sl), grid.slot_neighbours(sl), ps, grid.slot_first(sl) - f0);
+      kernel_terms<true, Scorr, ScorrN>(m_all, ps, pair_gx.data() + f0, pair_gy.data() + f0, pair_gz.data() + f0,
+                                        pair_sc.data() + f0);
+      if (ps.coincident) {
+        // Particles on the same point (a container's corner can put several there): the
+        // signed diagonal of fluid::pair_gradient instead of 0 / 0.
+        const double diag = k.spiky_g * k.h2 / std::sqrt(3.0), same = 1e-18 * k.h2;
+        for (size_t sl = s0; sl < s1; ++sl) {
+          const uint32_t i = grid.point(sl);
+          const std::span<const uint32_t> nb = grid.slot_neighbours(sl);
+          const size_t at = grid.slot_first(sl) - f0;
+          for (size_t q = 0; q < nb.size(); ++q) {
+            if (ps.r2[at + q] > same) continue;
+            const double d = i < nb[q] ? diag : -diag;
+            ps.gx[at + q] = ps.gy[at + q] = ps.gz[at + q] = d;
+            pair_gx[f0 + at + q] = pair_gy[f0 + at + q] = pair_gz[f0 + at + q] = static_cast<PairReal>(d);
+          }
+        }
+      }
+      for (size_t sl = s0; sl < s1; ++sl) {
+        const size_t i = grid.point(sl);
+        const size_t at = grid.slot_first(sl) - f0;
+        const size_t m = grid.slot_first(sl + 1) - f0 - at;
+        const double* w = ps.w.data() + at;
+        const double* gxs = ps.gx.data() + at;
+        const double* gys = ps.gy.data() + at;
+        const double* gzs = ps.gz.data() + at;
+        // Sums with the constant factors applied once.
+        double a_w = 0.0, a_x = 0.0, a_y = 0.0, a_z = 0.0, a_s = 0.0;
+        for (size_t q = 0; q < m; ++q) {
+          const double gxq = gxs[q], gyq = gys[q], gzq = gzs[q];
+          a_w += w[q];
+          a_x += gxq;
+          a_y += gyq;
+          a_z += gzq;
+          a_s += gxq * gxq + gyq * gyq + gzq * gzq;
+        }
+        const double rho = w0 + mass * a_w;
+        const double gx = sw * a_x, gy = sw * a_y, gz = sw * a_z;
+        const double sq = sw * sw * a_s;
+        Vec3 gw;
+        const double c = rho / s.rest_density + wall_density(p[i], gw) - 1.0;
+        wall_grad[i] = gw;
+        const Vec3 gi = Vec3(gx, gy, gz) + gw;
+        ratio[i] = c + 1.0;
+        // Only compression is corrected (C clamped at 0): multipliers stay <= 0.
+        lam[i] = c > 0.0 ? -c / (gi.squaredNorm() + sq + epsilon) : 0.0;
+      }
+    }
+  }
+
+  // Corrections of particles [b, e): sum_j (lam_i + lam_j + s_corr) grad W, and the walls'
+  // share of grad_i C_i (pair terms from the density pass, the same positions), applied to p,
+  // then the colliders and the container.
+  template <bool Scorr>
+  void correction_pass(size_t b, size_t e, std::span<const Collider> inflated) {
+    const double sw = mass / s.rest_density;
+    for (size_t i = b; i < e; ++i) {
+      const std::span<const uint32_t> nb = grid.neighbours(i);
+      const size_t f = grid.first(i);
+      const PairReal* gxs = pair_gx.data() + f;
+      const PairReal* gys = pair_gy.data() + f;
+      const PairReal* gzs = pair_gz.data() + f;
+      const PairReal* scs = pair_sc.data() + f;
+      const size_t m = nb.size();
+      const double li = lam[i];
+      const uint32_t* J = nb.data();
+      const double* L = lam.data();
+      double dx = 0.0, dy = 0.0, dz = 0.0;
+      for (size_t q = 0; q < m; ++q) {
+        const double c = Scorr ? li + L[J[q]] + scs[q] : li + L[J[q]];
+        dx += c * gxs[q];
+        dy += c * gys[q];
+        dz += c * gzs[q];
+      }
+      p[i] += sw * Vec3(dx, dy, dz) + li * wall_grad[i];
+      lam_sum[i] += li;
+      collide(i, inflated);
+    }
+  }
 
   void add_particle(const Vec3& xi, const Vec3& vi) {
     const uint32_t id = static_cast<uint32_t>(state.x.size());
@@ -207,8 +434,11 @@ struct FluidBody::Impl {
 
   void substep(double dt, std::span<const Collider> inflated, ParticleStepReport& rep) {
     emit(dt);
+    auto clock = std::chrono::steady_clock::now();
     if (s.sort_interval > 0 && substeps_done % static_cast<uint64_t>(s.sort_interval) == 0) reorder();
+    lap(clock, times.sort_ms);
     ++substeps_done;
+    ++times.substeps;
     last_dt = dt;
     const size_t N = n();
     p.resize(N);
@@ -230,72 +460,39 @@ struct FluidBody::Impl {
         collide(i, inflated);
       }
     });
+    lap(clock, times.predict_ms);
     grid.build(p, h, pool.get());
+    lap(clock, times.neighbours_ms);
     for (auto& [id, gr] : grabs) gr.lambda = 0.0;
 
     const double sw = mass / s.rest_density;  // m / rho0
-    const double w0 = mass * k.poly6(0.0);
-    const int n_exp = s.scorr_n;
+    wall_grad.resize(N);
     // Each iteration: the multipliers, then the corrections from the same positions, so the
     // pairs' kernel gradients and s_corr are computed once and kept for the second pass.
-    pair_grad.resize(grid.pairs());
-    pair_scorr.resize(grid.pairs());
-    wall_grad.resize(N);
+    pair_gx.resize(grid.pairs());
+    pair_gy.resize(grid.pairs());
+    pair_gz.resize(grid.pairs());
+    pair_sc.resize(grid.pairs());
     for (int it = 0; it < s.iterations; ++it) {
       parallel(N, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) {
-          const Vec3 pi = p[i];
-          double rho = w0;
-          Vec3 gi = Vec3::Zero();
-          double sq = 0.0;
-          size_t idx = grid.first(i);
-          for (uint32_t j : grid.neighbours(i)) {
-            const Vec3 r = pi - p[j];
-            const double w = k.poly6(r.squaredNorm());
-            rho += mass * w;
-            const Vec3 g = fluid::pair_gradient(k, r, static_cast<uint32_t>(i), j);
-            pair_grad[idx] = g;
-            double sc = 0.0;
-            if (scorr_scale > 0.0) {
-              const double t = w / wdq;
-              double tn = t;
-              for (int q = 1; q < n_exp; ++q) tn *= t;
-              sc = -scorr_scale * tn;
-            }
-            pair_scorr[idx] = sc;
-            ++idx;
-            gi += sw * g;
-            sq += sw * sw * g.squaredNorm();
-          }
-          Vec3 gw;
-          const double c = rho / s.rest_density + wall_density(pi, gw) - 1.0;
-          wall_grad[i] = gw;
-          gi += gw;
-          ratio[i] = c + 1.0;
-          // Only compression is corrected (C clamped at 0): multipliers stay <= 0.
-          lam[i] = c > 0.0 ? -c / (gi.squaredNorm() + sq + epsilon) : 0.0;
-        }
+        PairScratch ps;
+        if (!(scorr_scale > 0.0))
+          density_pass<false, 0>(b, e, ps);
+        else if (s.scorr_n == 4)
+          density_pass<true, 4>(b, e, ps);
+        else
+          density_pass<true, 0>(b, e, ps);
       });
-      // Corrections: sum_j (lam_i + lam_j + s_corr) grad W, and the walls' share of grad_i C_i.
+      lap(clock, times.density_ms);
+      // The corrections read multipliers and pair terms only, never positions, so each
+      // particle's is applied (with its colliders) as soon as it is known: one pass.
       parallel(N, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) {
-          const double li = lam[i];
-          Vec3 d = Vec3::Zero();
-          size_t idx = grid.first(i);
-          for (uint32_t j : grid.neighbours(i)) {
-            d += (li + lam[j] + pair_scorr[idx]) * pair_grad[idx];
-            ++idx;
-          }
-          dp[i] = sw * d + li * wall_grad[i];
-        }
+        if (scorr_scale > 0.0)
+          correction_pass<true>(b, e, inflated);
+        else
+          correction_pass<false>(b, e, inflated);
       });
-      parallel(N, [&](size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) {
-          p[i] += dp[i];
-          lam_sum[i] += lam[i];
-          collide(i, inflated);
-        }
-      });
+      lap(clock, times.correction_ms);
       const double w = 1.0 / mass;
       for (auto& [id, gr] : grabs) {
         Vec3& pg = p[inv[gr.particle]];
@@ -308,6 +505,7 @@ struct FluidBody::Impl {
         pg += w * dl * gr.normal;
         gr.lambda += dl;
       }
+      lap(clock, times.grabs_ms);
     }
     for (auto& [id, gr] : grabs) gr.force = gr.normal * gr.lambda / (dt * dt);
 
@@ -331,18 +529,29 @@ struct FluidBody::Impl {
         v[i] = (p[i] - x_prev[i]) / dt;
       }
     });
+    lap(clock, times.velocity_ms);
     // XSPH viscosity (Jacobi: from the velocities before it), symmetric weights.
     if (s.xsph > 0.0) {
       parallel(N, [&](size_t b, size_t e) {
+        PairScratch ps;
         for (size_t i = b; i < e; ++i) {
-          Vec3 acc = Vec3::Zero();
+          const std::span<const uint32_t> nb = grid.neighbours(i);
+          pair_terms<false, false, 0>(i, nb, ps);
+          double ax = 0.0, ay = 0.0, az = 0.0;
           const Vec3 vi = v[i];
-          for (uint32_t j : grid.neighbours(i)) acc += (v[j] - vi) * k.poly6((p[i] - p[j]).squaredNorm());
-          dp[i] = vi + s.xsph * sw * acc;
+          for (size_t q = 0; q < nb.size(); ++q) {
+            const Vec3& vj = v[nb[q]];
+            const double w = ps.w[q];
+            ax += (vj.x() - vi.x()) * w;
+            ay += (vj.y() - vi.y()) * w;
+            az += (vj.z() - vi.z()) * w;
+          }
+          dp[i] = vi + s.xsph * sw * Vec3(ax, ay, az);
         }
       });
       std::swap(v, dp);
     }
+    lap(clock, times.xsph_ms);
     if (s.vorticity > 0.0) {
       omega.resize(N);
       parallel(N, [&](size_t b, size_t e) {
@@ -363,6 +572,7 @@ struct FluidBody::Impl {
       });
       for (size_t i = 0; i < N; ++i) v[i] += dp[i];
     }
+    lap(clock, times.vorticity_ms);
     std::swap(x, p);
     rep.contacts = contacts;
   }
@@ -589,6 +799,9 @@ std::vector<double> FluidBody::pressure() const {
   for (size_t i = 0; i < m.n(); ++i) out[i] = -m.state.lambda[i] * m.s.rest_density * m.gradient_scale / (m.last_dt * m.last_dt);
   return out;
 }
+
+const FluidPhaseTimes& FluidBody::phase_times() const { return impl_->times; }
+void FluidBody::reset_phase_times() { impl_->times = FluidPhaseTimes{}; }
 
 std::vector<double> FluidBody::density_ratios() const {
   const Impl& m = *impl_;

@@ -81,68 +81,101 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
 
   const int chunks = pool ? pool->size() : 1;
   chunk_list_.resize(chunks);
-  for (auto& l : chunk_list_) l.clear();  // a small n runs as one chunk
+  chunk_used_.assign(chunks, 0);  // a small n runs as one chunk
   chunk_first_.assign(chunks + 1, 0);
   offset_.assign(n + 1, 0);
   const size_t ncells = cells_.size();
+  // The points' coordinates in slot order: a row of three neighbouring cells (x - 1, x,
+  // x + 1) is then one contiguous range, scanned without gathering.
+  sx_.resize(n);
+  sy_.resize(n);
+  sz_.resize(n);
+  point_.resize(n);
+  run(pool, n, [&](int, size_t b, size_t e) {
+    for (size_t s = b; s < e; ++s) {
+      const Vec3& q = x[sorted_[s].second];
+      sx_[s] = q.x();
+      sy_[s] = q.y();
+      sz_[s] = q.z();
+      point_[s] = sorted_[s].second;
+    }
+  }, 1024);
   run(pool, ncells, [&](int chunk, size_t b, size_t e) {
     std::vector<uint32_t>& out = chunk_list_[chunk];
-    std::vector<double> cx_, cy_, cz_, d2;  // candidates, structure of arrays (vectorised scan)
-    std::vector<uint32_t> cand_i;
+    size_t used = 0;
+    std::vector<double> d2;
+    uint32_t row_b[9], row_e[9];
     for (size_t c = b; c < e; ++c) {
       const Cell& cell = cells_[c];
-      cx_.clear();
-      cy_.clear();
-      cz_.clear();
-      cand_i.clear();
       const int64_t cx = static_cast<int64_t>(cell.key & 0x1FFFFF), cy = static_cast<int64_t>((cell.key >> 21) & 0x1FFFFF),
                     cz = static_cast<int64_t>(cell.key >> 42);
+      // The 9 rows (z, then y order); in a row the cells x - 1, x, x + 1 are consecutive keys,
+      // so their points are one range of slots from the first to the last that exists.
+      int rows = 0;
+      size_t span = 0;
       for (int dz = -1; dz <= 1; ++dz)
-        for (int dy = -1; dy <= 1; ++dy)
+        for (int dy = -1; dy <= 1; ++dy) {
+          const int64_t ay = cy + dy, az = cz + dz;
+          if (ay < 0 || az < 0 || ay > 0x1FFFFF || az > 0x1FFFFF) continue;
+          const Cell* first = nullptr;
+          const Cell* last = nullptr;
           for (int dx = -1; dx <= 1; ++dx) {
-            const int64_t ax = cx + dx, ay = cy + dy, az = cz + dz;
-            if (ax < 0 || ay < 0 || az < 0 || ax > 0x1FFFFF || ay > 0x1FFFFF || az > 0x1FFFFF) continue;
+            const int64_t ax = cx + dx;
+            if (ax < 0 || ax > 0x1FFFFF) continue;
             const Cell* nb = find((static_cast<uint64_t>(az) << 42) | (static_cast<uint64_t>(ay) << 21) |
                                   static_cast<uint64_t>(ax));
             if (!nb) continue;
-            for (uint32_t s = nb->begin; s < nb->end; ++s) {
-              const uint32_t j = sorted_[s].second;
-              cand_i.push_back(j);
-              cx_.push_back(x[j].x());
-              cy_.push_back(x[j].y());
-              cz_.push_back(x[j].z());
-            }
+            if (!first) first = nb;
+            last = nb;
           }
-      for (uint32_t s = cell.begin; s < cell.end; ++s) {
-        const uint32_t i = sorted_[s].second;
-        const double xi = x[i].x(), yi = x[i].y(), zi = x[i].z();
-        const size_t nc = cand_i.size();
-        d2.resize(nc);
-        const double* px = cx_.data();
-        const double* py = cy_.data();
-        const double* pz = cz_.data();
-        double* pd = d2.data();
-        for (size_t q = 0; q < nc; ++q) {
-          const double dx = px[q] - xi, dy = py[q] - yi, dz = pz[q] - zi;
-          pd[q] = dx * dx + dy * dy + dz * dz;
+          if (!first) continue;
+          row_b[rows] = first->begin;
+          row_e[rows] = last->end;
+          span = std::max<size_t>(span, last->end - first->begin);
+          ++rows;
         }
-        for (size_t q = 0; q < nc; ++q)
-          if (pd[q] < h2 && cand_i[q] != i) out.push_back(cand_i[q]);
-        offset_[s + 1] = static_cast<uint32_t>(out.size());  // chunk-relative for now
+      if (d2.size() < span) d2.resize(span);
+      for (uint32_t s = cell.begin; s < cell.end; ++s) {
+        const double xi = sx_[s], yi = sy_[s], zi = sz_[s];
+        for (int r = 0; r < rows; ++r) {
+          const size_t rb = row_b[r], nc = row_e[r] - rb;
+          const double* px = sx_.data() + rb;
+          const double* py = sy_.data() + rb;
+          const double* pz = sz_.data() + rb;
+          double* pd = d2.data();
+          for (size_t q = 0; q < nc; ++q) {
+            const double dx = px[q] - xi, dy = py[q] - yi, dz = pz[q] - zi;
+            pd[q] = dx * dx + dy * dy + dz * dz;
+          }
+          // Branch-free compaction: every candidate is written, the count moves on for hits.
+          if (used + nc > out.size()) out.resize(std::max(2 * out.size(), used + nc + 1024));
+          uint32_t* o = out.data() + used;
+          const uint32_t* ci = point_.data() + rb;
+          const size_t self = s - rb;  // wraps around (no match) when s is outside the row
+          size_t hits = 0;
+          for (size_t q = 0; q < nc; ++q) {
+            o[hits] = ci[q];
+            hits += static_cast<size_t>((pd[q] < h2) & (q != self));
+          }
+          used += hits;
+        }
+        offset_[s + 1] = static_cast<uint32_t>(used);  // chunk-relative for now
       }
     }
+    chunk_used_[chunk] = used;
   }, 64);
   // Rebase the chunk-relative offsets (parallel_for splits the cells the same way every time).
   uint32_t base = 0;
   for (int c = 0; c < chunks; ++c) {
     chunk_first_[c] = base;
-    base += static_cast<uint32_t>(chunk_list_[c].size());
+    base += static_cast<uint32_t>(chunk_used_[c]);
   }
   chunk_first_[chunks] = base;
   list_.resize(base);
   run(pool, ncells, [&](int chunk, size_t b, size_t e) {
     const uint32_t first = chunk_first_[chunk];
-    std::copy(chunk_list_[chunk].begin(), chunk_list_[chunk].end(), list_.begin() + first);
+    std::copy(chunk_list_[chunk].begin(), chunk_list_[chunk].begin() + static_cast<ptrdiff_t>(chunk_used_[chunk]),
+              list_.begin() + first);
     if (b < e)
       for (uint32_t s = cells_[b].begin; s < cells_[e - 1].end; ++s) offset_[s + 1] += first;
   }, 64);

@@ -31,6 +31,13 @@ class NeighbourGrid {
   size_t pairs() const { return list_.size(); }  // directed pairs (each pair counted twice)
   // Where point i's neighbours start in the list of all pairs (per-pair data goes there).
   size_t first(size_t i) const { return offset_[slot_[i]]; }
+  // The same by slot: the points in cell order (slot s holds point(s)), whose neighbour lists
+  // follow each other in the list of all pairs (slot_first(size()) = pairs()).
+  uint32_t point(size_t s) const { return sorted_[s].second; }
+  size_t slot_first(size_t s) const { return offset_[s]; }
+  std::span<const uint32_t> slot_neighbours(size_t s) const {
+    return {list_.data() + offset_[s], list_.data() + offset_[s + 1]};
+  }
 
   // The permutation that orders points by grid cell (z, then y, then x; ties by index):
   // order[k] = the point that goes to place k.
@@ -46,8 +53,11 @@ class NeighbourGrid {
   std::vector<Cell> cells_;
   std::vector<int32_t> table_;  // open addressing: cell key -> index in cells_ (-1 empty)
   std::vector<uint32_t> offset_;  // by place in sorted_
+  std::vector<double> sx_, sy_, sz_;  // coordinates by place in sorted_
+  std::vector<uint32_t> point_;       // point by place in sorted_
   std::vector<uint32_t> list_;
-  std::vector<std::vector<uint32_t>> chunk_list_;
+  std::vector<std::vector<uint32_t>> chunk_list_;  // per chunk; the first chunk_used_ are its pairs
+  std::vector<size_t> chunk_used_;
   std::vector<uint32_t> chunk_first_;
 };
 
