@@ -282,8 +282,8 @@ async function check() {
   if (failed) throw new Error(`${failed} browser check(s) failed`);
 }
 
-// A scene with a rope hanging off the beam's tip, a cloth pinned along one edge above it and a
-// box of fluid beside it, picked in the page's scene list.
+// A scene with a rope hanging off the beam's tip, a cloth hanging from two corners above it and
+// a box of fluid beside it, picked in the page's scene list.
 async function checkBodies(ok) {
   const spec = {
     mesh: { builtin: 'beam1' },
@@ -295,7 +295,7 @@ async function checkBodies(ok) {
         segments: 20, damping: 0.5, pins: { indices: [0] } } },
       { name: 'sheet', cloth: { grid: { resolution_x: 12, resolution_y: 12, size_x: 0.15, size_y: 0.15,
         origin: { x: 0, y: 0.06, z: -0.075 }, u: { x: 1 }, v: { z: 1 } },
-      pins: { indices: Array.from({ length: 12 }, (_, i) => 12 * i) } } },
+      pins: { indices: [0, 11] } } },
       { name: 'water', fluid: { spacing: 0.02,
         blocks: [{ min: { x: -0.2, y: -0.2, z: -0.06 }, max: { x: -0.1, y: -0.08, z: 0.06 } }],
         container: { box: { center: { x: -0.15, y: -0.15, z: 0 }, half_extent: { x: 0.08, y: 0.08, z: 0.08 } } } } },
