@@ -316,6 +316,8 @@ TEST_F(WebGateway, ParticleBodiesTravelInTheTopologyAndEveryFrame) {
   EXPECT_EQ((*sub)["bodies"][0]["name"], "rope");
   EXPECT_EQ((*sub)["bodies"][0]["particles"], 11);
   EXPECT_EQ((*sub)["bodies"][0]["kind"], "rope");
+  EXPECT_EQ((*sub)["bodies"][0]["pinned"], 1);
+  EXPECT_EQ((*sub)["bodies"][0]["size"], 0.005) << "the default thickness in use, as the spec gives it";
   EXPECT_EQ((*sub)["bodies"][1]["name"], "sheet");
   EXPECT_EQ((*sub)["bodies"][1]["kind"], "cloth");
   auto topo_msg = ws.next();

@@ -7,6 +7,7 @@
 
 #include <civetweb.h>
 #include <nlohmann/json.hpp>
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include <atomic>
@@ -360,7 +361,9 @@ void Session::subscribe(const json& m) {
   json bodies = json::array();
   for (const auto& b : surface.bodies)
     bodies.push_back(json{{"name", b.name}, {"kind", body_kind_name(b.kind)}, {"particles", b.particle_count()},
-                          {"triangles", b.triangles.size() / 3}, {"pinned", b.pinned.size()}, {"size", b.size}});
+                          {"triangles", b.triangles.size() / 3}, {"pinned", b.pinned.size()},
+                          // the float's value to 7 digits (0.005, not 0.004999999888)
+                          {"size", std::stod(fmt::format("{:.7g}", b.size))}});
   std::lock_guard lock(mu_);
   const uint32_t sub = ++subscription_;
   scene_ = scene;
