@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // The Pliant viewer: connects to pliant-web's socket, draws the scene's surface and its
 // particle bodies (fluid points, cloth surfaces, ropes) as frames arrive, plots the solver's
-// behaviour and lets the mouse pull the body or a particle (Grab / MoveGrab / Release). URL parameters: scene=ID, token=WEB_TOKEN, encoding=float32|uint16, rate=HZ.
+// behaviour and lets the mouse pull the body or a particle (Grab / MoveGrab / Release).
+// URL parameters: scene=ID, token=WEB_TOKEN, encoding=float32|uint16, rate=HZ.
 import * as THREE from '/three/build/three.module.js';
 import { OrbitControls } from '/three/examples/jsm/controls/OrbitControls.js';
 import { decodeTopology, decodeFrame, messageKind, KIND_TOPOLOGY, KIND_FRAME } from './wire.js';
@@ -212,8 +213,11 @@ function dynamicAttr(array) {
 // pinned particles as slate-blue dots, like the surface's fixed vertices.
 function buildBodies(topo) {
   for (const b of bodies) {
-    for (const o of b.objects) scene3.remove(o);
-    b.geometry.dispose();
+    for (const o of b.objects) {
+      scene3.remove(o);
+      o.geometry.dispose();  // the body's, and the pinned markers' own
+      o.material.dispose();
+    }
   }
   bodies = [];
   bodyScratch = [];

@@ -2,7 +2,8 @@
 // pliant-web end to end: the real pliant-server and pliant-web on free loopback ports, a
 // lockstep scene, and a small WebSocket client (civetweb's) speaking docs/web.md: the topology
 // comes first, then every stepped tick arrives or is counted as skipped; a grab pulls the body;
-// a socket that closes releases its grabs; a wrong web token is refused.
+// a socket that closes releases its grabs; a wrong web token is refused; particle bodies (a rope
+// and a cloth) travel in the topology and every frame, and a grab by body name pulls a particle.
 #include "pliant/client/client.hpp"
 #include "wire.hpp"
 
