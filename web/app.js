@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// The Pliant viewer: connects to pliant-web's socket, draws the scene's surface as frames
-// arrive, plots the solver's behaviour and lets the mouse pull the body (Grab / MoveGrab /
-// Release). URL parameters: scene=ID, token=WEB_TOKEN, encoding=float32|uint16, rate=HZ.
+// The Pliant viewer: connects to pliant-web's socket, draws the scene's surface and its
+// particle bodies (fluid points, cloth surfaces, ropes) as frames arrive, plots the solver's
+// behaviour and lets the mouse pull the body or a particle (Grab / MoveGrab / Release).
+// URL parameters: scene=ID, token=WEB_TOKEN, encoding=float32|uint16, rate=HZ.
 import * as THREE from '/three/build/three.module.js';
 import { OrbitControls } from '/three/examples/jsm/controls/OrbitControls.js';
 import { decodeTopology, decodeFrame, messageKind, KIND_TOPOLOGY, KIND_FRAME } from './wire.js';
@@ -32,7 +33,8 @@ const state = {
   // Main-thread time spent per stage, ms (summed; the bench divides by the counts above):
   // decode + apply of each frame message, normals of each drawn frame, renderer.render calls.
   perf: { decodeMs: 0, normalsMs: 0, renderMs: 0, plotsMs: 0, plotDraws: 0 },
-  grab: null,               // { vertex (surface-local), id, target, force }
+  grab: null,               // { vertex (surface-local, or the body's particle), body (name or absent), id, target, force }
+  renderInfo: null,         // what the last render drew: { calls, triangles, points, lines } (three.js)
   grabsMade: 0,
   grabsReleased: 0,
   errors: [],
@@ -72,6 +74,13 @@ let dequantized = null;    // scratch for 16-bit frames
 let frameDirty = false;    // a frame arrived since the last draw
 let plotsDirty = true;     // a frame arrived since the plots were drawn
 let sceneSize = 0.1;
+// The particle bodies, in the topology's order: { name, kind, particles, size, attr (positions,
+// swapped per frame like the surface's), normals (cloth), colors (fluid), prev (fluid, the
+// positions last drawn), objects (added to the scene), pick (what the mouse can grab), dirty }.
+let bodies = [];
+let bodyScratch = [];       // 16-bit frames: one dequantised array per body
+let drawnSimTime = null;    // sim time of the last drawn frame (the fluid's speed colours)
+let frameSimTime = 0;
 const grabLine = new THREE.Line(new THREE.BufferGeometry().setFromPoints([new THREE.Vector3(), new THREE.Vector3()]),
   new THREE.LineBasicMaterial({ color: 0xffee58 }));
 const grabLineAttr = grabLine.geometry.getAttribute('position');
@@ -153,10 +162,15 @@ function buildMesh(topo) {
   scene3.add(mesh);
   dequantized = new Float32Array(3 * topo.surfaceVertices);
 
-  // Frame the body: camera in front, above and to the side of its bounding sphere.
-  const c = g.boundingSphere.center, r = Math.max(g.boundingSphere.radius, 1e-3);
-  sceneSize = 2 * r;
+  buildBodies(topo);
+
+  // Frame the scene: camera in front, above and to the side of the bounding sphere of the body
+  // and the particle bodies.
   const box = new THREE.Box3().setFromBufferAttribute(positionAttr);
+  for (const b of bodies) box.union(new THREE.Box3().setFromBufferAttribute(b.attr));
+  const sphere = box.getBoundingSphere(new THREE.Sphere());
+  const c = sphere.center, r = Math.max(sphere.radius, 1e-3);
+  sceneSize = 2 * r;
   grid.scale.setScalar(4 * r);
   grid.position.set(c.x, Math.min(box.min.y, c.y - 1.2 * r), c.z);  // below where the body sags
   const dist = (1.25 * r) / Math.tan((camera.fov * Math.PI) / 360);
@@ -169,17 +183,124 @@ function buildMesh(topo) {
   invalidate();
 }
 
+// A round point sprite (fluid particles, rope beads, pinned markers), drawn once.
+const dotTexture = (() => {
+  const c = document.createElement('canvas');
+  c.width = c.height = 64;
+  const g = c.getContext('2d');
+  g.fillStyle = '#fff';
+  g.beginPath();
+  g.arc(32, 32, 30, 0, 2 * Math.PI);
+  g.fill();
+  return new THREE.CanvasTexture(c);
+})();
+
+// Points over a body's positions: `size` m when known (perspective), else `pixels` on screen.
+function pointsMaterial(size, pixels, options) {
+  return new THREE.PointsMaterial({
+    size: size > 0 ? size : pixels, sizeAttenuation: size > 0, map: dotTexture, alphaTest: 0.5, ...options,
+  });
+}
+
+function dynamicAttr(array) {
+  const a = new THREE.BufferAttribute(array, 3);
+  a.setUsage ? a.setUsage(THREE.DynamicDrawUsage) : (a.dynamic = true);
+  return a;
+}
+
+// The particle bodies of a topology: fluids as round points (the particle spacing wide, coloured
+// by speed), cloth as a lit double-sided surface, ropes as a line with a bead per particle;
+// pinned particles as slate-blue dots, like the surface's fixed vertices.
+function buildBodies(topo) {
+  for (const b of bodies) {
+    for (const o of b.objects) {
+      scene3.remove(o);
+      o.geometry.dispose();  // the body's, and the pinned markers' own
+      o.material.dispose();
+    }
+  }
+  bodies = [];
+  bodyScratch = [];
+  drawnSimTime = null;
+  for (const t of topo.bodies || []) {
+    const g = new THREE.BufferGeometry();
+    const attr = dynamicAttr(Float32Array.from(t.rest));
+    g.setAttribute('position', attr);
+    const b = { name: t.name, kind: t.kind, particles: t.particles, size: t.size, attr, geometry: g,
+      normals: null, colors: null, prev: null, triangles: null, objects: [], pick: null, dirty: false };
+    if (t.kind === 'cloth' && t.triangles.length) {
+      g.setIndex(new THREE.BufferAttribute(t.triangles, 1));
+      b.triangles = t.triangles;
+      b.normals = dynamicAttr(new Float32Array(3 * t.particles));
+      g.setAttribute('normal', b.normals);
+      computeNormals(attr.array, b.triangles, b.normals.array);
+      b.pick = new THREE.Mesh(g, new THREE.MeshLambertMaterial({ color: 0x7fb3d5, side: THREE.DoubleSide }));
+    } else if (t.kind === 'rope') {
+      b.objects.push(new THREE.Line(g, new THREE.LineBasicMaterial({ color: 0xd7c49e })));
+      // Beads a little wider than the rope, so it reads as a rope at any zoom.
+      b.pick = new THREE.Points(g, pointsMaterial(2 * t.size, 6, { color: 0xd7c49e }));
+    } else {
+      // Fluid (and any other particle body): a point per particle, coloured by speed.
+      b.colors = new THREE.BufferAttribute(new Float32Array(3 * t.particles), 3);
+      b.colors.setUsage ? b.colors.setUsage(THREE.DynamicDrawUsage) : (b.colors.dynamic = true);
+      g.setAttribute('color', b.colors);
+      b.prev = Float32Array.from(t.rest);
+      speedColors(b, 0);
+      b.pick = new THREE.Points(g, pointsMaterial(t.size, 5, { vertexColors: THREE.VertexColors }));
+    }
+    b.objects.push(b.pick);
+    if (t.pinned.length) {
+      // The same positions, indexed by the pinned particles only.
+      const pg = new THREE.BufferGeometry();
+      pg.setAttribute('position', attr);
+      pg.setIndex(new THREE.BufferAttribute(t.pinned, 1));
+      const marker = new THREE.Points(pg, pointsMaterial(0, 9, { color: 0x5973bf, depthTest: false }));
+      marker.renderOrder = 5;
+      b.objects.push(marker);
+    }
+    for (const o of b.objects) {
+      o.frustumCulled = false;
+      o.userData.body = b;
+      scene3.add(o);
+    }
+    bodies.push(b);
+    bodyScratch.push(new Float32Array(3 * t.particles));
+  }
+}
+
+// Fluid colours from each particle's speed since the last drawn frame (dt s): still water
+// blue, 1 m/s and faster white.
+function speedColors(b, dt) {
+  const x = b.attr.array, prev = b.prev, col = b.colors.array;
+  for (let i = 0; i < x.length; i += 3) {
+    const v = dt > 0 ? Math.hypot(x[i] - prev[i], x[i + 1] - prev[i + 1], x[i + 2] - prev[i + 2]) / dt : 0;
+    const u = Math.min(v, 1);
+    col[i] = 0.16 + 0.84 * u;
+    col[i + 1] = 0.5 + 0.5 * u;
+    col[i + 2] = 0.9 + 0.1 * u;
+  }
+  prev.set(x);
+  b.colors.needsUpdate = true;
+}
+
 // A frame message: positions into the geometry (the GPU upload and the normals wait for the
 // next drawn animation frame, so frames arriving faster than the screen cost only this), the
 // header into the table and plots.
 function applyFrame(buffer) {
   const t0 = performance.now();
-  const { header, residuals, positions } = decodeFrame(buffer, dequantized);
+  const { header, residuals, positions, bodies: bodyPositions } = decodeFrame(buffer, dequantized, bodyScratch);
   if (header.subscription !== state.subscription || !mesh) return;  // from an older subscription
   if (positions.length === positionAttr.array.length) {
     positionAttr.array = positions;  // a view over the message (float32) or the scratch array
     frameDirty = true;
   }
+  for (let i = 0; i < bodies.length && i < bodyPositions.length; ++i) {
+    if (bodyPositions[i].length !== bodies[i].attr.array.length) continue;
+    bodies[i].attr.array = bodyPositions[i];
+    bodies[i].dirty = true;
+    frameDirty = true;
+  }
+  frameSimTime = header.simTime;
   state.framesReceived += 1;
   state.lastFrameBytes = buffer.byteLength;
   state.skippedFrames += header.skippedFrames;
@@ -388,23 +509,43 @@ function rayAt(ev) {
   return raycaster;
 }
 
-function vertexPosition(i) {
-  const a = positionAttr.array;
+// A surface vertex's position, or a particle's of the body named `body`.
+function vertexPosition(i, body = null) {
+  const b = body ? bodies.find((x) => x.name === body) : null;
+  const a = b ? b.attr.array : positionAttr.array;
   return new THREE.Vector3(a[3 * i], a[3 * i + 1], a[3 * i + 2]);
 }
 
 canvas.addEventListener('pointerdown', (ev) => {
   if (ev.button !== 0 || !mesh || !state.connected || state.ended) return;
+  const targets = [mesh];
   mesh.geometry.computeBoundingSphere();
-  const hit = rayAt(ev).intersectObject(mesh)[0];
+  for (const b of bodies) {
+    b.geometry.computeBoundingSphere();
+    targets.push(b.pick);
+  }
+  const ray = rayAt(ev);
+  // Points are hit within a bead's radius (or 1% of the scene where the size is unknown).
+  const fluid = bodies.find((b) => b.kind !== 'cloth' && b.size > 0);
+  ray.params.Points.threshold = fluid ? fluid.size : 0.01 * sceneSize;
+  const hit = ray.intersectObjects(targets)[0];
   if (!hit) return;  // orbit
   controls.enabled = false;
-  const face = [hit.face.a, hit.face.b, hit.face.c];
-  const local = face.reduce((best, v) => (vertexPosition(v).distanceTo(hit.point) < vertexPosition(best).distanceTo(hit.point) ? v : best));
-  const p = vertexPosition(local);
+  const body = hit.object.userData.body ? hit.object.userData.body.name : null;
+  let local;
+  if (hit.face) {
+    const face = [hit.face.a, hit.face.b, hit.face.c];
+    const d = (v) => vertexPosition(v, body).distanceTo(hit.point);
+    local = face.reduce((best, v) => (d(v) < d(best) ? v : best));
+  } else {
+    local = hit.index;  // a particle (Points)
+  }
+  const p = vertexPosition(local, body);
   dragPlane.setFromNormalAndCoplanarPoint(camera.getWorldDirection(new THREE.Vector3()), p);
-  state.grab = { vertex: local, id: null, pending: true, target: [p.x, p.y, p.z], sent: null, inFlight: false, force: null };
-  send({ type: 'grab', vertex: state.topology.surfaceToBody[local], target: state.grab.target });
+  state.grab = { vertex: local, body, id: null, pending: true, target: [p.x, p.y, p.z], sent: null, inFlight: false, force: null };
+  const msg = { type: 'grab', vertex: body ? local : state.topology.surfaceToBody[local], target: state.grab.target };
+  if (body) msg.body = body;
+  send(msg);
   canvas.setPointerCapture(ev.pointerId);
 });
 
@@ -446,7 +587,7 @@ function drawGrab() {
   const g = state.grab;
   grabLine.visible = forceArrow.visible = false;
   if (!g || !mesh) return;
-  const p = vertexPosition(g.vertex);
+  const p = vertexPosition(g.vertex, g.body);
   grabLineAttr.setXYZ(0, p.x, p.y, p.z);
   grabLineAttr.setXYZ(1, g.target[0], g.target[1], g.target[2]);
   grabLineAttr.needsUpdate = true;
@@ -465,8 +606,15 @@ function drawGrab() {
   }
 }
 
-// Helpers for the browser test: a vertex's position and its place on screen (client pixels).
-state.vertex = (i) => vertexPosition(i).toArray();
+// Helpers for the browser test: a vertex's (or a body particle's) position and its place on
+// screen (client pixels).
+state.vertex = (i, body = null) => vertexPosition(i, body).toArray();
+state.bodies = () => bodies.map((b) => ({ name: b.name, kind: b.kind, particles: b.particles, size: b.size }));
+// Shows or hides the particle bodies (the browser test compares the canvas with and without).
+state.showBodies = (on) => {
+  for (const b of bodies) for (const o of b.objects) o.visible = on;
+  invalidate();
+};
 state.project = (xyz) => {
   const v = new THREE.Vector3(...xyz).project(camera);
   const r = canvas.getBoundingClientRect();
@@ -487,6 +635,18 @@ function animate() {
     positionAttr.needsUpdate = true;
     computeNormals(positionAttr.array, triangles, normalAttr.array);
     normalAttr.needsUpdate = true;
+    const dt = drawnSimTime === null ? 0 : frameSimTime - drawnSimTime;
+    for (const b of bodies) {
+      if (!b.dirty) continue;
+      b.dirty = false;
+      b.attr.needsUpdate = true;
+      if (b.normals) {
+        computeNormals(b.attr.array, b.triangles, b.normals.array);
+        b.normals.needsUpdate = true;
+      }
+      if (b.colors) speedColors(b, dt);
+    }
+    drawnSimTime = frameSimTime;
     state.perf.normalsMs += performance.now() - t0;
     state.framesDrawn += 1;
     frameDirty = false;
@@ -501,6 +661,8 @@ function animate() {
   const t0 = performance.now();
   renderer.render(scene3, camera);
   state.perf.renderMs += performance.now() - t0;
+  const info = renderer.info.render;
+  state.renderInfo = { calls: info.calls, triangles: info.triangles, points: info.points, lines: info.lines };
   state.renders += 1;
 }
 

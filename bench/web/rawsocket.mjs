@@ -53,6 +53,7 @@ export class RawSocket {
       this.buf = this.buf.subarray(off + len);
       this.bytes += len;
       if (op === 9) this.send(p.toString('latin1'), 10);           // ping -> pong
+      if (this.onMessage && (op === 1 || op === 2)) this.onMessage(op, p);  // text or binary, as received
       else if (op === 2 && p[0] === 2) {
         this.frames.push(p.readDoubleLE(80));
         const nowNs = (performance.timeOrigin + performance.now()) * 1e6;

@@ -3,10 +3,14 @@
 // creates a realtime beam scene and drives Debian's headless Chromium (software WebGL) with
 // playwright-core. Checks that frames arrive and are drawn, the canvas changes, the plots have
 // points, that dragging the beam's tip grabs it, moves it and releases it, and that the canvas
-// is not redrawn while the scene is paused. Saves a screenshot of the page (docs/img/web.png
-// comes from here).
+// is not redrawn while the scene is paused; then, on a scene with a rope, a cloth and a fluid,
+// that the page draws the particle bodies (the renderer's point and triangle counts, and the
+// canvas pixels where the rope's end is differ with the bodies hidden), and that pressing on the
+// rope's end grabs that particle by body name. Saves a screenshot of the page (docs/img/web.png
+// comes from here; --bodies-screenshot: docs/img/web-bodies.png).
 //
 //   node tests/web/browser.mjs --server BIN --web BIN --cli BIN --web-root DIR [--screenshot PNG]
+//        [--bodies-screenshot PNG]
 //   node tests/web/browser.mjs ... --bench [--seconds S] [--encoding float32|uint16]
 //        [--mesh NAME] [--create-flags="--rate 60 ..."] [--pages N] [--browser-nice N]
 //        [--gpu-compositing] [--cpu-profile FILE]
@@ -37,7 +41,7 @@ process.on('exit', cleanup);
 const { values: args } = parseArgs({
   options: {
     server: { type: 'string' }, web: { type: 'string' }, cli: { type: 'string' }, 'web-root': { type: 'string' },
-    screenshot: { type: 'string' }, bench: { type: 'boolean', default: false },
+    screenshot: { type: 'string' }, 'bodies-screenshot': { type: 'string' }, bench: { type: 'boolean', default: false },
     seconds: { type: 'string', default: '20' }, encoding: { type: 'string', default: 'float32' },
     mesh: { type: 'string', default: 'armadillo' },
     pages: { type: 'string', default: '1' }, 'gpu-compositing': { type: 'boolean', default: false },
@@ -269,11 +273,95 @@ async function check() {
   const resumedAt = idle1.frames;
   await waitFor(page, 'frames after resume', (n) => window.pliant.framesReceived > n, resumedAt, 10000);
 
+  await checkBodies(ok);
+
   ok('no page errors', consoleErrors.length === 0, consoleErrors.join('; '));
 
   const failed = results.filter((r) => !r.ok).length;
   console.log(`${results.length - failed} passed, ${failed} failed`);
   if (failed) throw new Error(`${failed} browser check(s) failed`);
+}
+
+// A scene with a rope hanging off the beam's tip, a cloth hanging from two corners above it and
+// a box of fluid beside it, picked in the page's scene list.
+async function checkBodies(ok) {
+  const spec = {
+    mesh: { builtin: 'beam1' },
+    fixed: { boxes: [{ min: { x: -1, y: -1, z: -1 }, max: { x: 0.001, y: 1, z: 1 } }] },
+    solver: { method: 'METHOD_XPBD', substeps: 4, iterations: 2 },
+    tick: { dt: 1 / 60, mode: 'TICK_MODE_REALTIME' },
+    bodies: [
+      { name: 'rope', rope: { points: [{ x: 0.13, y: 0.0075, z: 0.0075 }, { x: 0.33, y: 0.0075, z: 0.0075 }],
+        segments: 20, damping: 0.5, pins: { indices: [0] } } },
+      { name: 'sheet', cloth: { grid: { resolution_x: 12, resolution_y: 12, size_x: 0.15, size_y: 0.15,
+        origin: { x: 0, y: 0.06, z: -0.075 }, u: { x: 1 }, v: { z: 1 } },
+      pins: { indices: [0, 11] } } },
+      { name: 'water', fluid: { spacing: 0.02,
+        blocks: [{ min: { x: -0.2, y: -0.2, z: -0.06 }, max: { x: -0.1, y: -0.08, z: 0.06 } }],
+        container: { box: { center: { x: -0.15, y: -0.15, z: 0 }, half_extent: { x: 0.08, y: 0.08, z: 0.08 } } } } },
+    ],
+  };
+  const specFile = join(dir, 'bodies.json');
+  writeFileSync(specFile, JSON.stringify(spec));
+  await pliant('scenes', 'create', 'bodies', '--spec', specFile);
+  await waitFor(page, 'the scene in the picker', () => [...document.querySelectorAll('#scene option')].some((o) => o.value === 'bodies'));
+  await page.selectOption('#scene', 'bodies');
+  await waitFor(page, 'the bodies topology', () => window.pliant.topology && window.pliant.topology.bodies.length === 3);
+  const f0 = await page.evaluate(() => window.pliant.framesReceived);
+  await waitFor(page, 'frames of the bodies scene', (n) => window.pliant.framesReceived >= n + 20 && window.pliant.renderInfo, f0);
+  const seen = await page.evaluate(() => ({ bodies: window.pliant.bodies(), info: window.pliant.renderInfo,
+    surfaceTriangles: window.pliant.topology.triangles.length / 3,
+    cloth: window.pliant.topology.bodies[1].triangles.length / 3, bytes: window.pliant.lastFrameBytes }));
+  const particles = Object.fromEntries(seen.bodies.map((b) => [b.name, b.particles]));
+  ok('the page lists the rope, the cloth and the fluid',
+    seen.bodies.map((b) => `${b.name}:${b.kind}`).join(',') === 'rope:rope,sheet:cloth,water:fluid',
+    seen.bodies.map((b) => `${b.name} ${b.kind} ${b.particles}`).join(', '));
+  // Points: the rope's beads, the fluid's particles and the pinned markers; triangles: the
+  // beam's front faces at most plus both sides of the cloth (one draw call, double-sided).
+  const minPoints = particles.rope + particles.water;
+  ok('the renderer draws every particle and the cloth', seen.info.points >= minPoints && seen.info.lines >= 1 &&
+    seen.info.triangles >= seen.cloth, `${JSON.stringify(seen.info)}; at least ${minPoints} points, ${seen.cloth} cloth triangles; ${seen.bytes} bytes per frame`);
+
+  // Paused, the rope's end stays where it is: the canvas there differs with the bodies hidden.
+  await page.click('#pause');
+  let last = -1;
+  for (let i = 0; i < 40; ++i) {
+    await sleep(500);
+    const n = await page.evaluate(() => window.pliant.framesReceived);
+    if (n === last) break;
+    last = n;
+  }
+  await sleep(300);
+  const end = await page.evaluate(() => {
+    const p = window.pliant;
+    const n = p.bodies()[0].particles;
+    const xyz = p.vertex(n - 1, 'rope');
+    return { xyz, screen: p.project(xyz), index: n - 1 };
+  });
+  const clip = { x: Math.round(end.screen.x) - 6, y: Math.round(end.screen.y) - 6, width: 12, height: 12 };
+  const withBodies = await page.screenshot({ clip });
+  if (args['bodies-screenshot']) {
+    await page.screenshot({ path: args['bodies-screenshot'] });
+    console.log(`browser: screenshot ${args['bodies-screenshot']}`);
+  }
+  await page.evaluate(() => window.pliant.showBodies(false));
+  await sleep(300);
+  const without = await page.screenshot({ clip });
+  await page.evaluate(() => window.pliant.showBodies(true));
+  ok('the rope is drawn where its end is', !withBodies.equals(without),
+    `end at (${end.xyz.map((v) => (1000 * v).toFixed(1)).join(', ')}) mm, screen (${end.screen.x.toFixed(0)}, ${end.screen.y.toFixed(0)})`);
+
+  // Pressing on the rope's end grabs that particle of the body named "rope".
+  await sleep(300);
+  await page.mouse.move(end.screen.x, end.screen.y);
+  await page.mouse.down();
+  await waitFor(page, 'the rope grab', () => window.pliant.grab && window.pliant.grab.id !== null, undefined, 5000);
+  const g = await page.evaluate(() => ({ body: window.pliant.grab.body, vertex: window.pliant.grab.vertex }));
+  ok('pressing on the rope grabs its particle by body name', g.body === 'rope' && Math.abs(g.vertex - end.index) <= 2,
+    `body ${g.body}, particle ${g.vertex}`);
+  await page.mouse.up();
+  await waitFor(page, 'the rope release', () => window.pliant.grab === null, undefined, 5000);
+  await page.click('#resume');
 }
 
 async function bench() {

@@ -2,7 +2,8 @@
 // pliant-web end to end: the real pliant-server and pliant-web on free loopback ports, a
 // lockstep scene, and a small WebSocket client (civetweb's) speaking docs/web.md: the topology
 // comes first, then every stepped tick arrives or is counted as skipped; a grab pulls the body;
-// a socket that closes releases its grabs; a wrong web token is refused.
+// a socket that closes releases its grabs; a wrong web token is refused; particle bodies (a rope
+// and a cloth) travel in the topology and every frame, and a grab by body name pulls a particle.
 #include "pliant/client/client.hpp"
 #include "wire.hpp"
 
@@ -270,6 +271,127 @@ TEST_F(WebGateway, TopologyFirstThenEveryTickOrACountedSkip) {
     if (code != 5) std::this_thread::sleep_for(50ms);
   }
   EXPECT_EQ(code, 5) << "grab " << grab_id << " should be released (NOT_FOUND) once its socket closed";
+}
+
+// A lockstep scene with the beam, a rope hanging off its pinned first particle and a cloth
+// pinned along one edge: the topology lists both, every frame carries their positions, the
+// rope's free end falls under gravity, and a grab by body name pulls a rope particle.
+TEST_F(WebGateway, ParticleBodiesTravelInTheTopologyAndEveryFrame) {
+  pliant::v1::CreateSceneRequest req;
+  req.set_scene_id("bodies");
+  auto* spec = req.mutable_spec();
+  spec->mutable_mesh()->set_builtin("beam1");
+  pliant::client::clamp_below_x(*spec, 0.001);
+  spec->mutable_tick()->set_mode(pliant::v1::TICK_MODE_LOCKSTEP);
+  spec->mutable_solver()->set_substeps(2);
+  spec->mutable_solver()->set_iterations(4);
+  auto* rope = spec->add_bodies();
+  rope->set_name("rope");
+  for (double x : {0.13, 0.33}) {
+    auto* pt = rope->mutable_rope()->add_points();
+    pt->set_x(x);
+    pt->set_y(0.0075);
+    pt->set_z(0.0075);
+  }
+  rope->mutable_rope()->set_segments(10);
+  rope->mutable_rope()->mutable_pins()->add_indices(0);
+  auto* cloth = spec->add_bodies();
+  cloth->set_name("sheet");
+  auto* grid = cloth->mutable_cloth()->mutable_grid();
+  grid->set_resolution_x(5);
+  grid->set_resolution_y(4);
+  grid->set_size_x(0.1);
+  grid->set_size_y(0.08);
+  grid->mutable_origin()->set_x(0.05);
+  grid->mutable_origin()->set_y(0.1);
+  for (uint32_t i = 0; i < 5; ++i) cloth->mutable_cloth()->mutable_pins()->add_indices(i);  // the first row
+  auto created = client_->create_scene(req);
+  ASSERT_TRUE(created.ok()) << created.status.to_string();
+
+  Socket ws(web_->port(), "/ws?token=sesame");
+  ASSERT_TRUE(ws.ok()) << ws.error();
+  ws.send({{"type", "subscribe"}, {"scene", "bodies"}, {"max_rate_hz", 0}, {"encoding", "uint16"}});
+  auto sub = ws.next_json("subscribed");
+  ASSERT_TRUE(sub);
+  ASSERT_EQ((*sub)["bodies"].size(), 2u) << sub->dump();
+  EXPECT_EQ((*sub)["bodies"][0]["name"], "rope");
+  EXPECT_EQ((*sub)["bodies"][0]["particles"], 11);
+  EXPECT_EQ((*sub)["bodies"][0]["kind"], "rope");
+  EXPECT_EQ((*sub)["bodies"][0]["pinned"], 1);
+  EXPECT_EQ((*sub)["bodies"][0]["size"], 0.005) << "the default thickness in use, as the spec gives it";
+  EXPECT_EQ((*sub)["bodies"][1]["name"], "sheet");
+  EXPECT_EQ((*sub)["bodies"][1]["kind"], "cloth");
+  auto topo_msg = ws.next();
+  ASSERT_TRUE(topo_msg && topo_msg->binary);
+  const auto topo = pliant::web::decode_topology(topo_msg->data);
+  ASSERT_EQ(topo.bodies.size(), 2u);
+  const auto& r = topo.bodies[0];
+  const auto& c = topo.bodies[1];
+  EXPECT_EQ(r.name, "rope");
+  EXPECT_EQ(r.kind, pliant::web::BodyKind::Rope);
+  EXPECT_EQ(r.particle_count(), 11u);
+  EXPECT_EQ(r.pinned, (std::vector<uint32_t>{0}));
+  EXPECT_TRUE(r.triangles.empty());
+  EXPECT_GT(r.size, 0.0f) << "the rope's thickness in use (GetScene)";
+  EXPECT_EQ(c.name, "sheet");
+  EXPECT_EQ(c.kind, pliant::web::BodyKind::Cloth);
+  EXPECT_EQ(c.particle_count(), 20u);
+  EXPECT_EQ(c.triangles.size(), 3u * 2 * 4 * 3) << "two triangles per grid cell";
+  EXPECT_EQ(c.pinned.size(), 5u);
+  const float end_rest_y = r.rest_positions[3 * 10 + 1];
+  const float end_rest_x = r.rest_positions[3 * 10];
+  EXPECT_NEAR(end_rest_x, 0.33f, 1e-4f);
+
+  constexpr int kTicks = 30;
+  for (int i = 0; i < kTicks; ++i) ASSERT_TRUE(client_->step("bodies", 1).ok());
+  std::vector<std::vector<float>> last;
+  uint64_t tick = 0, frames = 0;
+  while (tick < kTicks) {
+    auto m = ws.next();
+    ASSERT_TRUE(m) << "no frame for tick " << kTicks << " (last " << tick << ")";
+    if (!m->binary) continue;
+    const auto h = pliant::web::decode_frame_header(m->data);
+    EXPECT_TRUE(h.flags & pliant::web::kFlagBodies);
+    tick = h.tick;
+    last = pliant::web::decode_frame_bodies(m->data);
+    ASSERT_EQ(last.size(), 2u);
+    ASSERT_EQ(last[0].size(), 33u);
+    ASSERT_EQ(last[1].size(), 60u);
+    ++frames;
+  }
+  EXPECT_GT(frames, 0u);
+  // 30 ticks at 60 Hz (0.5 s): the free end falls (about g t^2 / 2 if the rope did not
+  // hold it; the pinned end holds it to a swing, but it must be well below its start).
+  EXPECT_LT(last[0][3 * 10 + 1], end_rest_y - 0.02f) << "the rope's free end falls under gravity";
+  EXPECT_NEAR(last[0][1], r.rest_positions[1], 1e-3f) << "the pinned end stays";
+  EXPECT_NEAR(last[1][1], c.rest_positions[1], 1e-3f) << "the cloth's pinned row stays";
+  EXPECT_LT(last[1][3 * 19 + 1], c.rest_positions[3 * 19 + 1] - 0.01f) << "the cloth's free corner falls";
+
+  // Grab the rope's free end by body name and hold it 5 cm above where it started.
+  ws.send({{"type", "grab"}, {"body", "rope"}, {"vertex", 10}, {"target", {end_rest_x - 0.05, end_rest_y + 0.05, 0.0075}}});
+  auto grabbed = ws.next_json("grabbed");
+  ASSERT_TRUE(grabbed);
+  EXPECT_EQ((*grabbed)["body"], "rope");
+  for (int i = 0; i < 10; ++i) ASSERT_TRUE(client_->step("bodies", 1).ok());
+  while (tick < kTicks + 10) {
+    auto m = ws.next();
+    ASSERT_TRUE(m) << "no frame after the grab";
+    if (!m->binary) continue;
+    tick = pliant::web::decode_frame_header(m->data).tick;
+    last = pliant::web::decode_frame_bodies(m->data);
+  }
+  EXPECT_GT(last[0][3 * 10 + 1], end_rest_y + 0.03f) << "the grab pulls the rope's end up";
+
+  // A body the scene does not have: the server's error, passed on.
+  ws.send({{"type", "grab"}, {"body", "nope"}, {"vertex", 0}});
+  auto e = ws.next_json("error");
+  ASSERT_TRUE(e);
+  EXPECT_NE((*e)["message"].get<std::string>().find("nope"), std::string::npos) << e->dump();
+  ws.send({{"type", "grab"}, {"body", 3}, {"vertex", 0}});
+  e = ws.next_json("error");
+  ASSERT_TRUE(e);
+  EXPECT_EQ((*e)["code"], "INVALID_ARGUMENT");
+  EXPECT_NE((*e)["message"].get<std::string>().find("'body'"), std::string::npos) << e->dump();
 }
 
 TEST_F(WebGateway, AnAcknowledgingPageGetsTheLatestFrameNotAQueue) {

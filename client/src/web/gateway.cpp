@@ -7,6 +7,7 @@
 
 #include <civetweb.h>
 #include <nlohmann/json.hpp>
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include <atomic>
@@ -82,6 +83,15 @@ v1::Vec3 vec3_field(const json& m, const char* name) {
   return v;
 }
 
+const char* body_kind_name(BodyKind k) {
+  switch (k) {
+    case BodyKind::Fluid: return "fluid";
+    case BodyKind::Cloth: return "cloth";
+    case BodyKind::Rope: return "rope";
+    default: return "other";
+  }
+}
+
 json vec3_json(const v1::Vec3& v) { return json::array({v.x(), v.y(), v.z()}); }
 
 bool query_token_matches(const mg_connection* conn, const std::string& expected) {
@@ -121,7 +131,7 @@ class Session {
   void subscribe(const json& m);
   void unsubscribe();
   void stream_loop(std::shared_ptr<client::FrameStream> stream, uint32_t subscription, std::string scene,
-                   uint32_t vertices, Encoding encoding);
+                   uint32_t vertices, Encoding encoding, std::vector<ParticleBody> bodies);
   void writer_loop();
   std::string scene_of(const json& m) const {
     auto it = m.find("scene");
@@ -246,6 +256,13 @@ void Session::handle(const std::string& type, const json& m) {
     const uint64_t vertex = uint_field(m, "vertex");
     if (vertex > INT32_MAX) throw BadRequest("field 'vertex' out of range: " + std::to_string(vertex));
     req.set_vertex(static_cast<int32_t>(vertex));
+    // A particle body's name: `vertex` is then one of its particles (the server checks both).
+    std::string body;
+    if (m.contains("body")) {
+      if (!m["body"].is_string()) throw BadRequest("field 'body' must be a particle body's name, got " + m["body"].dump());
+      body = m["body"].get<std::string>();
+      req.set_body(body);
+    }
     if (m.contains("target")) *req.mutable_target() = vec3_field(m, "target");
     if (m.contains("compliance")) {
       if (!m["compliance"].is_number() || m["compliance"].get<double>() < 0)
@@ -255,8 +272,10 @@ void Session::handle(const std::string& type, const json& m) {
     auto r = client_.grab(req);
     if (!r.ok()) return fail(r.status);
     grabs_.add(scene, r->grab_id());
-    reply(json{{"type", "grabbed"}, {"scene", scene}, {"grab_id", r->grab_id()}, {"vertex", vertex},
-               {"first_tick", r->first_tick()}});
+    json grabbed{{"type", "grabbed"}, {"scene", scene}, {"grab_id", r->grab_id()}, {"vertex", vertex},
+                 {"first_tick", r->first_tick()}};
+    if (!body.empty()) grabbed["body"] = body;
+    reply(grabbed);
   } else if (type == "move") {
     const std::string scene = scene_of(m);
     v1::MoveGrabRequest req;
@@ -333,6 +352,18 @@ void Session::subscribe(const json& m) {
     reply(error_json("subscribe", "INTERNAL", e.what()));
     return;
   }
+  if (!surface.bodies.empty()) {
+    // Sizes for drawing (fluid spacing, cloth and rope thickness) come from the spec in use.
+    auto sc = client_.get_scene(scene);
+    if (sc.ok()) set_body_sizes(surface, sc->spec());
+    else spdlog::warn("web: scene '{}': no spec for the bodies' sizes: {}", scene, sc.status.to_string());
+  }
+  json bodies = json::array();
+  for (const auto& b : surface.bodies)
+    bodies.push_back(json{{"name", b.name}, {"kind", body_kind_name(b.kind)}, {"particles", b.particle_count()},
+                          {"triangles", b.triangles.size() / 3}, {"pinned", b.pinned.size()},
+                          // the float's value to 7 digits (0.005, not 0.004999999888)
+                          {"size", std::stod(fmt::format("{:.7g}", b.size))}});
   std::lock_guard lock(mu_);
   const uint32_t sub = ++subscription_;
   scene_ = scene;
@@ -345,7 +376,8 @@ void Session::subscribe(const json& m) {
              {"body_vertices", surface.body_vertex_count},
              {"encoding", encoding == Encoding::Float32 ? "float32" : "uint16"},
              {"max_rate_hz", rate},
-             {"ack", ack}});
+             {"ack", ack},
+             {"bodies", bodies}});
   outbox_.push_control({true, encode_topology(surface, sub)});
 
   v1::StreamFramesRequest req;
@@ -353,9 +385,16 @@ void Session::subscribe(const json& m) {
   req.set_surface_only(true);
   req.set_max_rate_hz(rate);
   stream_ = client_.stream_frames(req);
-  stream_thread_ = std::thread([this, stream = stream_, sub, scene, n, encoding] { stream_loop(stream, sub, scene, n, encoding); });
-  spdlog::info("web: subscribed to '{}' ({} surface vertices, {}, at most {} Hz)", scene, n,
-               encoding == Encoding::Float32 ? "float32" : "uint16", rate);
+  std::vector<ParticleBody> frame_bodies = surface.bodies;
+  for (auto& b : frame_bodies) {  // the frame encoder needs names and counts only
+    b.triangles.clear();
+    b.pinned.clear();
+  }
+  stream_thread_ = std::thread([this, stream = stream_, sub, scene, n, encoding, fb = std::move(frame_bodies)]() mutable {
+    stream_loop(stream, sub, scene, n, encoding, std::move(fb));
+  });
+  spdlog::info("web: subscribed to '{}' ({} surface vertices, {} particle bodies, {}, at most {} Hz)", scene, n,
+               surface.bodies.size(), encoding == Encoding::Float32 ? "float32" : "uint16", rate);
 }
 
 void Session::unsubscribe() {
@@ -378,11 +417,11 @@ void Session::unsubscribe() {
 }
 
 void Session::stream_loop(std::shared_ptr<client::FrameStream> stream, uint32_t subscription, std::string scene,
-                          uint32_t vertices, Encoding encoding) {
+                          uint32_t vertices, Encoding encoding, std::vector<ParticleBody> bodies) {
   v1::Frame frame;
   while (stream->next(&frame)) {
     try {
-      if (outbox_.put_frame(encode_frame(frame, subscription, encoding, vertices))) ++gw_.frames_replaced;
+      if (outbox_.put_frame(encode_frame(frame, subscription, encoding, vertices, bodies))) ++gw_.frames_replaced;
     } catch (const std::invalid_argument& e) {
       spdlog::error("web: scene '{}': {}", scene, e.what());
       break;

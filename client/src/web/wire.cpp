@@ -75,7 +75,67 @@ uint32_t saturate_u32(uint64_t v) {
   return static_cast<uint32_t>(std::min<uint64_t>(v, std::numeric_limits<uint32_t>::max()));
 }
 
+// Bytes of 3 x n positions in an encoding (16-bit padded to 4).
+size_t position_bytes(uint32_t n, Encoding encoding) {
+  return encoding == Encoding::Float32 ? 12 * size_t(n) : (6 * size_t(n) + 3) / 4 * 4;
+}
+
+// Writes 3 x n positions, 16-bit ones quantised against [lo, hi] per axis.
+void put_positions(Writer& w, const float* p, size_t values, Encoding encoding, const std::array<float, 3>& lo,
+                   const std::array<float, 3>& hi) {
+  if (encoding == Encoding::Float32) {
+    w.put_array(p, values);
+    return;
+  }
+  // q = round((x - lo) / (hi - lo) * 65535); a flat axis (hi == lo) encodes as 0.
+  for (size_t i = 0; i < values; i += 3)
+    for (int k = 0; k < 3; ++k) {
+      const float ext = hi[k] - lo[k];
+      const float u = ext > 0 ? (p[i + k] - lo[k]) / ext : 0.0f;
+      w.put<uint16_t>(static_cast<uint16_t>(std::lround(std::clamp(u, 0.0f, 1.0f) * 65535.0f)));
+    }
+  w.pad_to_4();
+}
+
+std::vector<float> read_positions(const Reader& r, size_t off, uint32_t n, const FrameHeader& h) {
+  const size_t values = 3 * size_t(n);
+  if (h.encoding == Encoding::Float32) return r.array<float>(off, values);
+  const auto q = r.array<uint16_t>(off, values);
+  std::vector<float> out(values);
+  for (size_t i = 0; i < values; ++i) {
+    const int k = static_cast<int>(i % 3);
+    out[i] = h.bbox_min[k] + (h.bbox_max[k] - h.bbox_min[k]) * (static_cast<float>(q[i]) / 65535.0f);
+  }
+  return out;
+}
+
+// Offset of a frame's body section (after the surface positions).
+size_t body_section_offset(const FrameHeader& h) {
+  return kFrameHeaderBytes + 4 * size_t(h.residual_count) + position_bytes(h.vertex_count, h.encoding);
+}
+
+// The particle counts of a frame's bodies, walking the body section.
+std::vector<uint32_t> frame_body_counts(const Reader& r, const FrameHeader& h) {
+  std::vector<uint32_t> counts;
+  if (!(h.flags & kFlagBodies)) return counts;
+  size_t off = body_section_offset(h);
+  const uint32_t b = r.at<uint32_t>(off);
+  off += 4;
+  for (uint32_t i = 0; i < b; ++i) {
+    counts.push_back(r.at<uint32_t>(off));
+    off += 4 + position_bytes(counts.back(), h.encoding);
+  }
+  return counts;
+}
+
 }  // namespace
+
+BodyKind body_kind(const std::string& name) {
+  if (name == "fluid") return BodyKind::Fluid;
+  if (name == "cloth") return BodyKind::Cloth;
+  if (name == "rope") return BodyKind::Rope;
+  return BodyKind::Other;
+}
 
 SurfaceTopology surface_topology(const v1::Topology& t) {
   SurfaceTopology s;
@@ -105,7 +165,46 @@ SurfaceTopology surface_topology(const v1::Topology& t) {
     if (it != local.end()) s.fixed.push_back(it->second);
   }
   std::sort(s.fixed.begin(), s.fixed.end());
+  for (const auto& b : t.bodies()) {
+    const std::string what = "topology body '" + b.name() + "'";
+    if (b.name().empty() || b.name().size() > 255)
+      throw std::invalid_argument("topology body name must have 1 to 255 bytes, got '" + b.name() + "'");
+    const uint32_t p = b.particle_count();
+    if (b.rest_positions_size() != 3 * static_cast<int64_t>(p))
+      throw std::invalid_argument(what + " has " + std::to_string(b.rest_positions_size()) +
+                                  " rest position values for " + std::to_string(p) + " particles");
+    if (b.triangles_size() % 3)
+      throw std::invalid_argument(what + " has " + std::to_string(b.triangles_size()) +
+                                  " triangle indices, not a multiple of 3");
+    for (uint32_t v : b.triangles())
+      if (v >= p)
+        throw std::invalid_argument(what + " triangle uses particle " + std::to_string(v) + " of " + std::to_string(p));
+    for (uint32_t v : b.pinned())
+      if (v >= p)
+        throw std::invalid_argument(what + " pins particle " + std::to_string(v) + " of " + std::to_string(p));
+    ParticleBody pb;
+    pb.name = b.name();
+    pb.kind = body_kind(b.kind());
+    pb.triangles.assign(b.triangles().begin(), b.triangles().end());
+    pb.pinned.assign(b.pinned().begin(), b.pinned().end());
+    std::sort(pb.pinned.begin(), pb.pinned.end());
+    pb.rest_positions.assign(b.rest_positions().begin(), b.rest_positions().end());
+    s.bodies.push_back(std::move(pb));
+  }
+  if (s.bodies.size() > std::numeric_limits<uint16_t>::max())
+    throw std::invalid_argument("topology has " + std::to_string(s.bodies.size()) + " particle bodies, at most 65535");
   return s;
+}
+
+void set_body_sizes(SurfaceTopology& t, const v1::SceneSpec& spec) {
+  for (const auto& b : spec.bodies()) {
+    float size = 0;
+    if (b.has_fluid() && b.fluid().has_spacing()) size = static_cast<float>(b.fluid().spacing());
+    if (b.has_cloth() && b.cloth().has_thickness()) size = static_cast<float>(b.cloth().thickness());
+    if (b.has_rope() && b.rope().has_thickness()) size = static_cast<float>(b.rope().thickness());
+    for (auto& pb : t.bodies)
+      if (pb.name == b.name()) pb.size = size;
+  }
 }
 
 std::string encode_topology(const SurfaceTopology& t, uint32_t subscription) {
@@ -113,9 +212,11 @@ std::string encode_topology(const SurfaceTopology& t, uint32_t subscription) {
   if (t.triangles.size() % 3 || t.rest_positions.size() != 3 * size_t(n))
     throw std::invalid_argument("surface topology has inconsistent array sizes");
   Writer w(kTopologyHeaderBytes + 4 * (t.triangles.size() + n + t.fixed.size() + 3 * size_t(n)));
+  if (t.bodies.size() > std::numeric_limits<uint16_t>::max())
+    throw std::invalid_argument("surface topology has more than 65535 particle bodies");
   w.put<uint8_t>(kKindTopology);
   w.put<uint8_t>(kWireVersion);
-  w.put<uint16_t>(0);
+  w.put<uint16_t>(static_cast<uint16_t>(t.bodies.size()));
   w.put<uint32_t>(subscription);
   w.put<uint32_t>(n);
   w.put<uint32_t>(static_cast<uint32_t>(t.triangles.size() / 3));
@@ -125,6 +226,22 @@ std::string encode_topology(const SurfaceTopology& t, uint32_t subscription) {
   w.put_array(t.surface_to_body.data(), n);
   w.put_array(t.fixed.data(), t.fixed.size());
   w.put_array(t.rest_positions.data(), t.rest_positions.size());
+  for (const ParticleBody& b : t.bodies) {
+    if (b.name.empty() || b.name.size() > 255 || b.rest_positions.size() % 3 || b.triangles.size() % 3)
+      throw std::invalid_argument("particle body '" + b.name + "' has inconsistent array sizes or name");
+    w.put<uint8_t>(static_cast<uint8_t>(b.kind));
+    w.put<uint8_t>(static_cast<uint8_t>(b.name.size()));
+    w.put<uint16_t>(0);
+    w.put<uint32_t>(b.particle_count());
+    w.put<uint32_t>(static_cast<uint32_t>(b.triangles.size() / 3));
+    w.put<uint32_t>(static_cast<uint32_t>(b.pinned.size()));
+    w.put<float>(b.size);
+    w.put_array(b.name.data(), b.name.size());
+    w.pad_to_4();
+    w.put_array(b.triangles.data(), b.triangles.size());
+    w.put_array(b.pinned.data(), b.pinned.size());
+    w.put_array(b.rest_positions.data(), b.rest_positions.size());
+  }
   return std::move(w.bytes());
 }
 
@@ -143,15 +260,48 @@ SurfaceTopology decode_topology(const std::string& bytes, uint32_t* subscription
   t.fixed = r.array<uint32_t>(off, fixed);
   off += 4 * size_t(fixed);
   t.rest_positions = r.array<float>(off, 3 * size_t(n));
+  off += 12 * size_t(n);
+  const uint16_t bodies = r.at<uint16_t>(2);
+  for (uint16_t i = 0; i < bodies; ++i) {
+    ParticleBody b;
+    const uint8_t kind = r.at<uint8_t>(off);
+    if (kind > static_cast<uint8_t>(BodyKind::Rope)) throw std::invalid_argument("body kind " + std::to_string(kind) + " unknown");
+    b.kind = static_cast<BodyKind>(kind);
+    const uint8_t len = r.at<uint8_t>(off + 1);
+    const uint32_t p = r.at<uint32_t>(off + 4), tris = r.at<uint32_t>(off + 8), pinned = r.at<uint32_t>(off + 12);
+    b.size = r.at<float>(off + 16);
+    off += kBodyRecordBytes;
+    const auto name = r.array<char>(off, len);
+    b.name.assign(name.begin(), name.end());
+    off += (size_t(len) + 3) / 4 * 4;
+    b.triangles = r.array<uint32_t>(off, 3 * size_t(tris));
+    off += 12 * size_t(tris);
+    b.pinned = r.array<uint32_t>(off, pinned);
+    off += 4 * size_t(pinned);
+    b.rest_positions = r.array<float>(off, 3 * size_t(p));
+    off += 12 * size_t(p);
+    t.bodies.push_back(std::move(b));
+  }
+  if (off != bytes.size())
+    throw std::invalid_argument("topology of " + std::to_string(bytes.size()) + " bytes, its header says " +
+                                std::to_string(off));
   return t;
 }
 
 size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding) {
-  const size_t pos = encoding == Encoding::Float32 ? 12 * size_t(vertices) : (6 * size_t(vertices) + 3) / 4 * 4;
-  return kFrameHeaderBytes + 4 * size_t(residuals) + pos;
+  return kFrameHeaderBytes + 4 * size_t(residuals) + position_bytes(vertices, encoding);
 }
 
-std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding encoding, uint32_t expected_vertices) {
+size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding, std::span<const uint32_t> body_particles) {
+  size_t n = frame_bytes(vertices, residuals, encoding);
+  if (body_particles.empty()) return n;
+  n += 4;
+  for (uint32_t p : body_particles) n += 4 + position_bytes(p, encoding);
+  return n;
+}
+
+std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding encoding, uint32_t expected_vertices,
+                         std::span<const ParticleBody> bodies) {
   const size_t values = f.positions_size();
   if (values != 0 && values != 3 * size_t(expected_vertices))
     throw std::invalid_argument("frame has " + std::to_string(values) + " position values, expected " +
@@ -160,18 +310,44 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
   const uint32_t r = static_cast<uint32_t>(f.residuals_size());
   const float* p = f.positions().data();
 
-  std::array<float, 3> lo{0, 0, 0}, hi{0, 0, 0};
-  if (n) {
-    lo = {p[0], p[1], p[2]};
-    hi = lo;
-    for (size_t i = 0; i < values; i += 3)
-      for (int k = 0; k < 3; ++k) {
-        lo[k] = std::min(lo[k], p[i + k]);
-        hi[k] = std::max(hi[k], p[i + k]);
-      }
+  // The particle bodies travel with the positions: all of them, as in the topology, or none.
+  const bool with_bodies = values != 0 && !bodies.empty();
+  std::vector<uint32_t> counts;
+  if (with_bodies) {
+    if (f.bodies_size() != static_cast<int>(bodies.size()))
+      throw std::invalid_argument("frame has " + std::to_string(f.bodies_size()) + " particle bodies, the topology " +
+                                  std::to_string(bodies.size()));
+    for (size_t i = 0; i < bodies.size(); ++i) {
+      const auto& fb = f.bodies(static_cast<int>(i));
+      if (fb.name() != bodies[i].name || fb.positions_size() != 3 * static_cast<int64_t>(bodies[i].particle_count()))
+        throw std::invalid_argument("frame body " + std::to_string(i) + " is '" + fb.name() + "' with " +
+                                    std::to_string(fb.positions_size()) + " position values, the topology's is '" +
+                                    bodies[i].name + "' with " + std::to_string(3 * size_t(bodies[i].particle_count())));
+      counts.push_back(bodies[i].particle_count());
+    }
   }
 
-  Writer w(frame_bytes(n, r, encoding));
+  // The bounding box of everything the frame carries (the 16-bit encoding's range).
+  std::array<float, 3> lo{0, 0, 0}, hi{0, 0, 0};
+  bool any = false;
+  auto extend = [&](const float* x, size_t count) {
+    for (size_t i = 0; i < count; i += 3) {
+      if (!any) {
+        lo = {x[i], x[i + 1], x[i + 2]};
+        hi = lo;
+        any = true;
+      }
+      for (int k = 0; k < 3; ++k) {
+        lo[k] = std::min(lo[k], x[i + k]);
+        hi[k] = std::max(hi[k], x[i + k]);
+      }
+    }
+  };
+  extend(p, values);
+  if (with_bodies)
+    for (const auto& fb : f.bodies()) extend(fb.positions().data(), fb.positions_size());
+
+  Writer w(frame_bytes(n, r, encoding, counts));
   w.put<uint8_t>(kKindFrame);
   w.put<uint8_t>(kWireVersion);
   w.put<uint8_t>(static_cast<uint8_t>(encoding));
@@ -191,21 +367,18 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
   w.put<double>(f.lateness_ms());                   // 80
   w.put<int64_t>(f.published_unix_ns());            // 88
   w.put<uint32_t>(saturate_u32(f.rollbacks()));     // 96
-  w.put<uint32_t>(f.rolled_back() ? 1u : 0u);       // 100
+  w.put<uint32_t>((f.rolled_back() ? kFlagRolledBack : 0u) | (with_bodies ? kFlagBodies : 0u));  // 100
   w.put_array(lo.data(), 3);                        // 104
   w.put_array(hi.data(), 3);                        // 116
   for (double res : f.residuals()) w.put<float>(static_cast<float>(res));  // 128
-  if (encoding == Encoding::Float32) {
-    w.put_array(p, values);
-  } else {
-    // q = round((x - lo) / (hi - lo) * 65535); a flat axis (hi == lo) encodes as 0.
-    for (size_t i = 0; i < values; i += 3)
-      for (int k = 0; k < 3; ++k) {
-        const float ext = hi[k] - lo[k];
-        const float u = ext > 0 ? (p[i + k] - lo[k]) / ext : 0.0f;
-        w.put<uint16_t>(static_cast<uint16_t>(std::lround(std::clamp(u, 0.0f, 1.0f) * 65535.0f)));
-      }
-    w.pad_to_4();
+  put_positions(w, p, values, encoding, lo, hi);
+  if (with_bodies) {
+    w.put<uint32_t>(static_cast<uint32_t>(counts.size()));
+    for (size_t i = 0; i < counts.size(); ++i) {
+      w.put<uint32_t>(counts[i]);
+      const auto& fb = f.bodies(static_cast<int>(i));
+      put_positions(w, fb.positions().data(), fb.positions_size(), encoding, lo, hi);
+    }
   }
   return std::move(w.bytes());
 }
@@ -238,9 +411,10 @@ FrameHeader decode_frame_header(const std::string& bytes) {
     h.bbox_min[k] = r.at<float>(104 + 4 * k);
     h.bbox_max[k] = r.at<float>(116 + 4 * k);
   }
-  if (bytes.size() != frame_bytes(h.vertex_count, h.residual_count, h.encoding))
+  const size_t expected = frame_bytes(h.vertex_count, h.residual_count, h.encoding, frame_body_counts(r, h));
+  if (bytes.size() != expected)
     throw std::invalid_argument("frame of " + std::to_string(bytes.size()) + " bytes, its header says " +
-                                std::to_string(frame_bytes(h.vertex_count, h.residual_count, h.encoding)));
+                                std::to_string(expected));
   return h;
 }
 
@@ -251,14 +425,17 @@ std::vector<float> decode_frame_residuals(const std::string& bytes) {
 
 std::vector<float> decode_frame_positions(const std::string& bytes) {
   const FrameHeader h = decode_frame_header(bytes);
-  const size_t off = kFrameHeaderBytes + 4 * size_t(h.residual_count), values = 3 * size_t(h.vertex_count);
-  Reader r(bytes);
-  if (h.encoding == Encoding::Float32) return r.array<float>(off, values);
-  const auto q = r.array<uint16_t>(off, values);
-  std::vector<float> out(values);
-  for (size_t i = 0; i < values; ++i) {
-    const int k = static_cast<int>(i % 3);
-    out[i] = h.bbox_min[k] + (h.bbox_max[k] - h.bbox_min[k]) * (static_cast<float>(q[i]) / 65535.0f);
+  return read_positions(Reader(bytes), kFrameHeaderBytes + 4 * size_t(h.residual_count), h.vertex_count, h);
+}
+
+std::vector<std::vector<float>> decode_frame_bodies(const std::string& bytes) {
+  const FrameHeader h = decode_frame_header(bytes);
+  const Reader r(bytes);
+  std::vector<std::vector<float>> out;
+  size_t off = body_section_offset(h) + 4;
+  for (uint32_t p : frame_body_counts(r, h)) {
+    out.push_back(read_positions(r, off + 4, p, h));
+    off += 4 + position_bytes(p, h.encoding);
   }
   return out;
 }

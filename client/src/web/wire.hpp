@@ -8,6 +8,7 @@
 
 #include <array>
 #include <cstdint>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -21,8 +22,29 @@ inline constexpr size_t kFrameHeaderBytes = 128;
 // Byte offset of the frame header's skipped_frames (u32): the socket's send slot adds the
 // frames it dropped there when it sends (see Outbox).
 inline constexpr size_t kFrameSkippedOffset = 48;
+// Frame header flags (offset 100).
+inline constexpr uint32_t kFlagRolledBack = 1u << 0;
+inline constexpr uint32_t kFlagBodies = 1u << 1;  // particle bodies follow the surface positions
+// A particle body's record in the topology: 20 fixed bytes, then its name padded to 4.
+inline constexpr size_t kBodyRecordBytes = 20;
+
+// Particle body kinds on the wire (BodyTopology.kind).
+enum class BodyKind : uint8_t { Other = 0, Fluid = 1, Cloth = 2, Rope = 3 };
+BodyKind body_kind(const std::string& name);
 
 enum class Encoding : uint8_t { Float32 = 0, Quantized16 = 1 };
+
+// A particle body as the page draws it (fluid, cloth or rope: docs/web.md, "Topology").
+struct ParticleBody {
+  std::string name;
+  BodyKind kind = BodyKind::Other;
+  float size = 0;                       // m: a fluid's spacing, a cloth's or rope's thickness; 0 unknown
+  std::vector<uint32_t> triangles;      // cloth: 3 particle indices per triangle
+  std::vector<uint32_t> pinned;         // ascending particle indices
+  std::vector<float> rest_positions;    // 3 per particle
+
+  uint32_t particle_count() const { return static_cast<uint32_t>(rest_positions.size() / 3); }
+};
 
 // The surface of a body as the page draws it: triangles index the surface vertices, which map
 // to body vertices (for grabs); fixed vertices are surface-local indices.
@@ -32,13 +54,18 @@ struct SurfaceTopology {
   std::vector<uint32_t> surface_to_body;   // surface vertex -> body vertex
   std::vector<uint32_t> fixed;             // surface-local indices of fixed vertices
   std::vector<float> rest_positions;       // 3 per surface vertex
+  std::vector<ParticleBody> bodies;        // the scene's particle bodies, in the server's order
 
   uint32_t surface_vertex_count() const { return static_cast<uint32_t>(surface_to_body.size()); }
 };
 
 // Builds the surface view of a server topology. Throws std::invalid_argument when a triangle
 // uses a vertex that is not in surface_vertices or an index is out of range.
+// The particle bodies are checked the same way (counts, indices below the particle count).
 SurfaceTopology surface_topology(const v1::Topology& topology);
+// Fills each body's size from the scene's spec (GetScene echoes the values in use): a fluid's
+// spacing, a cloth's or rope's thickness. Bodies the spec does not name keep size 0.
+void set_body_sizes(SurfaceTopology& topology, const v1::SceneSpec& spec);
 
 std::string encode_topology(const SurfaceTopology& topology, uint32_t subscription);
 SurfaceTopology decode_topology(const std::string& bytes, uint32_t* subscription = nullptr);
@@ -62,23 +89,28 @@ struct FrameHeader {
   double lateness_ms = 0;
   int64_t published_unix_ns = 0;
   uint32_t rollbacks = 0;
-  uint32_t flags = 0;  // bit 0: this tick was rolled back
+  uint32_t flags = 0;  // bit 0: this tick was rolled back; bit 1: particle bodies follow
   std::array<float, 3> bbox_min{};
   std::array<float, 3> bbox_max{};
 };
 
-// Encodes a surface-only frame (positions in surface_vertices order). Throws
-// std::invalid_argument when positions is not 3 x expected_vertices floats (0 allowed: a
-// frame without positions).
+// Encodes a surface-only frame (positions in surface_vertices order), then the particle
+// bodies' positions when `bodies` (the topology's) is not empty. Throws std::invalid_argument
+// when positions is not 3 x expected_vertices floats (0 allowed: a frame without positions),
+// or the frame's bodies differ from `bodies` in order, names or particle counts.
 std::string encode_frame(const v1::Frame& frame, uint32_t subscription, Encoding encoding,
-                         uint32_t expected_vertices);
+                         uint32_t expected_vertices, std::span<const ParticleBody> bodies = {});
 
 FrameHeader decode_frame_header(const std::string& bytes);
 // Residuals and positions of an encoded frame (16-bit positions dequantised).
 std::vector<float> decode_frame_residuals(const std::string& bytes);
 std::vector<float> decode_frame_positions(const std::string& bytes);
+// Each particle body's positions (dequantised), in the topology's order; empty without bodies.
+std::vector<std::vector<float>> decode_frame_bodies(const std::string& bytes);
 
-// Bytes of one frame with n surface vertices and r residuals.
+// Bytes of one frame with n surface vertices and r residuals (and these particle bodies).
 size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding);
+size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding,
+                   std::span<const uint32_t> body_particles);
 
 }  // namespace pliant::web
