@@ -345,35 +345,55 @@ std::string bodies_line(const v1::Scene& s) {
   return out;
 }
 
-// --rope / --cloth / --fluid SPEC: "NAME:key=value:key=value" (see the flags' help), a compact
-// form of the SceneSpec's bodies; every other field takes the server's default.
-v1::BodySpec parse_body(const std::string& kind, const std::string& text) {
-  const std::string flag = "--" + kind + " '" + text + "'";
-  std::vector<std::string> parts;
-  std::stringstream ss(text);
-  for (std::string part; std::getline(ss, part, ':');) parts.push_back(part);
-  if (parts.empty() || parts[0].empty() || parts[0].find('=') != std::string::npos)
-    throw Usage(flag + ": start with the body's name (NAME:key=value:...)");
-  std::map<std::string, std::string> kv;
-  for (size_t i = 1; i < parts.size(); ++i) {
-    const size_t eq = parts[i].find('=');
-    if (eq == std::string::npos || eq == 0) throw Usage(flag + ": '" + parts[i] + "' is not key=value");
-    const std::string key = parts[i].substr(0, eq);
-    if (kv.count(key)) throw Usage(flag + ": " + key + " given twice");
-    kv[key] = parts[i].substr(eq + 1);
+// "HEAD:key=value:key=value" (the compact specs of --collider, --rope, --cloth, --fluid): the
+// head, then each key once; take() hands a key's numbers over (n of them, 0: any number) and
+// finish() refuses keys nobody took. Errors start with `flag`.
+struct CompactSpec {
+  CompactSpec(const std::string& text, std::string flag) : flag_(std::move(flag)) {
+    std::vector<std::string> parts;
+    std::stringstream ss(text);
+    for (std::string part; std::getline(ss, part, ':');) parts.push_back(part);
+    if (!parts.empty()) head = parts[0];
+    for (size_t i = 1; i < parts.size(); ++i) {
+      const size_t eq = parts[i].find('=');
+      if (eq == std::string::npos || eq == 0) throw Usage(flag_ + ": '" + parts[i] + "' is not key=value");
+      const std::string key = parts[i].substr(0, eq);
+      if (kv_.count(key)) throw Usage(flag_ + ": " + key + " given twice");
+      kv_[key] = parts[i].substr(eq + 1);
+    }
   }
-  auto take = [&](const std::string& key, size_t n) -> std::optional<std::vector<double>> {
-    auto it = kv.find(key);
-    if (it == kv.end()) return std::nullopt;
+  std::optional<std::vector<double>> take(const std::string& key, size_t n) {
+    auto it = kv_.find(key);
+    if (it == kv_.end()) return std::nullopt;
     std::vector<double> v;
     try {
       v = to_doubles(key, it->second, n);
     } catch (const Usage& u) {
-      throw Usage(flag + ": " + std::string(u.what()).substr(2));
+      throw Usage(flag_ + ": " + std::string(u.what()).substr(2));  // "key needs ..."
     }
-    kv.erase(it);
+    kv_.erase(it);
     return v;
-  };
+  }
+  // `what`: named in the message ("unknown key 'k' for a box").
+  void finish(const std::string& what = "") const {
+    if (!kv_.empty())
+      throw Usage(flag_ + ": unknown key '" + kv_.begin()->first + "'" + (what.empty() ? "" : " for a " + what));
+  }
+  std::string head;
+
+ private:
+  std::string flag_;
+  std::map<std::string, std::string> kv_;
+};
+
+// --rope / --cloth / --fluid SPEC: "NAME:key=value:key=value" (see the flags' help), a compact
+// form of the SceneSpec's bodies; every other field takes the server's default.
+v1::BodySpec parse_body(const std::string& kind, const std::string& text) {
+  const std::string flag = "--" + kind + " '" + text + "'";
+  CompactSpec spec(text, flag);
+  if (spec.head.empty() || spec.head.find('=') != std::string::npos)
+    throw Usage(flag + ": start with the body's name (NAME:key=value:...)");
+  auto take = [&](const std::string& key, size_t n) { return spec.take(key, n); };
   auto need = [&](const std::string& key, size_t n) {
     auto v = take(key, n);
     if (!v) throw Usage(flag + ": a " + kind + " needs " + key + "=");
@@ -387,7 +407,7 @@ v1::BodySpec parse_body(const std::string& kind, const std::string& text) {
       }
   };
   v1::BodySpec b;
-  b.set_name(parts[0]);
+  b.set_name(spec.head);
   if (kind == "rope") {
     auto* r = b.mutable_rope();
     set_vec(r->add_points(), need("from", 3));
@@ -420,38 +440,16 @@ v1::BodySpec parse_body(const std::string& kind, const std::string& text) {
       set_vec(box->mutable_half_extent(), {(*v)[3], (*v)[4], (*v)[5]});
     }
   }
-  if (!kv.empty()) throw Usage(flag + ": unknown key '" + kv.begin()->first + "'");
+  spec.finish();
   return b;
 }
 
 // --collider SPEC: "shape:key=value:key=value", vectors as X,Y,Z (see the usage text).
 v1::Collider parse_collider(const std::string& text) {
-  std::vector<std::string> parts;
-  std::stringstream ss(text);
-  for (std::string part; std::getline(ss, part, ':');) parts.push_back(part);
-  if (parts.empty()) throw Usage("--collider needs a shape (plane, box, sphere), got ''");
-  const std::string shape = parts[0];
-  std::map<std::string, std::string> kv;
-  for (size_t i = 1; i < parts.size(); ++i) {
-    const size_t eq = parts[i].find('=');
-    if (eq == std::string::npos || eq == 0)
-      throw Usage("--collider '" + text + "': '" + parts[i] + "' is not key=value");
-    const std::string key = parts[i].substr(0, eq);
-    if (kv.count(key)) throw Usage("--collider '" + text + "': " + key + " given twice");
-    kv[key] = parts[i].substr(eq + 1);
-  }
-  auto take = [&](const std::string& key, size_t n) -> std::optional<std::vector<double>> {
-    auto it = kv.find(key);
-    if (it == kv.end()) return std::nullopt;
-    std::vector<double> v;
-    try {
-      v = to_doubles(key, it->second, n);
-    } catch (const Usage& u) {
-      throw Usage("--collider '" + text + "': " + std::string(u.what()).substr(2));  // "key needs ..."
-    }
-    kv.erase(it);
-    return v;
-  };
+  CompactSpec spec(text, "--collider '" + text + "'");
+  if (spec.head.empty() && text.empty()) throw Usage("--collider needs a shape (plane, box, sphere), got ''");
+  const std::string shape = spec.head;
+  auto take = [&](const std::string& key, size_t n) { return spec.take(key, n); };
   auto need = [&](const std::string& key, size_t n) {
     auto v = take(key, n);
     if (!v) throw Usage("--collider '" + text + "': " + shape + " needs " + key + "=");
@@ -481,7 +479,7 @@ v1::Collider parse_collider(const std::string& text) {
       throw Usage("--collider '" + text + "': friction needs MU or MU_STATIC,MU_DYNAMIC");
     }
   }
-  if (!kv.empty()) throw Usage("--collider '" + text + "': unknown key '" + kv.begin()->first + "' for a " + shape);
+  spec.finish(shape);
   return c;
 }
 
