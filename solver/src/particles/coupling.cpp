@@ -212,7 +212,8 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
       // by at most friction x the normal correction.
       Vec3 q_start = Vec3::Zero();
       for (int a = 0; a < 3; ++a) q_start += c.b[a] * (body.x[t[a]] - dt * body.v[t[a]]);
-      const Vec3 slip = (xp - (before - dt * ps.v[c.particle])) - (q - q_start);
+      const Vec3 p_start = particle_start.empty() ? Vec3(before - dt * ps.v[c.particle]) : particle_start[c.particle];
+      const Vec3 slip = (xp - p_start) - (q - q_start);
       const Vec3 tangential = slip - slip.dot(c.n) * c.n;
       const double tn = tangential.norm();
       if (tn > 0) xp -= std::min(tn, s.friction * -C) * (tangential / tn);
