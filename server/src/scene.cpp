@@ -807,7 +807,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
       if (contact) t.particle_start = t.bodies[b]->state().x;
       t.bodies[b]->step(t.settings.dt, t.colliders);
       if (contact) {
-        // Two-way with the soft body: both sides move (the tet body's state is this tick's).
+        // Two-way with the soft body: the particles move out, the tet body takes their momentum.
         ParticleState ps = t.bodies[b]->state();
         couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, t.settings.dt,
                                  t.particle_start);
