@@ -203,3 +203,19 @@ TEST(Coupling, AFluidThrownAtAFreeBodyPushesItAndTheTotalMomentumStays) {
   total(&pb);
   EXPECT_LT(pb.y(), 0.1 * p0.y());  // the body carries a good part of the downward momentum
 }
+
+TEST(Coupling, LeavesBlownUpParticlesToTheCaller) {
+  // A body that blew up this tick (NaN, or far away) is the caller's to roll back: the contact
+  // skips those particles and handles the others as ever.
+  Touching s = over_the_top(false);
+  s.particles.x[1] = Vec3(NAN, 0, 0);
+  s.particles.x[2] = Vec3(1e300, -1e300, 1e300);
+  s.particles.v[5] = Vec3(INFINITY, 0, 0);
+  CouplingSettings cs;
+  cs.radius = 0.001;
+  const CouplingReport r = couple_particles_to_body(*s.model, s.body, s.particles, s.w, cs, 1.0 / 60);
+  EXPECT_GT(r.contacts, 0u);
+  EXPECT_TRUE(std::isnan(s.particles.x[1].x()));
+  EXPECT_EQ(s.particles.x[2], Vec3(1e300, -1e300, 1e300));
+  for (const Vec3& v : s.body.v) EXPECT_TRUE(v.allFinite());
+}

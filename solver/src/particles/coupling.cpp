@@ -25,6 +25,7 @@ class TriangleGrid {
     std::vector<std::pair<uint64_t, int32_t>> entries;
     for (size_t k = 0; k < m.surface.size(); ++k) {
       const Triangle& t = m.surface[k];
+      if (!x[t[0]].allFinite() || !x[t[1]].allFinite() || !x[t[2]].allFinite()) continue;
       Vec3 lo = x[t[0]].cwiseMin(x[t[1]]).cwiseMin(x[t[2]]).array() - reach;
       Vec3 hi = x[t[0]].cwiseMax(x[t[1]]).cwiseMax(x[t[2]]).array() + reach;
       const auto a = cell_of(lo), b = cell_of(hi);
@@ -65,8 +66,10 @@ class TriangleGrid {
   }
 
  private:
+  // Finite points only; far-away ones are clamped (their cells are never near a triangle's).
   std::array<int64_t, 3> cell_of(const Vec3& p) const {
-    return {int64_t(std::floor(p.x() / cell_)), int64_t(std::floor(p.y() / cell_)), int64_t(std::floor(p.z() / cell_))};
+    auto axis = [&](double v) { return int64_t(std::clamp(std::floor(v / cell_), -1e15, 1e15)); };
+    return {axis(p.x()), axis(p.y()), axis(p.z())};
   }
   static uint64_t key(const std::array<int64_t, 3>& c) {
     // 21 bits per axis (cells far outside +-2^20 wrap: only a slower search, never a missed one,
@@ -134,11 +137,13 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   std::vector<int32_t> swept;
   for (size_t p = 0; p < ps.x.size(); ++p) {
     const Vec3& xp = ps.x[p];
+    if (!xp.allFinite() || !ps.v[p].allFinite()) continue;  // a blown-up body: the caller rolls it back
     // A particle that crossed the surface during the step (from where its velocity says it
     // started) goes back out through the face it entered, however deep it got: the closest
     // face of a thin body may be the far one.
     const Vec3 start = particle_start.empty() ? Vec3(xp - dt * ps.v[p]) : particle_start[p];
-    grid.near_segment(start, xp, 4096, swept);
+    if (start.allFinite()) grid.near_segment(start, xp, 4096, swept);
+    else swept.clear();
     double first = INFINITY;
     Contact entered{};
     for (int32_t k : swept) {
