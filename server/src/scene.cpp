@@ -349,19 +349,20 @@ bool Scene::post(Command fn) {
   return true;
 }
 
-Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
-                  std::chrono::milliseconds timeout, size_t max_grabs) {
+Error Scene::add_grab(std::function<void(uint64_t id)> attach, uint64_t* grab_id, uint64_t* first_tick,
+                      std::chrono::milliseconds timeout, size_t max_grabs) {
   struct Granted {
     uint64_t id = 0, first_tick = 0;
   } granted;
   Error e = call(
-      [this, attachment, max_grabs](Granted& out) {
-        if (ts_->grabs.size() + ts_->body_grabs.size() >= max_grabs)
+      [this, attach = std::move(attach), max_grabs](Granted& out) {
+        const size_t held = ts_->grabs.size() + ts_->body_grabs.size();
+        if (held >= max_grabs)
           return Error::make(Code::ResourceExhausted,
-                             "scene '" + id_ + "' already has " + std::to_string(ts_->grabs.size() + ts_->body_grabs.size()) +
-                                 " grabs (--max-grabs-per-scene " + std::to_string(max_grabs) + "); release one first");
+                             "scene '" + id_ + "' already has " + std::to_string(held) + " grabs (--max-grabs-per-scene " +
+                                 std::to_string(max_grabs) + "); release one first");
         out.id = ts_->next_grab_id++;
-        ts_->grabs[out.id] = attachment;
+        attach(out.id);
         ++generation_;  // grabs are saved: a checkpoint is due
         out.first_tick = ts_->tick + 1;
         return Error{};
@@ -374,34 +375,23 @@ Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* fir
   return e;
 }
 
+Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
+                  std::chrono::milliseconds timeout, size_t max_grabs) {
+  return add_grab([this, attachment](uint64_t id) { ts_->grabs[id] = attachment; }, grab_id, first_tick, timeout,
+                  max_grabs);
+}
+
 Error Scene::grab_particle(size_t body, size_t particle, std::optional<Vec3> target, double compliance,
                           uint64_t* grab_id, uint64_t* first_tick, std::chrono::milliseconds timeout,
                           size_t max_grabs) {
-  struct Granted {
-    uint64_t id = 0, first_tick = 0;
-  } granted;
-  Error e = call(
-      [this, body, particle, target, compliance, max_grabs](Granted& out) {
-        const size_t held = ts_->grabs.size() + ts_->body_grabs.size();
-        if (held >= max_grabs)
-          return Error::make(Code::ResourceExhausted,
-                             "scene '" + id_ + "' already has " + std::to_string(held) + " grabs (--max-grabs-per-scene " +
-                                 std::to_string(max_grabs) + "); release one first");
+  return add_grab(
+      [this, body, particle, target, compliance](uint64_t id) {
         ParticleBody& b = *ts_->bodies.at(body);
-        ParticleGrab g{body, particle, target.value_or(b.state().x.at(particle)), compliance};
-        out.id = ts_->next_grab_id++;
-        b.grab(out.id, g.particle, g.target, g.compliance);
-        ts_->body_grabs[out.id] = g;
-        ++generation_;
-        out.first_tick = ts_->tick + 1;
-        return Error{};
+        const ParticleGrab g{body, particle, target.value_or(b.state().x.at(particle)), compliance};
+        b.grab(id, g.particle, g.target, g.compliance);
+        ts_->body_grabs[id] = g;
       },
-      &granted, Clock::now() + timeout);
-  if (e.ok()) {
-    if (grab_id) *grab_id = granted.id;
-    if (first_tick) *first_tick = granted.first_tick;
-  }
-  return e;
+      grab_id, first_tick, timeout, max_grabs);
 }
 
 Error Scene::move_grab(uint64_t grab_id, const Vec3& target, uint64_t* first_tick, Vec3* last_force,

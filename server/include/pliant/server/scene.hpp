@@ -265,6 +265,10 @@ class Scene {
   // caller, and a caller that timed out leaves nothing behind that the command writes to.
   // `interrupt`: a tick in progress stops at its next sweep and is undone, so the command takes
   // effect at once.
+  // Both kinds of grab: within the scene's limit, a new id handed to `attach` on the tick
+  // thread, effective from the next tick.
+  Error add_grab(std::function<void(uint64_t id)> attach, uint64_t* grab_id, uint64_t* first_tick,
+                 std::chrono::milliseconds timeout, size_t max_grabs);
   template <class T, class Fn>
   Error call(Fn fn, T* out, std::chrono::steady_clock::time_point deadline, bool interrupt = false);
   // A command that returns only its Error.
