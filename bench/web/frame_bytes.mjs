@@ -11,6 +11,7 @@ import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { basename, join } from 'node:path';
 import { parseArgs } from 'node:util';
+import { start } from './processes.mjs';
 import { RawSocket } from './rawsocket.mjs';
 
 const { values: args, positionals: specs } = parseArgs({
@@ -21,28 +22,11 @@ for (const k of ['server', 'web', 'cli', 'web-root']) {
   if (!args[k]) { console.error(`frame_bytes: --${k} is required`); process.exit(2); }
 }
 if (!specs.length) { console.error('frame_bytes: give at least one scene spec file'); process.exit(2); }
-const children = [];
 const dir = mkdtempSync(join(tmpdir(), 'pliant-bytes-'));
 process.on('exit', () => {
-  for (const c of children) if (c.exitCode === null) c.kill('SIGTERM');
   rmSync(dir, { recursive: true, force: true });
 });
 
-function start(argv) {
-  return new Promise((resolve, reject) => {
-    const c = spawn(argv[0], argv.slice(1), { stdio: ['ignore', 'pipe', 'pipe'] });
-    children.push(c);
-    let log = '';
-    const on = (d) => {
-      log += d;
-      const m = log.match(/listening on .*\(port (\d+)\)/);
-      if (m) resolve(Number(m[1]));
-    };
-    c.stdout.on('data', on);
-    c.stderr.on('data', on);
-    c.on('exit', (code) => reject(new Error(`${argv[0]} exited (${code}): ${log}`)));
-  });
-}
 function run(argv) {
   return new Promise((resolve, reject) => {
     const c = spawn(argv[0], argv.slice(1), { stdio: ['ignore', 'pipe', 'pipe'] });
@@ -53,9 +37,9 @@ function run(argv) {
   });
 }
 
-const serverPort = await start([args.server, '--listen', '127.0.0.1:0', '--data-dir', join(dir, 'data')]);
+const { port: serverPort } = await start([args.server, '--listen', '127.0.0.1:0', '--data-dir', join(dir, 'data')]);
 const address = `127.0.0.1:${serverPort}`;
-const webPort = await start([args.web, '--listen', '127.0.0.1:0', '--address', address, '--web-root', args['web-root']]);
+const { port: webPort } = await start([args.web, '--listen', '127.0.0.1:0', '--address', address, '--web-root', args['web-root']]);
 
 // The subscribed reply, the topology's size and the first frame's size for one encoding.
 async function sample(scene, encoding) {

@@ -14,6 +14,7 @@ import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { parseArgs } from 'node:util';
+import { start } from './processes.mjs';
 import { RawSocket } from './rawsocket.mjs';
 
 const { values: args } = parseArgs({
@@ -28,30 +29,12 @@ const { values: args } = parseArgs({
 for (const k of ['server', 'web', 'cli', 'web-root']) {
   if (!args[k]) { console.error(`load: --${k} is required`); process.exit(2); }
 }
-const children = [];
 const dir = mkdtempSync(join(tmpdir(), 'pliant-load-'));
 process.on('exit', () => {
-  for (const c of children) if (c.exitCode === null) c.kill('SIGTERM');
   rmSync(dir, { recursive: true, force: true });
 });
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
-function start(argv) {
-  return new Promise((resolve, reject) => {
-    const c = spawn(argv[0], argv.slice(1), { stdio: ['ignore', 'pipe', 'pipe'] });
-    children.push(c);
-    let log = '';
-    const on = (d) => {
-      log += d;
-      const m = log.match(/listening on .*\(port (\d+)\)/);
-      if (m) resolve({ port: Number(m[1]), pid: c.pid });
-    };
-    c.stdout.on('data', on);
-    c.stderr.on('data', on);
-    c.on('exit', (code) => reject(new Error(`${argv[0]} exited (${code}): ${log}`)));
-    setTimeout(() => reject(new Error(`${argv[0]} did not start: ${log}`)), 30000);
-  });
-}
 
 function quantile(xs, q) {
   const s = [...xs].sort((a, b) => a - b);
