@@ -149,6 +149,19 @@ class Socket {
   std::atomic<bool> closed_{false};
 };
 
+// beam1 clamped at x <= 1 mm, lockstep, 2 substeps x 4 iterations.
+pliant::v1::CreateSceneRequest lockstep_beam(const std::string& id) {
+  pliant::v1::CreateSceneRequest req;
+  req.set_scene_id(id);
+  auto* spec = req.mutable_spec();
+  spec->mutable_mesh()->set_builtin("beam1");
+  pliant::client::clamp_below_x(*spec, 0.001);
+  spec->mutable_tick()->set_mode(pliant::v1::TICK_MODE_LOCKSTEP);
+  spec->mutable_solver()->set_substeps(2);
+  spec->mutable_solver()->set_iterations(4);
+  return req;
+}
+
 class WebGateway : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -170,15 +183,7 @@ class WebGateway : public ::testing::Test {
     pliant::client::ConnectOptions o;
     o.address = address_;
     client_ = std::make_unique<pliant::client::Client>(o);
-    pliant::v1::CreateSceneRequest req;
-    req.set_scene_id("web");
-    auto* spec = req.mutable_spec();
-    spec->mutable_mesh()->set_builtin("beam1");
-    pliant::client::clamp_below_x(*spec, 0.001);
-    spec->mutable_tick()->set_mode(pliant::v1::TICK_MODE_LOCKSTEP);
-    spec->mutable_solver()->set_substeps(2);
-    spec->mutable_solver()->set_iterations(4);
-    auto r = client_->create_scene(req);
+    auto r = client_->create_scene(lockstep_beam("web"));
     ASSERT_TRUE(r.ok()) << r.status.to_string();
   }
   void TearDown() override {
@@ -277,14 +282,8 @@ TEST_F(WebGateway, TopologyFirstThenEveryTickOrACountedSkip) {
 // pinned along one edge: the topology lists both, every frame carries their positions, the
 // rope's free end falls under gravity, and a grab by body name pulls a rope particle.
 TEST_F(WebGateway, ParticleBodiesTravelInTheTopologyAndEveryFrame) {
-  pliant::v1::CreateSceneRequest req;
-  req.set_scene_id("bodies");
+  pliant::v1::CreateSceneRequest req = lockstep_beam("bodies");
   auto* spec = req.mutable_spec();
-  spec->mutable_mesh()->set_builtin("beam1");
-  pliant::client::clamp_below_x(*spec, 0.001);
-  spec->mutable_tick()->set_mode(pliant::v1::TICK_MODE_LOCKSTEP);
-  spec->mutable_solver()->set_substeps(2);
-  spec->mutable_solver()->set_iterations(4);
   auto* rope = spec->add_bodies();
   rope->set_name("rope");
   for (double x : {0.13, 0.33}) {
