@@ -35,6 +35,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <functional>
 
@@ -60,6 +61,9 @@ constexpr int kMaxCgIterations = 2000;
 // kRefactorAfter CG iterations.
 constexpr int kFactorPreconditionerMaxDofs = 20000;
 constexpr int kRefactorAfter = 20;
+// Relative size below which a change of the incremental potential is round-off of its sum (tens of
+// thousands of terms of mixed sign, each with a relative error of a few 1e-16).
+constexpr double kEnergyResolution = 1e-13;
 
 // The sparse Cholesky factorisation of the Hessian, its symbolic analysis (ordering, elimination
 // tree) done once per model. Eigen's simplicial LDL^T: CHOLMOD's supernodal LL^T (Debian
@@ -122,6 +126,10 @@ class NewtonFamily final : public SolverFamily {
   void add_interaction(const BodyModel& m, const std::vector<Vec3>& x, double h, const StepInputs& in,
                        bool hessian);
   double potential(const BodyModel& m, const std::vector<Vec3>& x, double h, const StepInputs& in) const;
+  // potential() given its inertial and elastic part e at x: e plus the grabs', friction's and
+  // penetration's energies (the same sum, in the same order).
+  double with_interaction_energy(double e, const BodyModel& m, const std::vector<Vec3>& x, double h,
+                                 const StepInputs& in) const;
   // The contacts at x: every free vertex inside a collider or a tool, each with the normal force
   // it had at the end of the last iteration (lagged_) as its friction bound.
   void find_contacts(const BodyModel& m, const std::vector<Vec3>& x, double h, const StepInputs& in);
@@ -133,8 +141,16 @@ class NewtonFamily final : public SolverFamily {
   double inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const;
   // Sum of the tets' strain energies at x (in parallel on pool_).
   double elastic_energy(const BodyModel& m, const std::vector<Vec3>& x) const;
-  // Whether no tet of `trial` falls below the inversion floor, or below where it already was.
-  bool keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const;
+  // The warm start's candidates in one pass over the tets (each tet's corners loaded once for
+  // all of them): energy[c] = inertial_elastic_energy of candidate c, to the bit; kept[c] whether
+  // no tet of it falls below the inversion floor `floor` (0: no floor) or below where it was in
+  // candidate 0, the substep's start, whose volume ratios go into volume_ratio_.
+  static constexpr int kCandidates = 3;
+  void warm_start_pass(const BodyModel& m, const std::array<const std::vector<Vec3>*, kCandidates>& candidates,
+                       double h, double floor, std::array<double, kCandidates>& energy,
+                       std::array<bool, kCandidates>& kept);
+  // Whether some tet of x is at or below the floor (or not finite): the floor pass has work.
+  bool any_near_floor(const BodyModel& m, const std::vector<Vec3>& x, double floor) const;
   // lagged_ = contacts_ with their normal forces at the current positions.
   void remember_normal_forces();
   // contact_force_ for contacts_ at x (tool contacts need them; empty work without one).
@@ -157,11 +173,18 @@ class NewtonFamily final : public SolverFamily {
   std::vector<int> dof_;  // vertex -> first dof, -1 when fixed
   int ndof_ = 0;
   Eigen::SparseMatrix<double> H_;
-  std::vector<int32_t> tet_entry_;  // 144 per tet: index into H_.valuePtr(), -1 for fixed
+  // 48 per tet, [12 a + c]: where rows 3a..3a+2 of the tet's column c land in H_.valuePtr()
+  // (three consecutive entries: a vertex's dofs are consecutive rows), -1 where a corner is fixed.
+  std::vector<int32_t> tet_entry_;
   std::vector<int32_t> diag_entry_; // 9 per vertex: its diagonal block's entries
   SparseCholesky cholesky_;
   bool analysed_ = false;  // cholesky_ has this model's symbolic analysis
   Eigen::VectorXd g_, d_;
+  // The elastic gradient per tet, 12 values per tet in solve order (colour by colour), and per
+  // vertex where its corners sit in it (ascending, so in colour order): assemble() writes the
+  // former and sums the latter per vertex.
+  std::vector<double> tet_gradient_;
+  std::vector<int32_t> corner_begin_, corner_at_;
   Eigen::VectorXd cg_r_, cg_z_, cg_p_, cg_q_;  // CG's residual, preconditioned residual, direction, H p
   std::vector<Eigen::Matrix3d> block_inverse_;  // per free vertex (dof / 3): its diagonal block's inverse
   bool factored_ = false;   // cholesky_ holds a factorisation of an earlier Hessian (CG's preconditioner)
@@ -215,15 +238,30 @@ void NewtonFamily::compile(const BodyModel& m) {
     const int* end = H_.innerIndexPtr() + H_.outerIndexPtr()[c + 1];
     return int32_t(std::lower_bound(begin, end, r) - H_.innerIndexPtr());
   };
-  tet_entry_.assign(m.tets.size() * 144, -1);
+  tet_entry_.assign(m.tets.size() * 48, -1);
   for (size_t t = 0; t < m.tets.size(); ++t)
     for (int a = 0; a < 4; ++a)
       for (int b = 0; b < 4; ++b) {
         const int da = dof_[m.tets[t].v[a]], db = dof_[m.tets[t].v[b]];
         if (da < 0 || db < 0) continue;
-        for (int i = 0; i < 3; ++i)
-          for (int j = 0; j < 3; ++j) tet_entry_[t * 144 + (3 * a + i) * 12 + 3 * b + j] = entry(da + i, db + j);
+        for (int j = 0; j < 3; ++j) tet_entry_[t * 48 + 12 * a + 3 * b + j] = entry(da, db + j);
       }
+  // Each free vertex's corners in the tets' gradients, in solve order.
+  corner_begin_.assign(nv + 1, 0);
+  for (const TetRest& t : m.tets)
+    for (int a = 0; a < 4; ++a) corner_begin_[size_t(t.v[a]) + 1]++;
+  for (size_t v = 0; v < nv; ++v) corner_begin_[v + 1] += corner_begin_[v];
+  corner_at_.assign(size_t(corner_begin_[nv]), 0);
+  {
+    std::vector<int32_t> fill(corner_begin_.begin(), corner_begin_.end() - 1);
+    int32_t slot = 0;
+    for (const auto& colour : m.colours)
+      for (const int32_t t : colour) {
+        for (int a = 0; a < 4; ++a) corner_at_[size_t(fill[size_t(m.tets[t].v[a])]++)] = 12 * slot + 3 * a;
+        ++slot;
+      }
+  }
+  tet_gradient_.assign(m.tets.size() * 12, 0.0);
   diag_entry_.assign(9 * nv, -1);
   for (size_t v = 0; v < nv; ++v)
     if (dof_[v] >= 0)
@@ -235,7 +273,11 @@ void NewtonFamily::compile(const BodyModel& m) {
 }
 
 // Elastic part of the gradient and Hessian (tets of a colour share no vertex, so a colour's tets
-// scatter into disjoint entries and run in parallel), then the inertia term.
+// scatter into disjoint entries and run in parallel), then the inertia term. Each tet's gradient
+// goes into its own place in solve order, summed per vertex afterwards in that same order (so the
+// sums do not depend on the thread count): scattered straight into g, the threads' vertices, spread
+// over the mesh, made neighbouring vertices' entries (2-3 vertices per cache line) bounce between
+// the cores.
 namespace {
 void prefetch_tet(const TetRest& tet) {
   const char* p = reinterpret_cast<const char*>(&tet);
@@ -247,7 +289,7 @@ void NewtonFamily::assemble(const BodyModel& m, const std::vector<Vec3>& x, doub
                             bool hessian, bool exact) {
   double* values = H_.valuePtr();
   if (hessian) std::fill(values, values + H_.nonZeros(), 0.0);
-  g_.setZero(ndof_);
+  size_t first_slot = 0;  // the colour's first tet in solve order
   for (const auto& colour : m.colours) {
     tp.parallel_for(colour.size(), [&](int, size_t b, size_t e) {
       Vec12 gt;
@@ -256,12 +298,19 @@ void NewtonFamily::assemble(const BodyModel& m, const std::vector<Vec3>& x, doub
         // A colour visits the tets out of memory order: fetch the tet a few ahead, then its
         // corners and its Hessian entries, so the loads overlap this tet's arithmetic.
         if (k + 8 < e) prefetch_tet(m.tets[colour[k + 8]]);
+        // Two ahead, the Hessian entries themselves (their indices were fetched two tets ago):
+        // the matrix is a few MB, and a colour's tets write all over it.
+        if (hessian && k + 2 < e) {
+          const int32_t* next = &tet_entry_[size_t(colour[k + 2]) * 48];
+          for (int q = 0; q < 48; ++q)
+            if (next[q] >= 0) __builtin_prefetch(values + next[q], 1);
+        }
         if (k + 4 < e) {
           const int32_t ahead = colour[k + 4];
           for (int c = 0; c < 4; ++c) __builtin_prefetch(&x[m.tets[ahead].v[c]]);
           if (hessian)
-            for (int line = 0; line < 144 * 4; line += 64)
-              __builtin_prefetch(reinterpret_cast<const char*>(&tet_entry_[size_t(ahead) * 144]) + line);
+            for (int line = 0; line < 48 * 4; line += 64)
+              __builtin_prefetch(reinterpret_cast<const char*>(&tet_entry_[size_t(ahead) * 48]) + line);
         }
         const int32_t t = colour[k];
         const TetRest& tet = m.tets[t];
@@ -270,29 +319,39 @@ void NewtonFamily::assemble(const BodyModel& m, const std::vector<Vec3>& x, doub
                                     m.material.model);
         else
           strain_energy_derivatives_psd_parts(tet, m.stiffness, gather(x, tet.v), &gt, &ht, m.material.model);
-        const int32_t* ent = &tet_entry_[size_t(t) * 144];
+        Eigen::Map<Vec12> slot_gradient(&tet_gradient_[12 * (first_slot + k)]);
+        slot_gradient = gt;
+        if (!hessian) continue;
+        const int32_t* ent = &tet_entry_[size_t(t) * 48];
         for (int a = 0; a < 4; ++a) {
-          const int da = dof_[tet.v[a]];
-          if (da < 0) continue;
-          g_.segment<3>(da) += gt.segment<3>(3 * a);
-          if (!hessian) continue;
-          for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 12; ++c) {
-              const int32_t i = ent[(3 * a + r) * 12 + c];
-              if (i >= 0) values[i] += ht(3 * a + r, c);
-            }
+          if (dof_[tet.v[a]] < 0) continue;
+          for (int c = 0; c < 12; ++c) {
+            const int32_t i = ent[12 * a + c];
+            if (i < 0) continue;
+            const double* col = &ht(3 * a, c);  // column-major: rows 3a..3a+2 are consecutive
+            values[i] += col[0];
+            values[i + 1] += col[1];
+            values[i + 2] += col[2];
+          }
         }
       }
     }, 16);
+    first_slot += colour.size();
   }
   const double inv_h2 = 1.0 / (h * h);
-  for (size_t v = 0; v < m.vertex_count(); ++v) {
-    const int d = dof_[v];
-    if (d < 0) continue;
-    g_.segment<3>(d) += inv_h2 * m.inertia[v] * (x[v] - y_[v]);
-    if (hessian)
-      for (int i = 0; i < 3; ++i) values[diag_entry_[9 * v + 4 * i]] += inv_h2 * m.inertia[v];
-  }
+  g_.resize(ndof_);
+  tp.parallel_for(m.vertex_count(), [&](int, size_t b, size_t e) {
+    for (size_t v = b; v < e; ++v) {
+      const int d = dof_[v];
+      if (d < 0) continue;
+      Vec3 sum = Vec3::Zero();
+      for (int32_t c = corner_begin_[v]; c < corner_begin_[v + 1]; ++c) sum += Eigen::Map<const Vec3>(&tet_gradient_[size_t(corner_at_[size_t(c)])]);
+      sum += inv_h2 * m.inertia[v] * (x[v] - y_[v]);
+      g_.segment<3>(d) = sum;
+      if (hessian)
+        for (int i = 0; i < 3; ++i) values[diag_entry_[9 * v + 4 * i]] += inv_h2 * m.inertia[v];
+    }
+  }, 1024);
 }
 
 void NewtonFamily::multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::VectorXd& y) const {
@@ -608,18 +667,70 @@ double NewtonFamily::inertial_elastic_energy(const BodyModel& m, const std::vect
   return e;
 }
 
-bool NewtonFamily::keeps_volume(const BodyModel& m, const std::vector<Vec3>& trial, double floor) const {
-  for (size_t t = 0; t < m.tets.size(); ++t)
-    if (volume_ratio(m.tets[t], gather(trial, m.tets[t].v)) < std::min(floor, volume_ratio_[t])) return false;
-  return true;
+void NewtonFamily::warm_start_pass(const BodyModel& m,
+                                   const std::array<const std::vector<Vec3>*, kCandidates>& candidates, double h,
+                                   double floor, std::array<double, kCandidates>& energy,
+                                   std::array<bool, kCandidates>& kept) {
+  struct Part {
+    std::array<double, kCandidates> elastic{};
+    std::array<bool, kCandidates> kept{true, true, true};
+  };
+  std::vector<Part> parts(size_t(pool_->size()));
+  if (floor > 0) volume_ratio_.resize(m.tets.size());
+  // Chunked as elastic_energy() chunks the tets and summed in the same order, so that each
+  // candidate's energy is the bits potential() gives for it.
+  pool_->parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
+    Part& part = parts[size_t(chunk)];
+    for (size_t t = b; t < e; ++t) {
+      const TetRest& tet = m.tets[t];
+      double start_ratio = 0;
+      for (int c = 0; c < kCandidates; ++c) {
+        const std::array<Vec3, 4> corners = gather(*candidates[size_t(c)], tet.v);
+        part.elastic[size_t(c)] += strain_energy(tet, m.stiffness, corners, m.material.model);
+        if (!(floor > 0)) continue;
+        const double ratio = volume_ratio(tet, corners);
+        if (c == 0) start_ratio = volume_ratio_[t] = ratio;
+        else if (ratio < std::min(floor, start_ratio)) part.kept[size_t(c)] = false;
+      }
+    }
+  }, 2048);
+  for (int c = 0; c < kCandidates; ++c) {
+    double e = 0;
+    bool k = true;
+    for (const Part& part : parts) {
+      e += part.elastic[size_t(c)];
+      k = k && part.kept[size_t(c)];
+    }
+    const std::vector<Vec3>& x = *candidates[size_t(c)];
+    for (size_t i = 0; i < x.size(); ++i)
+      if (dof_[i] >= 0) e += 0.5 / (h * h) * m.inertia[i] * (x[i] - y_[i]).squaredNorm();
+    energy[size_t(c)] = e;
+    kept[size_t(c)] = k;
+  }
+}
+
+bool NewtonFamily::any_near_floor(const BodyModel& m, const std::vector<Vec3>& x, double floor) const {
+  // Slightly above the floor: enforce_volume_floor computes det F in another order, so a tet it
+  // would act on is never missed here.
+  const double bound = floor + 1e-9 * std::max(1.0, std::abs(floor));
+  std::vector<char> found(size_t(pool_->size()), 0);
+  pool_->parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
+    for (size_t t = b; t < e; ++t)
+      if (!(volume_ratio(m.tets[t], gather(x, m.tets[t].v)) >= bound)) {
+        found[size_t(chunk)] = 1;
+        return;
+      }
+  }, 2048);
+  return std::any_of(found.begin(), found.end(), [](char f) { return f != 0; });
 }
 
 double NewtonFamily::potential(const BodyModel& m, const std::vector<Vec3>& x, double h,
                                const StepInputs& in) const {
-  double e = elastic_energy(m, x);
-  const double inv_h2 = 1.0 / (h * h);
-  for (size_t i = 0; i < x.size(); ++i)
-    if (dof_[i] >= 0) e += 0.5 * inv_h2 * m.inertia[i] * (x[i] - y_[i]).squaredNorm();
+  return with_interaction_energy(inertial_elastic_energy(m, x, h), m, x, h, in);
+}
+
+double NewtonFamily::with_interaction_energy(double e, const BodyModel& m, const std::vector<Vec3>& x, double h,
+                                             const StepInputs& in) const {
   for (size_t j = 0; j < in.attachments.size(); ++j)
     if (attachment_k_[j] > 0) e += 0.5 * attachment_k_[j] * (in.attachments[j].point(x) - in.attachments[j].target).squaredNorm();
   const double eps = kStickSpeed * h;
@@ -655,30 +766,22 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
     // the previous solution itself for a body at rest; from y a stiff body at rest must climb back
     // the whole h^2 g every step) and the start x, the one of lowest potential that keeps every
     // tet above the inversion floor (x always does, or is where the body already was).
+    // Its inertial and elastic energy starts the first line search.
+    double start_energy = 0;
     {
-      const bool floor = s.inversion_floor > 0;
-      if (floor) {
-        volume_ratio_.resize(m.tets.size());
-        for (size_t t = 0; t < m.tets.size(); ++t)
-          volume_ratio_[t] = volume_ratio(m.tets[t], gather(x_start_, m.tets[t].v));
-      }
-      std::vector<Vec3> best = x_start_;
-      double best_e = inertial_elastic_energy(m, best, h);
-      auto consider = [&](const std::vector<Vec3>& c) {
-        if (floor && !keeps_volume(m, c, s.inversion_floor)) return;
-        const double e = inertial_elastic_energy(m, c, h);
-        if (e < best_e) {
-          best_e = e;
-          best = c;
-        }
-      };
-      consider(y_);
       trial_ = x_start_;
       if (v_before_.size() == x.size())
         for (size_t i = 0; i < x.size(); ++i)
           if (dof_[i] >= 0) trial_[i] += h * v_before_[i];
-      consider(trial_);
-      x.swap(best);
+      const std::array<const std::vector<Vec3>*, kCandidates> candidates = {&x_start_, &y_, &trial_};
+      std::array<double, kCandidates> energy;
+      std::array<bool, kCandidates> kept;
+      warm_start_pass(m, candidates, h, std::max(0.0, s.inversion_floor), energy, kept);
+      size_t best = 0;  // the start: in order, a later candidate must be strictly lower
+      for (size_t c = 1; c < size_t(kCandidates); ++c)
+        if (kept[c] && energy[c] < energy[best]) best = c;
+      x = *candidates[best];
+      start_energy = energy[best];
     }
     contacts_.clear();
     const double budget = s.time_budget_ms > 0
@@ -744,11 +847,22 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       }
       const auto t_ls = Clock::now();
       const double slope = g_.dot(d_);
-      const double e0 = potential(m, x, h, in);
+      // The first iteration starts where the warm start measured the inertial and elastic part.
+      const double e0 = it == 0 ? with_interaction_energy(start_energy, m, x, h, in) : potential(m, x, h, in);
       double alpha = 1.0;
       bool moved = false;
       trial_ = x;
-      for (int ls = 0; ls < 30 && slope < 0; ++ls, alpha *= 0.5) {
+      if (slope < 0 && -slope <= kEnergyResolution * std::abs(e0)) {
+        // The whole step's predicted decrease is below the round-off of the potential's sum (a
+        // body at rest, or the last iterations of a tight solve): the energy cannot judge it, and
+        // halving it thirty times cost thirty passes over the mesh in every tick of a scene at
+        // rest, to refuse a step that small. It is taken: the direction descends (CG's iterate
+        // from zero, or the factorised solve) and its length in the Hessian's norm is that decrease.
+        for (size_t i = 0; i < x.size(); ++i)
+          if (dof_[i] >= 0) trial_[i] = x[i] + d_.segment<3>(dof_[i]);
+        moved = true;
+      }
+      for (int ls = 0; ls < 30 && slope < 0 && !moved; ++ls, alpha *= 0.5) {
         for (size_t i = 0; i < x.size(); ++i)
           if (dof_[i] >= 0) trial_[i] = x[i] + alpha * d_.segment<3>(dof_[i]);
         const double e = potential(m, trial_, h, in);
@@ -761,7 +875,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       full_step = moved && alpha == 1.0;
       // Inversion safety as in the projection family: tets pushed under the floor are pushed back
       // by the unilateral volume constraint (repeated while a pass still acts, at most 20).
-      if (moved && s.inversion_floor > 0)
+      if (moved && s.inversion_floor > 0 && any_near_floor(m, x, s.inversion_floor))
         for (int pass = 0; pass < 20; ++pass) {
           int hits = 0;
           for (const TetRest& t : m.tets) hits += enforce_volume_floor(t, x, m.inv_mass, s.inversion_floor);
