@@ -516,6 +516,8 @@ Error Scene::update(const SceneUpdate& update, std::chrono::milliseconds timeout
         if (update.settings) {
           if (update.settings->dt != ts_->settings.dt) ts_->schedule_valid = false;
           ts_->settings = *update.settings;
+          // The particle bodies fall with the scene (their gravity is the scene's).
+          for (auto& body : ts_->bodies) body->set_gravity(update.settings->gravity);
           std::lock_guard lk(info_mu_);
           config_.method_auto = update.method_auto;
           config_.method_choice = update.method_choice;

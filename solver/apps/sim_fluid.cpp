@@ -18,12 +18,12 @@ namespace pliant::sim {
 const std::set<std::string> kFluidValued = {"scene", "particles", "substeps", "iterations", "seconds", "threads",
                                             "dt", "spacing", "relaxation", "scorr-k", "xsph", "vorticity",
                                             "settled-after", "friction", "log-level"};
-const std::set<std::string> kFluidFlags = {"quiet"};
+const std::set<std::string> kFluidFlags = {"quiet", "progress"};
 
 const char* kFluidUsage = R"(usage: pliant-sim fluid [options]
 
 A position-based fluid (docs/fluids.md) stepped at --dt for --seconds; progress on stderr every
-simulated second, then one JSON line on stdout.
+simulated second (when stderr is a terminal, or with --progress), then one JSON line on stdout.
 
   --scene S          dam-break (a block of width w, height 2w, depth w in the corner of a closed
                      box 4w x 4w x w; default) | column (w x 4w x w at rest in a w x 5w x w box)
@@ -40,6 +40,7 @@ simulated second, then one JSON line on stdout.
   --vorticity E      vorticity confinement epsilon, m/s (default 0)
   --friction MU      the container's static and dynamic friction (default 0)
   --settled-after F  the settled window is the run's last (1 - F) (default 0.75)
+  --progress         progress lines even when stderr is not a terminal
   --quiet            no progress lines
 
 JSON: particles, mean_density_error and max_density_error over the settled window (compression
@@ -75,7 +76,7 @@ int cmd_fluid(const cli::Args& a) {
   if (!(dt > 0)) throw cli::UsageError("--dt: must be > 0");
   if (!(seconds > 0)) throw cli::UsageError("--seconds: must be > 0");
   if (!(settled_after >= 0 && settled_after < 1)) throw cli::UsageError("--settled-after: must be in [0, 1)");
-  const bool quiet = a.has("quiet");
+  const bool quiet = a.has("quiet") || !(a.has("progress") || cli::Progress::stderr_is_terminal());
 
   const double d = s.spacing;
   long nx, ny, nz;

@@ -351,6 +351,44 @@ TEST(Bodies, SnapshotRestoreContinuesBitIdentically) {
   EXPECT_NE(refused.status.message.find("snapshot.bodies[2]"), std::string::npos) << refused.status.message;
 }
 
+TEST(Bodies, UpdatedGravityActsOnTheBodiesAndSurvivesARestore) {
+  BodiesServer srv;
+  Client c = srv.client();
+  ASSERT_TRUE(c.create_scene(bodies_request("up")).ok());
+  auto topo = c.topology("up");
+  ASSERT_TRUE(topo.ok()) << topo.status.to_string();
+  v1::UpdateSceneRequest update;
+  update.set_scene_id("up");
+  set(update.mutable_gravity(), 0, 9.81, 0);  // upward
+  auto updated = c.update_scene(update);
+  ASSERT_TRUE(updated.ok()) << updated.status.to_string();
+  EXPECT_DOUBLE_EQ(updated->spec().gravity().y(), 9.81);
+  ASSERT_TRUE(c.step("up", 30).ok());
+  const v1::Frame f = latest_frame(c, "up");
+  ASSERT_EQ(f.bodies_size(), 3);
+  // Every body rose: the rope's and the cloth's free ends, the fluid's mean height.
+  EXPECT_GT(y_of(f.bodies(0).positions(), 20), y_of(topo->bodies(0).rest_positions(), 20) + 0.1);
+  EXPECT_GT(y_of(f.bodies(1).positions(), 63), y_of(topo->bodies(1).rest_positions(), 63) + 0.05);
+  double mean_now = 0, mean_rest = 0;
+  for (int i = 0; i < 64; ++i) {
+    mean_now += y_of(f.bodies(2).positions(), i) / 64;
+    mean_rest += y_of(topo->bodies(2).rest_positions(), i) / 64;
+  }
+  EXPECT_GT(mean_now, mean_rest + 0.02);
+  // A copy restored from a snapshot keeps the updated gravity for its bodies too.
+  v1::RestoreSnapshotRequest restore;
+  *restore.mutable_snapshot() = snapshot_of(c, "up");
+  restore.set_scene_id("up-copy");
+  ASSERT_TRUE(c.restore_snapshot(restore).ok());
+  ASSERT_TRUE(c.step("up", 10).ok());
+  ASSERT_TRUE(c.step("up-copy", 10).ok());
+  const v1::Snapshot a = snapshot_of(c, "up"), b = snapshot_of(c, "up-copy");
+  for (int i = 0; i < 3; ++i) {
+    SCOPED_TRACE(a.bodies(i).name());
+    EXPECT_TRUE(bit_equal(a.bodies(i).x(), b.bodies(i).x()));
+  }
+}
+
 TEST(Bodies, RestartKeepsTheBodies) {
   const fs::path dir = temp_dir("restart");
   server::ServerOptions o;

@@ -86,6 +86,7 @@ class ConstraintBody : public ParticleBody {
   std::span<const std::array<uint32_t, 3>> triangles() const override { return triangles_; }
 
   ParticleStepReport step(double dt, std::span<const Collider> colliders) override;
+  void set_gravity(const Vec3& gravity) override;
 
   void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;
   bool move_grab(uint64_t id, const Vec3& target) override;

@@ -105,6 +105,7 @@ class FluidBody final : public ParticleBody {
   std::span<const double> inverse_masses() const override;
 
   ParticleStepReport step(double dt, std::span<const Collider> colliders) override;
+  void set_gravity(const Vec3& gravity) override;
 
   void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;
   bool move_grab(uint64_t id, const Vec3& target) override;

@@ -61,6 +61,9 @@ class ParticleBody {
 
   // Advances by dt seconds against the colliders.
   virtual ParticleStepReport step(double dt, std::span<const Collider> colliders) = 0;
+  // Gravity from the next step on (m/s^2; a scene's UpdateScene changes it for all its bodies).
+  // std::invalid_argument when not finite.
+  virtual void set_gravity(const Vec3& gravity) = 0;
 
   // Grabs: particle `particle` pulled toward `target` through a constraint of compliance
   // `compliance` (m/N; 0 = hard). The force the grab applies to the body (N) comes from its

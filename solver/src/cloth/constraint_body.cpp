@@ -207,6 +207,11 @@ void ConstraintBody::set_settings(const ConstraintBodySettings& settings) {
   settings_ = settings;
 }
 
+void ConstraintBody::set_gravity(const Vec3& gravity) {
+  if (!gravity.allFinite()) throw std::invalid_argument("ConstraintBodySettings.gravity must be finite");
+  settings_.gravity = gravity;
+}
+
 size_t ConstraintBody::constraint_count() const {
   return dist_.size() + bend_.size() + rope_bend_.size() + (settings_.volume ? 1 : 0);
 }

@@ -708,6 +708,11 @@ size_t FluidBody::size() const { return impl_->n(); }
 const ParticleState& FluidBody::state() const { return impl_->state; }
 std::span<const double> FluidBody::inverse_masses() const { return impl_->inv_mass; }
 const FluidSettings& FluidBody::settings() const { return impl_->s; }
+
+void FluidBody::set_gravity(const Vec3& gravity) {
+  if (!gravity.allFinite()) throw std::invalid_argument("FluidSettings.gravity must be finite");
+  impl_->s.gravity = gravity;
+}
 double FluidBody::particle_mass() const { return impl_->mass; }
 double FluidBody::support_radius() const { return impl_->h; }
 
