@@ -74,7 +74,7 @@ measure() {
   rm -rf "$data"
   local window
   window=$(echo "$a $b $seconds" | awk '{dt = $4 - $1; printf "%.2f ticks/s, %.2f ms mean solver step, %d late ticks over the last %d s",
-    dt / $7, dt > 0 ? 1000 * ($5 * $4 - $2 * $1) / dt : 0, $6 - $3, $7}')
+    dt / $7, (dt > 0 ? 1000 * ($5 * $4 - $2 * $1) / dt : 0), $6 - $3, $7}')
   echo "$(date -u +%H:%M:%S) load $(cut -d' ' -f1 /proc/loadavg) $build $scene: $window; $line"
 }
 

@@ -129,6 +129,9 @@ Scene flags (create and update):
                         (auto: the server measures the methods on the body and keeps the most
                         accurate within --time-budget-ms, default half the tick)
   --sweep gauss-seidel|jacobi|sequential   --substeps N   --iterations N   --window M   --omega W
+  --newton-linear-solver auto|direct|cg|cg-jacobi|cg-factor
+                        how newton solves each iteration (cg-factor: a large body's rest shape
+                        right within the ticks, each tick slower; docs/solver.md)
   --tolerance T         --time-budget-ms MS    --threads N     --paused (create paused)
   --wave-courant C      let the server pick the substeps: the fewest with a pressure wave
                         crossing at most C elements per substep (0.3 resolves the material)
@@ -284,6 +287,8 @@ void print_scene(const v1::Scene& s, bool json) {
   std::printf("solver     %s, %s, %d substeps x %d iterations, window %d, omega %g, tolerance %g, budget %g ms\n",
               v1::Method_Name(so.method()).c_str(), v1::Sweep_Name(so.sweep()).c_str(), so.substeps(),
               so.iterations(), so.window(), so.omega(), so.tolerance(), so.time_budget_ms());
+  if (so.method() == v1::METHOD_NEWTON)
+    std::printf("linear     %s\n", v1::NewtonLinearSolver_Name(so.newton_linear_solver()).c_str());
   if (!s.method_choice().empty()) std::printf("auto       chose %s\n", s.method_choice().c_str());
   std::printf("gravity    (%g, %g, %g) m/s^2\n", sp.gravity().x(), sp.gravity().y(), sp.gravity().z());
   for (int i = 0; i < sp.colliders_size(); ++i) {
@@ -550,6 +555,12 @@ bool read_settings(Args& a, v1::SolverSettings* so, v1::TickSettings* tick, v1::
     auto m = parse_method(*v);
     if (!m) throw Usage("--method '" + *v + "' is not one of " + std::string(method_names()));
     so->set_method(proto::method_to(*m));
+    any = true;
+  }
+  if (auto v = a.get("newton-linear-solver")) {
+    auto l = parse_newton_linear_solver(*v);
+    if (!l) throw Usage("--newton-linear-solver '" + *v + "' is not one of auto|direct|cg|cg-jacobi|cg-factor");
+    so->set_newton_linear_solver(proto::newton_linear_solver_to(*l));
     any = true;
   }
   if (auto v = a.get("sweep")) {
@@ -1179,6 +1190,7 @@ std::vector<Opt> settings_flags() {
       {"mode", "MODE", "realtime | lockstep | as-fast-as-possible"},
       {"method", "METHOD", "xpbd|sor|lambda-sor|chebyshev|anderson|anderson-sor|extrapolation|vbd|newton|auto"},
       {"sweep", "SWEEP", "gauss-seidel | jacobi | sequential"},
+      {"newton-linear-solver", "L", "newton's linear solver: auto | direct | cg | cg-jacobi | cg-factor"},
       {"substeps", "N", "substeps per tick"},
       {"iterations", "N", "solver iterations per substep"},
       {"window", "M", "Anderson window"},

@@ -28,6 +28,14 @@ constexpr std::array<std::pair<Sweep, v1::Sweep>, 3> kSweeps{{
     {Sweep::Sequential, v1::SWEEP_SEQUENTIAL},
 }};
 
+constexpr std::array<std::pair<NewtonLinearSolver, v1::NewtonLinearSolver>, 5> kNewtonLinearSolvers{{
+    {NewtonLinearSolver::Auto, v1::NEWTON_LINEAR_SOLVER_AUTO},
+    {NewtonLinearSolver::Direct, v1::NEWTON_LINEAR_SOLVER_DIRECT},
+    {NewtonLinearSolver::Cg, v1::NEWTON_LINEAR_SOLVER_CG},
+    {NewtonLinearSolver::CgJacobi, v1::NEWTON_LINEAR_SOLVER_CG_JACOBI},
+    {NewtonLinearSolver::CgFactor, v1::NEWTON_LINEAR_SOLVER_CG_FACTOR},
+}};
+
 constexpr std::array<std::pair<Damping, v1::Damping>, 3> kDampings{{
     {Damping::None, v1::DAMPING_NONE},
     {Damping::Simple, v1::DAMPING_SIMPLE},
@@ -60,6 +68,12 @@ std::optional<Method> method_from(v1::Method m) { return ours_of(kMethods, m); }
 v1::Method method_to(Method m) { return theirs_of(kMethods, m, v1::METHOD_UNSPECIFIED); }
 std::optional<Sweep> sweep_from(v1::Sweep s) { return ours_of(kSweeps, s); }
 v1::Sweep sweep_to(Sweep s) { return theirs_of(kSweeps, s, v1::SWEEP_UNSPECIFIED); }
+std::optional<NewtonLinearSolver> newton_linear_solver_from(v1::NewtonLinearSolver s) {
+  return ours_of(kNewtonLinearSolvers, s);
+}
+v1::NewtonLinearSolver newton_linear_solver_to(NewtonLinearSolver s) {
+  return theirs_of(kNewtonLinearSolvers, s, v1::NEWTON_LINEAR_SOLVER_UNSPECIFIED);
+}
 std::optional<Damping> damping_from(v1::Damping d) { return ours_of(kDampings, d); }
 v1::Damping damping_to(Damping d) { return theirs_of(kDampings, d, v1::DAMPING_UNSPECIFIED); }
 std::optional<ElasticModel> elastic_model_from(v1::ElasticModel m) { return ours_of(kElasticModels, m); }

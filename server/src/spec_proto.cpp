@@ -88,6 +88,13 @@ Error merge_solver(const v1::SolverSettings& p, const std::string& prefix, int m
     if (!d) return invalid(fmt::format("{}.damping has unknown value {}", prefix, static_cast<int>(p.damping())));
     s.damping = *d;
   }
+  if (p.newton_linear_solver() != v1::NEWTON_LINEAR_SOLVER_UNSPECIFIED) {
+    auto l = proto::newton_linear_solver_from(p.newton_linear_solver());
+    if (!l)
+      return invalid(fmt::format("{}.newton_linear_solver has unknown value {}", prefix,
+                                 static_cast<int>(p.newton_linear_solver())));
+    s.newton_linear_solver = *l;
+  }
   if (p.has_substeps()) s.substeps = p.substeps();
   if (p.has_target_wave_courant_number()) s.target_wave_courant_number = p.target_wave_courant_number();
   if (p.has_iterations()) s.iterations = p.iterations();
@@ -455,6 +462,7 @@ void spec_to_proto(const SceneConfig& cfg, const BodyModel& model, v1::SceneSpec
   ps->set_damping_coefficient(s.damping_coefficient);
   ps->set_threads(s.threads);
   ps->set_inversion_floor(s.inversion_floor);
+  ps->set_newton_linear_solver(proto::newton_linear_solver_to(s.newton_linear_solver));
   spec->mutable_tick()->set_dt(s.dt);
   spec->mutable_tick()->set_mode(tick_mode_to(cfg.mode));
   colliders_to(cfg.colliders, spec);

@@ -81,8 +81,9 @@ common options:
                       Newton step on the implicit-Euler potential; iterations = Newton iterations)
   --newton-linear-solver L   newton's linear solver: direct (sparse LDL^T) | cg (inexact
                       Newton: CG preconditioned by an earlier factorisation up to 20000 free
-                      dofs, by 3x3 vertex blocks above) | cg-jacobi (vertex blocks only) | auto
-                      (default: cg above 5000 free dofs)
+                      dofs, by 3x3 vertex blocks above) | cg-jacobi (vertex blocks only) |
+                      cg-factor (the factorisation whatever the size) | auto (default: cg above
+                      5000 free dofs)
   --sweep S           gauss-seidel (coloured, parallel) | jacobi | sequential (one tet at a time
                       in mesh order, one thread: the thesis's sweep; needs --threads 1)
   --tet-order O       renumber the tets before building the body: mesh (as given; the beams:
@@ -122,7 +123,7 @@ accuracy:  --methods LIST  --budget-ms T (default 100)  --start bend|sag (defaul
            the two places meaning "grows with the budget", e.g.
              xpbd:64x1,xpbd:16x4,xpbd:1xN,xpbd:Nx1,anderson-sor:1xN:omega=2,chebyshev:1xN:rho=0.99
            keys: omega window sweep form rho gamma delay relaxation cond floor line-search
-           linear (newton: direct | cg | cg-jacobi | auto).
+           linear (newton: direct | cg | cg-jacobi | cg-factor | auto).
            1xN records every iteration of one step (hook time excluded); other N specs run
            the whole step for N = 1, 2, 3, 4, 6, 8, 11, 16, ... until a run takes T ms; a fixed
            spec is one point. Every time is the fastest of up to 3 runs (per iteration for
@@ -225,7 +226,7 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   }
   if (auto v = a.str("newton-linear-solver")) {
     auto l = parse_newton_linear_solver(*v);
-    if (!l) throw cli::UsageError("--newton-linear-solver: unknown linear solver '" + *v + "' (auto, direct, cg, cg-jacobi)");
+    if (!l) throw cli::UsageError("--newton-linear-solver: unknown linear solver '" + *v + "' (auto, direct, cg, cg-jacobi, cg-factor)");
     s.newton_linear_solver = *l;
   }
   if (auto v = a.str("anderson-form")) {

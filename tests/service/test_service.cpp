@@ -373,6 +373,35 @@ TEST(Service, DecimationSendsEveryNthFrame) {
   }
 }
 
+TEST(Service, NewtonLinearSolverIsKeptThroughUpdatesAndSnapshots) {
+  TestServer ts;
+  Client c = ts.client();
+  auto req = beam_request("lin");
+  req.mutable_spec()->mutable_solver()->set_method(v1::METHOD_NEWTON);
+  req.mutable_spec()->mutable_solver()->set_substeps(1);
+  req.mutable_spec()->mutable_solver()->set_iterations(2);
+  auto created = c.create_scene(req);
+  ASSERT_TRUE(created.ok()) << created.status.to_string();
+  EXPECT_EQ(created->spec().solver().newton_linear_solver(), v1::NEWTON_LINEAR_SOLVER_AUTO);  // the default
+  v1::UpdateSceneRequest u;
+  u.set_scene_id("lin");
+  u.mutable_solver()->set_newton_linear_solver(v1::NEWTON_LINEAR_SOLVER_CG_FACTOR);
+  auto updated = c.update_scene(u);
+  ASSERT_TRUE(updated.ok()) << updated.status.to_string();
+  EXPECT_EQ(updated->spec().solver().newton_linear_solver(), v1::NEWTON_LINEAR_SOLVER_CG_FACTOR);
+  ASSERT_TRUE(c.step("lin", 5).ok());
+  v1::SaveSnapshotRequest save;
+  save.set_scene_id("lin");
+  auto snap = c.save_snapshot(save);
+  ASSERT_TRUE(snap.ok()) << snap.status.to_string();
+  v1::RestoreSnapshotRequest restore;
+  *restore.mutable_snapshot() = snap->snapshot();
+  restore.set_scene_id("lin-copy");
+  auto copy = c.restore_snapshot(restore);
+  ASSERT_TRUE(copy.ok()) << copy.status.to_string();
+  EXPECT_EQ(copy->spec().solver().newton_linear_solver(), v1::NEWTON_LINEAR_SOLVER_CG_FACTOR);
+}
+
 TEST(Service, SceneReportsHowWellItsBudgetResolvesTheMaterial) {
   // wave_courant_number = c_p (dt / substeps) / mean edge, computed by the solver library on the
   // same mesh and material, and kept current through updates of the substeps and of E.
@@ -796,6 +825,9 @@ TEST(Service, BadInputsGetTheRightStatus) {
        kInvalidArgument, "spec.tick.mode has unknown value 42"},
       {"unknown method", [](auto& r) { r.mutable_spec()->mutable_solver()->set_method(static_cast<v1::Method>(99)); },
        kInvalidArgument, "spec.solver.method has unknown value 99"},
+      {"unknown newton linear solver",
+       [](auto& r) { r.mutable_spec()->mutable_solver()->set_newton_linear_solver(static_cast<v1::NewtonLinearSolver>(77)); },
+       kInvalidArgument, "spec.solver.newton_linear_solver has unknown value 77"},
       {"omega 0", [](auto& r) { r.mutable_spec()->mutable_solver()->set_omega(0); }, kInvalidArgument,
        "spec.solver.omega"},
       {"negative iterations", [](auto& r) { r.mutable_spec()->mutable_solver()->set_iterations(-1); },

@@ -72,7 +72,7 @@ struct Potential {
 }  // namespace
 
 TEST(NewtonCg, ReachesTheSameStepAsTheDirectSolve) {
-  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi})
+  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi, NewtonLinearSolver::CgFactor})
   for (const char* mesh : {"beam1", "beam3"})
     for (double young : {1e5, 1e7}) {
       auto m = clamped(mesh, young);
@@ -142,6 +142,8 @@ TEST(NewtonCg, AutoChoosesByTheNumberOfFreeDofs) {
   EXPECT_EQ(parse_newton_linear_solver("direct"), NewtonLinearSolver::Direct);
   EXPECT_EQ(parse_newton_linear_solver("auto"), NewtonLinearSolver::Auto);
   EXPECT_EQ(parse_newton_linear_solver("cg-jacobi"), NewtonLinearSolver::CgJacobi);
+  EXPECT_EQ(parse_newton_linear_solver("cg-factor"), NewtonLinearSolver::CgFactor);
+  EXPECT_TRUE(newton_uses_cg(NewtonLinearSolver::CgFactor, 3));
   EXPECT_FALSE(parse_newton_linear_solver("ldlt"));
   // beam3 stays with the factorisation under auto.
   auto m = clamped("beam3", 1e6);

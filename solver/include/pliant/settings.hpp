@@ -47,6 +47,8 @@ enum class NewtonLinearSolver {
   Cg,      // inexact Newton: conjugate gradients to a forcing term, preconditioned by a factorisation
            // of an earlier Hessian (refreshed when CG slows) up to 20,000 free dofs, else as cg-jacobi
   CgJacobi,  // the same preconditioned by the inverses of the 3x3 vertex blocks only
+  CgFactor,  // cg preconditioned by the earlier factorisation whatever the size (a large body's
+             // slow modes converge within the ticks; each tick pays the factor's solves)
 };
 
 // Free dofs above which newton_linear_solver auto uses cg: beam3 (4,320 free dofs) stays direct,
@@ -114,7 +116,7 @@ std::string_view method_names();  // "xpbd, sor, ..., auto": the accepted names,
 std::string_view sweep_names();   // "gauss-seidel, jacobi, sequential"
 std::optional<Damping> parse_damping(std::string_view s); // "none" | "simple" | "rigid"
 std::string_view to_string(NewtonLinearSolver s);
-std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s);  // "auto" | "direct" | "cg" | "cg-jacobi"
+std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s);  // "auto" | "direct" | "cg" | "cg-jacobi" | "cg-factor"
 // Whether method newton on a body with `free_dofs` free degrees of freedom solves with cg.
 bool newton_uses_cg(NewtonLinearSolver s, int free_dofs);
 std::string_view to_string(AndersonForm f);

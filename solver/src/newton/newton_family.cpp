@@ -57,8 +57,8 @@ constexpr double kMaxForcing = 0.5;
 constexpr int kMaxCgIterations = 2000;
 // Up to this many free dofs CG is preconditioned by a factorisation of an earlier Hessian (the
 // hippo's costs a few ticks' budget, once; the armadillo's 1.8 s and each of its solves tens of
-// ms, so it gets the 3x3 vertex blocks); it is refreshed when a solve needs more than
-// kRefactorAfter CG iterations.
+// ms, so it gets the 3x3 vertex blocks unless newton_linear_solver is cg-factor); it is refreshed
+// when a solve needs more than kRefactorAfter CG iterations.
 constexpr int kFactorPreconditionerMaxDofs = 20000;
 constexpr int kRefactorAfter = 20;
 // Relative size below which a change of the incremental potential is round-off of its sum (tens of
@@ -162,7 +162,7 @@ class NewtonFamily final : public SolverFamily {
   // `iterations`. `projected`: H_ is the PSD-projected Hessian (else the exact one, which may
   // be indefinite). False when H_ showed non-positive curvature before any progress, or at all
   // when not projected (d_ is then unusable). Preconditioner: conjugate_gradients' comment.
-  bool conjugate_gradients(ThreadPool& tp, double eta, bool projected, bool block_jacobi_only,
+  bool conjugate_gradients(ThreadPool& tp, double eta, bool projected, NewtonLinearSolver linear,
                            const std::function<bool()>& out_of_time, int& iterations);
   using Preconditioner = std::function<void(const Eigen::VectorXd& r, Eigen::VectorXd& z)>;
   // The CG loop itself, z = M^-1 r by `precondition`.
@@ -368,9 +368,10 @@ void NewtonFamily::multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::Vec
   }, 4096);
 }
 
-bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projected, bool block_jacobi_only,
+bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projected, NewtonLinearSolver linear,
                                        const std::function<bool()>& out_of_time, int& iterations) {
-  const bool use_factor = ndof_ <= kFactorPreconditionerMaxDofs && !block_jacobi_only;
+  const bool use_factor = linear == NewtonLinearSolver::CgFactor ||
+                          (ndof_ <= kFactorPreconditionerMaxDofs && linear != NewtonLinearSolver::CgJacobi);
   // Refactorised from a projected Hessian only (the exact one may not be positive definite, and a
   // failed factorisation would lose the earlier factor).
   // Contacts and grabs add penalties far stiffer than the body: a factor without them (or with
@@ -820,7 +821,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       const auto t_solve = Clock::now();
       const double eta = std::min(kMaxForcing, std::sqrt(gnorm / g0));
       auto solve = [&] {
-        return cg ? conjugate_gradients(tp, eta, !exact, s.newton_linear_solver == NewtonLinearSolver::CgJacobi, out_of_time,
+        return cg ? conjugate_gradients(tp, eta, !exact, s.newton_linear_solver, out_of_time,
                                       rep.linear_iterations) : cholesky_.factorize(H_);
       };
       bool factored = solve();

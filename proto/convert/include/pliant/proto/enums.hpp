@@ -16,6 +16,8 @@ std::optional<Method> method_from(v1::Method m);
 v1::Method method_to(Method m);
 std::optional<Sweep> sweep_from(v1::Sweep s);
 v1::Sweep sweep_to(Sweep s);
+std::optional<NewtonLinearSolver> newton_linear_solver_from(v1::NewtonLinearSolver s);
+v1::NewtonLinearSolver newton_linear_solver_to(NewtonLinearSolver s);
 std::optional<Damping> damping_from(v1::Damping d);
 v1::Damping damping_to(Damping d);
 std::optional<ElasticModel> elastic_model_from(v1::ElasticModel m);
