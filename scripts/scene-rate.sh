@@ -7,15 +7,17 @@
 # `pliant scenes get` at its end; then stops the server. Several build dirs are measured in turn,
 # ROUNDS times (interleaved, so that a shared machine's load hits them alike).
 #   bash scripts/scene-rate.sh [--seconds S] [--warmup S] [--rounds N] [--iterations I]
-#                              [--scene armadillo|hippo|armadillo-hanging] [--server-threads T] BUILD_DIR...
+#                              [--scene armadillo|hippo|armadillo-hanging] [--server-threads T] [--linear L]
+#                              BUILD_DIR...
 # Scenes (E 1 MPa, gravity, 1 substep):
 #   armadillo  the service's armadillo standing on its feet (y <= -0.040 fixed), the default
 #              method (XPBD), I iterations (default 1)
 #   hippo      the thesis hippo hanging from its first 10% of x (x <= -0.07159 fixed), I Newton
 #              iterations per tick, 2 solver threads (server --threads 2 unless --server-threads)
 #   armadillo-hanging  the thesis armadillo with the thesis's clamp (x <= -0.04936 fixed), as hippo
+# --linear L: newton's linear solver (auto | direct | cg | cg-jacobi | cg-factor; default auto).
 set -euo pipefail
-seconds=20 warmup=5 rounds=1 iterations=1 scene=armadillo server_threads=""
+seconds=20 warmup=5 rounds=1 iterations=1 scene=armadillo server_threads="" linear=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --seconds) seconds=$2; shift 2 ;;
@@ -24,11 +26,12 @@ while [ $# -gt 0 ]; do
     --iterations) iterations=$2; shift 2 ;;
     --scene) scene=$2; shift 2 ;;
     --server-threads) server_threads=$2; shift 2 ;;
+    --linear) linear=$2; shift 2 ;;
     -*) echo "scene-rate.sh: unknown flag $1" >&2; exit 2 ;;
     *) break ;;
   esac
 done
-[ $# -gt 0 ] || { echo "usage: scene-rate.sh [--seconds S] [--warmup S] [--rounds N] [--iterations I] [--scene armadillo|hippo|armadillo-hanging] [--server-threads T] BUILD_DIR..." >&2; exit 2; }
+[ $# -gt 0 ] || { echo "usage: scene-rate.sh [--seconds S] [--warmup S] [--rounds N] [--iterations I] [--scene armadillo|hippo|armadillo-hanging] [--server-threads T] [--linear L] BUILD_DIR..." >&2; exit 2; }
 case "$scene" in
   armadillo) create=(--mesh armadillo --rate 60 --fix-box -1,-1,-1,1,-0.040,1 --substeps 1 --iterations "$iterations")
              server_threads=${server_threads:-1} ;;
@@ -40,6 +43,7 @@ case "$scene" in
                      server_threads=${server_threads:-2} ;;
   *) echo "scene-rate.sh: --scene is armadillo, hippo or armadillo-hanging, not '$scene'" >&2; exit 2 ;;
 esac
+[ -z "$linear" ] || create+=(--newton-linear-solver "$linear")
 meshes="$(cd "$(dirname "$0")/.." && pwd)/meshes"
 
 free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
