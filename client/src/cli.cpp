@@ -76,8 +76,9 @@ Commands:
                                      DIR/frames.pvd (simulation time per frame) for ParaView: point
                                      data displacement, velocity (finite differences of consecutive
                                      frames; zero in the first), fixed; cell data det_F; field data
-                                     residual. Stops after S seconds, N frames, Ctrl-C or the end
-                                     of the stream
+                                     residual; each particle body as its own series
+                                     (DIR/body-NAME.pvd). Stops after S seconds, N frames, Ctrl-C
+                                     or the end of the stream
   health [--service NAME]            exit 0 when the server is SERVING
 
 Global flags:
@@ -955,9 +956,66 @@ int cmd_watch(Client& c, Args& a, bool json) {
   return fail(s, c.options());
 }
 
-// record: frames with positions into binary .vtu files and a .pvd collection. Frames carry no
-// velocity: it is the finite difference of consecutive frames received (over the simulated time
-// between them; zero in the first frame and after a rollback).
+// One particle body's series in a recording: body-<name>_<tick>.vtu and body-<name>.pvd.
+struct BodyRecording {
+  std::string name;
+  size_t particles = 0;
+  std::optional<VtuRecorder> recorder;
+  RecordingFrame previous;
+  bool have_previous = false;
+};
+
+// The body's name as a file name part: the server allows A-Z a-z 0-9 _ . -; anything else (from
+// another server) becomes '_'.
+std::string file_safe(const std::string& name) {
+  std::string s = name;
+  for (char& ch : s)
+    if (!(std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' || ch == '-' || ch == '.')) ch = '_';
+  return s;
+}
+
+// The recording topology of a particle body: its rest positions, pins as fixed, and its cells
+// (a cloth's triangles, a rope's segments between consecutive particles, a fluid's particles).
+RecordingTopology body_topology(const v1::BodyTopology& b) {
+  RecordingTopology rt;
+  const size_t n = b.particle_count();
+  if (static_cast<size_t>(b.rest_positions_size()) != 3 * n || b.triangles_size() % 3 != 0)
+    throw std::runtime_error("the server's topology of body '" + b.name() + "' is inconsistent");
+  rt.rest_positions.resize(n);
+  for (size_t i = 0; i < n; ++i)
+    for (int k = 0; k < 3; ++k) rt.rest_positions[i][k] = b.rest_positions(static_cast<int>(3 * i + k));
+  rt.fixed.assign(n, 0);
+  for (uint32_t p : b.pinned())
+    if (p < n) rt.fixed[p] = 1;
+  if (b.kind() == "cloth")
+    for (int t = 0; t + 2 < b.triangles_size(); t += 3)
+      rt.triangles.push_back({static_cast<int32_t>(b.triangles(t)), static_cast<int32_t>(b.triangles(t + 1)),
+                              static_cast<int32_t>(b.triangles(t + 2))});
+  else if (b.kind() == "rope")
+    for (size_t i = 0; i + 1 < n; ++i) rt.segments.push_back({static_cast<int32_t>(i), static_cast<int32_t>(i + 1)});
+  else
+    rt.point_cells = true;
+  return rt;
+}
+
+// Positions of a frame's packed float xyz, and their finite-difference velocity against the last
+// frame written (zero in the first and after a rollback).
+void fill_frame(const google::protobuf::RepeatedField<float>& xyz, size_t n, double time, double residual,
+                bool rolled_back, const RecordingFrame& previous, bool have_previous, RecordingFrame& frame) {
+  frame.time = time;
+  frame.residual = residual;
+  frame.positions.resize(n);
+  for (size_t i = 0; i < n; ++i)
+    for (int k = 0; k < 3; ++k) frame.positions[i][k] = xyz[static_cast<int>(3 * i + k)];
+  frame.velocity.assign(n, Vec3::Zero());
+  const double dt = frame.time - previous.time;
+  if (have_previous && !rolled_back && dt > 0)
+    for (size_t i = 0; i < n; ++i) frame.velocity[i] = (frame.positions[i] - previous.positions[i]) / dt;
+}
+
+// record: frames with positions into binary .vtu files and a .pvd collection (and one series per
+// particle body). Frames carry no velocity: it is the finite difference of consecutive frames
+// received (over the simulated time between them; zero in the first frame and after a rollback).
 int cmd_record(Client& c, Args& a, bool json) {
   if (a.positional.empty()) throw Usage("record needs a scene ID");
   a.max_positional(1, "record");
@@ -1000,8 +1058,17 @@ int cmd_record(Client& c, Args& a, bool json) {
   for (int32_t v : topo->fixed_vertices())
     if (v >= 0 && static_cast<size_t>(v) < n) rt.fixed[v] = 1;
   std::optional<VtuRecorder> recorder;
+  std::vector<BodyRecording> bodies(static_cast<size_t>(topo->bodies_size()));
   try {
     recorder.emplace(*out, std::move(rt));
+    for (int b = 0; b < topo->bodies_size(); ++b) {
+      const v1::BodyTopology& bt = topo->bodies(b);
+      BodyRecording& br = bodies[static_cast<size_t>(b)];
+      br.name = bt.name();
+      br.particles = bt.particle_count();
+      const std::string stem = "body-" + file_safe(bt.name());
+      br.recorder.emplace(*out, body_topology(bt), stem, stem);
+    }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "pliant: --out: %s\n", e.what());
     return kExitRefused;
@@ -1018,17 +1085,21 @@ int cmd_record(Client& c, Args& a, bool json) {
   bool stopped_by_count = false;
   while (stream->next(&f)) {
     if (f.surface_only() || static_cast<size_t>(f.positions_size()) != 3 * n) continue;  // not ours to record
-    frame.time = f.sim_time();
-    frame.residual = f.solver().residual_final();
-    frame.positions.resize(n);
-    for (size_t i = 0; i < n; ++i)
-      for (int k = 0; k < 3; ++k) frame.positions[i][k] = f.positions(static_cast<int>(3 * i + k));
-    frame.velocity.assign(n, Vec3::Zero());
-    const double dt = frame.time - previous.time;
-    if (have_previous && !f.rolled_back() && dt > 0)
-      for (size_t i = 0; i < n; ++i) frame.velocity[i] = (frame.positions[i] - previous.positions[i]) / dt;
+    fill_frame(f.positions(), n, f.sim_time(), f.solver().residual_final(), f.rolled_back(), previous, have_previous,
+               frame);
     try {
       recorder->write(frame, static_cast<long>(f.tick()));
+      // Each body by name (a frame lists the bodies in spec order, as the topology does).
+      for (const v1::FrameBody& bf : f.bodies())
+        for (BodyRecording& br : bodies) {
+          if (br.name != bf.name() || static_cast<size_t>(bf.positions_size()) != 3 * br.particles) continue;
+          RecordingFrame body_frame;
+          fill_frame(bf.positions(), br.particles, f.sim_time(), 0.0, f.rolled_back(), br.previous, br.have_previous,
+                     body_frame);
+          br.recorder->write(body_frame, static_cast<long>(f.tick()));
+          br.previous = std::move(body_frame);
+          br.have_previous = true;
+        }
     } catch (const std::exception& e) {
       write_error = e.what();
       stream->cancel();
@@ -1058,12 +1129,18 @@ int cmd_record(Client& c, Args& a, bool json) {
     nlohmann::json j = {{"scene_id", id},          {"frames", frames},         {"first_tick", first_tick},
                         {"last_tick", last_tick},  {"first_time", first_time}, {"last_time", last_time},
                         {"skipped_frames", skipped}, {"pvd", recorder->pvd_path()}};
+    nlohmann::json jb = nlohmann::json::array();
+    for (const BodyRecording& br : bodies)
+      jb.push_back({{"name", br.name}, {"frames", br.recorder->frames()}, {"pvd", br.recorder->pvd_path()}});
+    j["bodies"] = jb;
     std::printf("%s\n", j.dump().c_str());
   } else {
     std::printf("recorded %llu frames (ticks %llu-%llu, t %.4f-%.4f s, %llu skipped) to %s\n",
                 static_cast<unsigned long long>(frames), static_cast<unsigned long long>(first_tick),
                 static_cast<unsigned long long>(last_tick), first_time, last_time,
                 static_cast<unsigned long long>(skipped), recorder->pvd_path().c_str());
+    for (const BodyRecording& br : bodies)
+      std::printf("  body %s: %zu frames to %s\n", br.name.c_str(), br.recorder->frames(), br.recorder->pvd_path().c_str());
   }
   std::fflush(stdout);
   if (s.ok() || cancelled_by_us) return kExitOk;

@@ -7,6 +7,8 @@
            from the points, fixed vertices not moving, times.
   record   pliant record streams a realtime scene of a real pliant-server into a recording; the
            same checks, and velocity = the finite difference of consecutive frames.
+  record-bodies  the same with a scene's rope, cloth and fluid, each its own series (body-NAME.pvd):
+           its points, pins, cells (lines, triangles, vertices), velocity.
   examples every examples/scenes/*.json is accepted by a real pliant-server through
            `pliant scenes create --spec`, GetScene shows what the file set; a spec with a
            misspelt field is refused naming the field.
@@ -57,9 +59,12 @@ def read_recording(pvd):
             "point_names": sorted(pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())),
             "cell_names": sorted(cd.GetArrayName(i) for i in range(cd.GetNumberOfArrays())),
             "field_names": sorted(fd.GetArrayName(i) for i in range(fd.GetNumberOfArrays())),
-            "cells": vtk_to_numpy(grid.GetCells().GetConnectivityArray()).reshape(-1, 4),
+            "connectivity": vtk_to_numpy(grid.GetCells().GetConnectivityArray()),
             "types": {grid.GetCellType(i) for i in range(grid.GetNumberOfCells())},
+            "cell_count": grid.GetNumberOfCells(),
         }
+        if arrays["types"] == {10}:
+            arrays["cells"] = arrays["connectivity"].reshape(-1, 4)
         for name in arrays["point_names"]:
             arrays[name] = vtk_to_numpy(pd.GetArray(name))
         for name in arrays["cell_names"]:
@@ -232,6 +237,60 @@ def mode_record(args):
         print(f"ok: {len(frames)} streamed frames read back by VTK")
 
 
+def check_body_series(frames, kind, particles, pinned):
+    """A particle body's series: its points, pins, cells of its kind, velocity as the finite difference."""
+    want_types = {"rope": {3}, "cloth": {5}, "fluid": {1}}[kind]
+    first = frames[0][2]
+    rest = first["points"] - first["displacement"]
+    for t, name, a in frames:
+        check(a["point_names"] == ["displacement", "fixed", "velocity"], f"{name}: point arrays {a['point_names']}")
+        check(a["cell_names"] == [], f"{name}: cell arrays {a['cell_names']} (a body has no det_F)")
+        check(a["types"] == want_types, f"{name}: cell types {a['types']}, want {want_types} for a {kind}")
+        check(a["points"].shape == (particles, 3), f"{name}: {a['points'].shape[0]} points, expected {particles}")
+        check(np.allclose(a["points"] - a["displacement"], rest, rtol=0, atol=1e-6), f"{name}: rest shape differs")
+        check(sorted(np.nonzero(a["fixed"] == 1)[0].tolist()) == pinned, f"{name}: fixed {np.nonzero(a['fixed'])[0]}")
+        check(np.all(np.abs(a["displacement"][a["fixed"] == 1]) < 1e-6), f"{name}: a pinned particle moved")
+        check(abs(float(a["TimeValue"][0]) - t) <= 1e-12 * max(1, abs(t)), f"{name}: TimeValue {a['TimeValue'][0]}")
+    if kind == "rope":
+        check(first["cell_count"] == particles - 1, f"rope: {first['cell_count']} segments for {particles} particles")
+    if kind == "fluid":
+        check(first["cell_count"] == particles, f"fluid: {first['cell_count']} vertex cells for {particles} particles")
+    for (t0, _, a), (t1, name, b) in zip(frames, frames[1:]):
+        fd = (b["points"] - a["points"]) / (t1 - t0)
+        check(np.allclose(b["velocity"], fd, rtol=1e-6, atol=1e-6), f"{name}: velocity is not the finite difference")
+    # Under gravity the free particles fell.
+    check(np.mean(frames[-1][2]["displacement"][:, 1]) < 0, f"{kind}: the body did not fall")
+
+
+def mode_record_bodies(args):
+    """pliant record writes one series per particle body beside the tet body's."""
+    with tempfile.TemporaryDirectory() as d:
+        server = Server(args.server, d)
+        try:
+            cli(args, server, "scenes", "create", "bod", "--mesh", "beam1", "--fix-x-below", "0.001", "--rate", "60",
+                "--method", "xpbd", "--substeps", "4", "--iterations", "2",
+                "--rope", "line:from=0,0.3,0:to=0.3,0.3,0:segments=10:pin=0",
+                "--cloth", "sheet:origin=0.5,0.3,0:size=0.2,0.2:resolution=5,5:pin=0,4",
+                "--fluid", "drop:min=-0.55,0,-0.05:max=-0.45,0.1,0.05:spacing=0.05:container=-0.5,0.1,0,0.2,0.2,0.2")
+            out = os.path.join(d, "bod")
+            r = cli(args, server, "--json", "record", "bod", "--out", out, "--frames", "6")
+            summary = json.loads(r.stdout.strip().splitlines()[-1])
+            check([b["name"] for b in summary["bodies"]] == ["line", "sheet", "drop"], f"bodies in {summary}")
+            check(all(b["frames"] == 6 for b in summary["bodies"]), f"body frames in {summary}")
+            check_frames(read_recording(os.path.join(out, "frames.pvd")), 216)
+            series = {b["name"]: read_recording(b["pvd"]) for b in summary["bodies"]}
+            check(os.path.basename(summary["bodies"][0]["pvd"]) == "body-line.pvd", f"pvd name {summary['bodies'][0]}")
+            check(series["line"][0][1] == f"body-line_{summary['first_tick']:06d}.vtu", f"file {series['line'][0][1]}")
+            check_body_series(series["line"], "rope", 11, [0])
+            check_body_series(series["sheet"], "cloth", 25, [0, 4])
+            fluid_particles = series["drop"][0][2]["points"].shape[0]
+            check(fluid_particles > 0, "the fluid has no particles")
+            check_body_series(series["drop"], "fluid", fluid_particles, [])
+        finally:
+            server.stop()
+        print(f"ok: a rope, a cloth and a fluid recorded as their own series, read back by VTK")
+
+
 def mode_examples(args):
     specs = sorted(glob.glob(os.path.join(args.examples, "*.json")))
     check(specs, f"no example specs in {args.examples}")
@@ -311,14 +370,15 @@ def mode_examples(args):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("mode", choices=["sim", "record", "examples"])
+    p.add_argument("mode", choices=["sim", "record", "record-bodies", "examples"])
     p.add_argument("--sim")
     p.add_argument("--mesh-tool", help="pliant-mesh: also read VTK's zlib-compressed .vtu (sim mode)")
     p.add_argument("--server")
     p.add_argument("--cli")
     p.add_argument("--examples")
     args = p.parse_args()
-    {"sim": mode_sim, "record": mode_record, "examples": mode_examples}[args.mode](args)
+    {"sim": mode_sim, "record": mode_record, "record-bodies": mode_record_bodies,
+     "examples": mode_examples}[args.mode](args)
 
 
 if __name__ == "__main__":

@@ -160,5 +160,34 @@ TEST(VtuRecording, RefusesAFrameThatDoesNotMatchTheTopology) {
   EXPECT_THROW(write_vtu_frame(cube(), f, dir.file("no/such/dir/bad.vtu")), std::runtime_error);
 }
 
+TEST(VtuRecording, ParticleBodiesAreTrianglesLinesOrVertexCellsWithoutDetF) {
+  ScratchDir dir("vtu-recording-bodies");
+  RecordingTopology t;
+  for (int i = 0; i < 4; ++i) t.rest_positions.emplace_back(i, 0, 0);
+  t.triangles = {{0, 1, 2}};
+  t.segments = {{2, 3}};
+  t.point_cells = true;
+  RecordingFrame f;
+  f.positions = t.rest_positions;
+  VtuRecorder rec(dir.path().string(), t, "body-sheet", "body-sheet");
+  const std::string path = rec.write(f, 7);
+  EXPECT_EQ(path, dir.file("body-sheet_000007.vtu"));
+  EXPECT_EQ(rec.pvd_path(), dir.file("body-sheet.pvd"));
+  const std::string file = read_all(path);
+  EXPECT_EQ(file.find("det_F"), std::string::npos);
+  EXPECT_NE(file.find("NumberOfCells=\"6\""), std::string::npos);  // 1 triangle + 1 segment + 4 vertices
+  const auto arrays = appended_arrays(file);
+  EXPECT_EQ(as<uint8_t>(arrays.at("types")), (std::vector<uint8_t>{5, 3, 1, 1, 1, 1}));
+  EXPECT_EQ(as<int64_t>(arrays.at("connectivity")), (std::vector<int64_t>{0, 1, 2, 2, 3, 0, 1, 2, 3}));
+  EXPECT_EQ(as<int64_t>(arrays.at("offsets")), (std::vector<int64_t>{3, 5, 6, 7, 8, 9}));
+  t.segments = {{2, 9}};
+  try {
+    write_vtu_frame(t, f, dir.file("bad.vtu"));
+    FAIL() << "accepted a segment to vertex 9 of 4";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("segment vertex index 9"), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 }  // namespace pliant::test

@@ -5,12 +5,15 @@
 //
 // A frame carries the current positions as the points, and point data `displacement` (x - rest),
 // `velocity`, `fixed` (1 for a held vertex), cell data `det_F` (volume ratio of each tet against
-// its rest shape) and field data `residual` and `TimeValue`. Binary data is appended raw, little
-// endian, with UInt64 headers.
+// its rest shape; a recording of tets only) and field data `residual` and `TimeValue`. Binary
+// data is appended raw, little endian, with UInt64 headers. Besides tets a recording may hold
+// triangles (a cloth), line segments (a rope) and one vertex cell per point (a fluid's particles),
+// so that the particle bodies of a scene are recorded as their own series.
 #pragma once
 
 #include "pliant/mesh.hpp"
 
+#include <array>
 #include <cstdint>
 #include <fstream>
 #include <string>
@@ -24,6 +27,9 @@ struct RecordingTopology {
   std::vector<Vec3> rest_positions;
   std::vector<Tet> tets;
   std::vector<uint8_t> fixed;  // one per vertex (empty: none fixed)
+  std::vector<std::array<int32_t, 3>> triangles;  // VTK_TRIANGLE cells
+  std::vector<std::array<int32_t, 2>> segments;   // VTK_LINE cells
+  bool point_cells = false;                       // one VTK_VERTEX cell per point
 };
 
 // One frame's data. `velocity` may be empty (written as zeros).
@@ -51,8 +57,9 @@ void write_pvd(const std::vector<std::pair<double, std::string>>& entries, const
 // recording cut short is still a valid collection.
 class VtuRecorder {
  public:
-  // Creates the directory if needed (std::runtime_error if it cannot).
-  VtuRecorder(std::string dir, RecordingTopology topology, std::string stem = "frame");
+  // Creates the directory if needed (std::runtime_error if it cannot). The collection is
+  // <dir>/<pvd_stem>.pvd, by default <stem>s.pvd.
+  VtuRecorder(std::string dir, RecordingTopology topology, std::string stem = "frame", std::string pvd_stem = "");
 
   // Writes the frame numbered `index` (the file name's number) and updates the .pvd. Returns the
   // .vtu's path.
@@ -65,7 +72,7 @@ class VtuRecorder {
   std::string pvd_path() const;
 
  private:
-  std::string dir_, stem_;
+  std::string dir_, stem_, pvd_stem_;
   RecordingTopology topology_;
   std::vector<std::pair<double, std::string>> entries_;
   std::fstream pvd_;

@@ -96,30 +96,42 @@ void write_vtu_frame(const RecordingTopology& topo, const RecordingFrame& frame,
   if (!topo.fixed.empty() && topo.fixed.size() != n)
     throw std::invalid_argument("topology: " + std::to_string(topo.fixed.size()) + " fixed flags, expected " +
                                 std::to_string(n));
+  auto check_index = [n](const char* what, int32_t v) {
+    if (v < 0 || static_cast<size_t>(v) >= n)
+      throw std::invalid_argument(std::string("topology: ") + what + " vertex index " + std::to_string(v) +
+                                  " out of range [0, " + std::to_string(n) + ")");
+  };
   for (const Tet& e : topo.tets)
-    for (int32_t v : e)
-      if (v < 0 || static_cast<size_t>(v) >= n)
-        throw std::invalid_argument("topology: tet vertex index " + std::to_string(v) + " out of range [0, " +
-                                    std::to_string(n) + ")");
+    for (int32_t v : e) check_index("tet", v);
+  for (const auto& e : topo.triangles)
+    for (int32_t v : e) check_index("triangle", v);
+  for (const auto& e : topo.segments)
+    for (int32_t v : e) check_index("segment", v);
 
   std::vector<Vec3> displacement(n);
   for (size_t i = 0; i < n; ++i) displacement[i] = frame.positions[i] - topo.rest_positions[i];
   std::vector<uint8_t> fixed(n, 0);
   for (size_t i = 0; i < topo.fixed.size(); ++i) fixed[i] = topo.fixed[i] ? 1 : 0;
   std::vector<int64_t> connectivity, offsets;
-  connectivity.reserve(4 * topo.tets.size());
-  offsets.reserve(topo.tets.size());
-  for (const Tet& e : topo.tets) {
-    for (int32_t v : e) connectivity.push_back(v);
+  std::vector<uint8_t> types;
+  auto cell = [&](const auto& vertices, uint8_t type) {
+    for (int32_t v : vertices) connectivity.push_back(v);
     offsets.push_back(static_cast<int64_t>(connectivity.size()));
-  }
-  const std::vector<uint8_t> types(topo.tets.size(), 10);  // VTK_TETRA
+    types.push_back(type);
+  };
+  for (const Tet& e : topo.tets) cell(e, 10);              // VTK_TETRA
+  for (const auto& e : topo.triangles) cell(e, 5);         // VTK_TRIANGLE
+  for (const auto& e : topo.segments) cell(e, 3);          // VTK_LINE
+  if (topo.point_cells)
+    for (size_t i = 0; i < n; ++i) cell(std::array<int32_t, 1>{static_cast<int32_t>(i)}, 1);  // VTK_VERTEX
+  // det F per cell only where every cell is a tet.
+  const bool tets_only = !topo.tets.empty() && types.size() == topo.tets.size();
 
   AppendedData data;
   const size_t o_disp = data.add(flatten(displacement, n));
   const size_t o_vel = data.add(flatten(frame.velocity, n));
   const size_t o_fixed = data.add(fixed);
-  const size_t o_detf = data.add(tet_volume_ratios(topo.rest_positions, topo.tets, frame.positions));
+  const size_t o_detf = tets_only ? data.add(tet_volume_ratios(topo.rest_positions, topo.tets, frame.positions)) : 0;
   const size_t o_points = data.add(flatten(frame.positions, n));
   const size_t o_conn = data.add(connectivity);
   const size_t o_off = data.add(offsets);
@@ -141,15 +153,14 @@ void write_vtu_frame(const RecordingTopology& topo, const RecordingFrame& frame,
     << "      <DataArray type=\"Float64\" Name=\"residual\" NumberOfTuples=\"1\" format=\"ascii\">"
     << number(frame.residual) << "</DataArray>\n"
     << "    </FieldData>\n"
-    << "    <Piece NumberOfPoints=\"" << n << "\" NumberOfCells=\"" << topo.tets.size() << "\">\n"
+    << "    <Piece NumberOfPoints=\"" << n << "\" NumberOfCells=\"" << types.size() << "\">\n"
     << "      <PointData Vectors=\"displacement\" Scalars=\"fixed\">\n"
     << "  " << array("Float64", "displacement", 3, o_disp)
     << "  " << array("Float64", "velocity", 3, o_vel)
     << "  " << array("UInt8", "fixed", 1, o_fixed)
     << "      </PointData>\n"
-    << "      <CellData Scalars=\"det_F\">\n"
-    << "  " << array("Float64", "det_F", 1, o_detf)
-    << "      </CellData>\n"
+    << (tets_only ? "      <CellData Scalars=\"det_F\">\n  " + array("Float64", "det_F", 1, o_detf) + "      </CellData>\n"
+                  : std::string())
     << "      <Points>\n"
     << "  " << array("Float64", "Points", 3, o_points)
     << "      </Points>\n"
@@ -183,14 +194,15 @@ void write_pvd(const std::vector<std::pair<double, std::string>>& entries, const
   if (ec) throw std::runtime_error("cannot rename '" + tmp + "' to '" + path + "': " + ec.message());
 }
 
-VtuRecorder::VtuRecorder(std::string dir, RecordingTopology topology, std::string stem)
-    : dir_(std::move(dir)), stem_(std::move(stem)), topology_(std::move(topology)) {
+VtuRecorder::VtuRecorder(std::string dir, RecordingTopology topology, std::string stem, std::string pvd_stem)
+    : dir_(std::move(dir)), stem_(std::move(stem)), pvd_stem_(pvd_stem.empty() ? stem_ + "s" : std::move(pvd_stem)),
+      topology_(std::move(topology)) {
   std::error_code ec;
   std::filesystem::create_directories(dir_, ec);
   if (ec) throw std::runtime_error("cannot create directory '" + dir_ + "': " + ec.message());
 }
 
-std::string VtuRecorder::pvd_path() const { return (std::filesystem::path(dir_) / (stem_ + "s.pvd")).string(); }
+std::string VtuRecorder::pvd_path() const { return (std::filesystem::path(dir_) / (pvd_stem_ + ".pvd")).string(); }
 
 std::string VtuRecorder::write(const RecordingFrame& frame, long index) {
   char name[96];
