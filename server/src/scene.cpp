@@ -77,6 +77,7 @@ struct Scene::TickState {
   // Each body's two-way contact with the tet body (nullopt: none).
   std::vector<std::optional<CouplingSettings>> body_contact;
   std::vector<Vec3> particle_start;  // scratch: a body's positions before its step
+  std::vector<ParticleStepReport> body_reports;  // each body's step in the tick in progress
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
   Clock::time_point anchor;
@@ -788,6 +789,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   }
   // The particle bodies, after the tet body, with the tick's dt against the same colliders;
   // a cancelled tick stops between bodies (a body's own step is not interrupted).
+  t.body_reports.assign(t.bodies.size(), ParticleStepReport{});
   for (size_t b = 0; b < t.bodies.size() && failure.empty() && !report.cancelled; ++b) {
     if (cancel_tick_.load()) {
       report.cancelled = true;
@@ -797,7 +799,8 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     try {
       const auto& contact = t.body_contact[b];
       if (contact) t.particle_start = t.bodies[b]->state().x;
-      t.bodies[b]->step(t.settings.dt, t.colliders);
+      const auto t_body = Clock::now();
+      t.body_reports[b] = t.bodies[b]->step(t.settings.dt, t.colliders);
       if (contact) {
         // Two-way with the soft body: the particles move out, the tet body takes their momentum.
         ParticleState ps = t.bodies[b]->state();
@@ -805,6 +808,8 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
                                  t.particle_start);
         t.bodies[b]->set_state(ps);
       }
+      // What the body cost the tick: its step and its contact with the tet body.
+      t.body_reports[b].wall_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_body).count();
       const ParticleState& st = t.bodies[b]->state();
       bool finite = true;
       for (size_t i = 0; i < st.x.size() && finite; ++i) finite = st.x[i].allFinite() && st.v[i].allFinite();
@@ -891,6 +896,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   for (size_t b = 0; b < t.bodies.size(); ++b) {
     const auto& x = t.bodies[b]->state().x;
     frame->bodies[b].name = bodies_info_[b].name;
+    frame->bodies[b].report = b < t.body_reports.size() ? t.body_reports[b] : ParticleStepReport{};
     auto& out = frame->bodies[b].positions;
     out.resize(x.size() * 3);
     for (size_t i = 0; i < x.size(); ++i)

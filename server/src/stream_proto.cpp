@@ -80,6 +80,17 @@ void frame_to_proto(const Frame& f, const FrameSelection& sel, const std::vector
   }
   if (sel.residuals) out->mutable_residuals()->Add(f.solver.residuals.begin(), f.solver.residuals.end());
   solver_stats_to_proto(f.solver, sel.solver_stats, out->mutable_solver());
+  if (sel.solver_stats)
+    for (const auto& b : f.bodies) {
+      auto* bs = out->mutable_solver()->add_bodies();
+      bs->set_name(b.name);
+      bs->set_step_wall_ms(b.report.wall_ms);
+      bs->set_substeps(b.report.substeps);
+      bs->set_iterations(b.report.iterations);
+      bs->set_constraint_error(b.report.constraint_error);
+      bs->set_max_constraint_error(b.report.max_constraint_error);
+      bs->set_contacts(static_cast<uint32_t>(b.report.contacts));
+    }
   out->set_late_ticks(f.counters.late_ticks);
   out->set_skipped_ticks(f.counters.skipped_ticks);
   out->set_lateness_ms(f.lateness_ms);

@@ -196,6 +196,17 @@ TEST(Bodies, SceneCarriesItsBodiesWhichFallUnderGravityWhilePinsHold) {
   s->cancel();
   EXPECT_EQ(g.bodies_size(), 0);
   EXPECT_EQ(g.positions_size(), 0);
+  // Their solver stats say what each body's step cost and reached.
+  ASSERT_EQ(g.solver().bodies_size(), 3);
+  for (int b = 0; b < 3; ++b) {
+    SCOPED_TRACE(g.solver().bodies(b).name());
+    EXPECT_EQ(g.solver().bodies(b).name(), created->bodies(b).name());
+    EXPECT_GT(g.solver().bodies(b).step_wall_ms(), 0);
+    EXPECT_GE(g.solver().bodies(b).substeps(), 1);
+    EXPECT_GE(g.solver().bodies(b).constraint_error(), 0);
+    EXPECT_GE(g.solver().bodies(b).max_constraint_error(), g.solver().bodies(b).constraint_error());
+  }
+  EXPECT_EQ(g.solver().bodies(0).substeps(), 8);  // the rope's spec
 }
 
 TEST(Bodies, GrabOnARopeParticleHoldsItsWeightAndMovesIt) {

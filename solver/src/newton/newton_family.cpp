@@ -345,7 +345,8 @@ void NewtonFamily::assemble(const BodyModel& m, const std::vector<Vec3>& x, doub
       const int d = dof_[v];
       if (d < 0) continue;
       Vec3 sum = Vec3::Zero();
-      for (int32_t c = corner_begin_[v]; c < corner_begin_[v + 1]; ++c) sum += Eigen::Map<const Vec3>(&tet_gradient_[size_t(corner_at_[size_t(c)])]);
+      for (int32_t c = corner_begin_[v]; c < corner_begin_[v + 1]; ++c)
+        sum += Eigen::Map<const Vec3>(&tet_gradient_[size_t(corner_at_[size_t(c)])]);
       sum += inv_h2 * m.inertia[v] * (x[v] - y_[v]);
       g_.segment<3>(d) = sum;
       if (hessian)

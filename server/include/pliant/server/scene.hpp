@@ -94,6 +94,7 @@ struct Frame {
   struct BodyPositions {
     std::string name;
     std::vector<float> positions;
+    ParticleStepReport report;  // the body's step in this tick (wall_ms: with its contact)
   };
   std::vector<BodyPositions> bodies;
 };
