@@ -10,6 +10,7 @@
 #include "pliant/stepper.hpp"
 #include "pliant/strain_constraint.hpp"
 #include "vbd/vbd.hpp"
+#include "vbd/vbd_lanes.hpp"
 
 #include <Eigen/Dense>
 #include <Eigen/Geometry>
@@ -150,6 +151,105 @@ TEST(VertexBlockDescent, VertexGradientAndHessianMatchTheReferenceAndFiniteDiffe
         }
       }
     }
+  }
+}
+
+TEST(VertexBlockDescent, TheLaneKernelMatchesThePerTetForms) {
+  // A deformed beam: every vertex's tets four at a time (vbd_lanes.hpp) against the per-tet
+  // Gauss-Newton forms summed one tet at a time, at the gathered positions and with the vertex
+  // moved after the gather (no new gather), and the inversion test of the line search.
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (ElasticModel model : kModels) {
+    auto m = beam1(1e6, model, false);
+    const auto packs = detail::compile_vertex_packs<detail::v4d>(*m);
+    std::vector<Vec3> x = m->rest_positions;
+    const Mat3 R = Eigen::AngleAxisd(0.8, Vec3(1, -2, 1).normalized()).toRotationMatrix();
+    for (Vec3& p : x) p = R * (p + Vec3(0.3 * p[0] * p[0], 0.05 * p[0], 0)) + 0.2 * m->mean_edge * Vec3(u(rng), u(rng), u(rng));
+    std::vector<int> valences;
+    detail::VertexTets<detail::v4d> tets;
+    for (int32_t i = 0; i < int32_t(m->vertex_count()); ++i) {
+      tets.gather(packs, i, x);
+      valences.push_back(m->vertex_tet_start[i + 1] - m->vertex_tet_start[i]);
+      for (const Vec3& d : {Vec3(Vec3::Zero()), Vec3(0.1 * m->mean_edge * Vec3(u(rng), u(rng), u(rng)))}) {
+        std::vector<Vec3> xm = x;
+        xm[i] += d;
+        Vec3 g_ref = Vec3::Zero();
+        Mat3 H_ref = Mat3::Zero();
+        double e_ref = 0;
+        bool inverted = false;
+        for (int32_t a = m->vertex_tet_start[i]; a < m->vertex_tet_start[i + 1]; ++a) {
+          const TetRest& t = m->tets[m->vertex_tet_entry[a] >> 2];
+          Vec3 g;
+          Mat3 H;
+          detail::tet_vertex_derivatives(t, m->vertex_tet_entry[a] & 3, gather(xm, t.v), m->stiffness, model,
+                                         detail::VbdHessian::GaussNewton, g, H);
+          g_ref += g;
+          H_ref += H;
+          e_ref += detail::tet_energy(t, gather(xm, t.v), m->stiffness, model);
+          inverted |= !(volume_ratio(t, gather(xm, t.v)) > 0);
+        }
+        Vec3 g;
+        Mat3 H;
+        tets.derivatives(d, m->lame, model, g, &H);
+        EXPECT_NEAR((g - g_ref).norm(), 0, 1e-11 * (g_ref.norm() + H_ref.norm() * m->mean_edge)) << "vertex " << i;
+        EXPECT_NEAR((H - H_ref).norm(), 0, 1e-11 * H_ref.norm()) << "vertex " << i;
+        Vec3 g_only;
+        tets.derivatives(d, m->lame, model, g_only, nullptr);
+        EXPECT_EQ(g_only, g);
+        double e = 0;
+        ASSERT_EQ(tets.energy(d, m->lame, model, e), !inverted) << "vertex " << i;
+        if (!inverted) {
+          EXPECT_NEAR(e, e_ref, 1e-11 * e_ref) << "vertex " << i;
+        }
+      }
+      // Pushing the vertex through the plane of one of its tets' other corners inverts it.
+      const TetRest& t = m->tets[m->vertex_tet_entry[m->vertex_tet_start[i]] >> 2];
+      const int k = m->vertex_tet_entry[m->vertex_tet_start[i]] & 3;
+      const Vec3& a = x[t.v[(k + 1) % 4]];
+      const Vec3& b = x[t.v[(k + 2) % 4]];
+      const Vec3& c = x[t.v[(k + 3) % 4]];
+      const Vec3 n = (b - a).cross(c - a).normalized();
+      const Vec3 mirror = x[i] - 2 * (x[i] - a).dot(n) * n;
+      double e = 0;
+      EXPECT_FALSE(tets.energy(mirror - x[i], m->lame, model, e)) << "vertex " << i;
+      EXPECT_EQ(e, 0.0);
+    }
+    // The beam has vertices whose tet count is not a multiple of four (padding lanes).
+    EXPECT_TRUE(std::any_of(valences.begin(), valences.end(), [](int v) { return v % 4 != 0; }));
+  }
+}
+
+TEST(VertexBlockDescent, TheLaneKernelTakesThePerTetFormsStep) {
+  // Two steps with tools, a grab and Chebyshev: the lane kernel and the per-tet forms differ
+  // only in the order of the tets' sums.
+  for (ElasticModel model : kModels) {
+    auto m = beam1(1e5, model);
+    SolverSettings s = vbd_settings();
+    s.substeps = 2;
+    s.iterations = 20;
+    s.chebyshev.delay = 5;
+    StepInputs in;
+    in.tools.push_back(RigidTool::sphere(Vec3(0.1, 0.019, 0.005), 0.01));
+    in.attachments.push_back(Attachment::vertex(int32_t(m->vertex_count() - 1), m->rest_positions.back() + Vec3(0, 0.002, 0), 1e-3));
+    BodyState lanes = rest_state(*m), per_tet = lanes;
+    detail::VbdOptions opt;
+    auto a = detail::make_vbd_family(opt);
+    opt.lanes = false;
+    auto b = detail::make_vbd_family(opt);
+    double moved = 0, diff = 0;
+    for (int step = 0; step < 2; ++step) {
+      const StepReport ra = a->step(*m, lanes, s, in, {});
+      const StepReport rb = b->step(*m, per_tet, s, in, {});
+      EXPECT_EQ(ra.iterations, rb.iterations);
+      EXPECT_NEAR((ra.tools[0].force - rb.tools[0].force).norm(), 0, 1e-7 * rb.tools[0].force.norm() + 1e-12);
+    }
+    for (size_t i = 0; i < lanes.x.size(); ++i) {
+      moved = std::max(moved, (per_tet.x[i] - m->rest_positions[i]).norm());
+      diff = std::max(diff, (lanes.x[i] - per_tet.x[i]).norm());
+    }
+    EXPECT_GT(moved, 1e-3);
+    EXPECT_LT(diff, 1e-8 * moved) << to_string(model);
   }
 }
 

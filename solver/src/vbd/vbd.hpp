@@ -36,6 +36,9 @@ enum class VbdInitialGuess {
 struct VbdOptions {
   VbdHessian hessian = VbdHessian::GaussNewton;
   VbdInitialGuess initial_guess = VbdInitialGuess::Adaptive;
+  // Gauss-Newton blocks from the lane kernel (vbd_lanes.hpp: a vertex's tets four at a time);
+  // false, or another Hessian, takes the per-tet forms below (the tests compare the two).
+  bool lanes = true;
 };
 
 std::unique_ptr<SolverFamily> make_vbd_family(const VbdOptions& options);

@@ -3,6 +3,7 @@
 // steps, the paper's Chebyshev acceleration and adaptive initial guess, grabs and tools as
 // energies, static colliders through the shared stage, and the report.
 #include "vbd/vbd.hpp"
+#include "vbd/vbd_lanes.hpp"
 
 #include "kernels/projection.hpp"
 #include "pliant/strain_constraint.hpp"
@@ -83,10 +84,16 @@ class VbdFamily final : public SolverFamily {
   double diagonal_stiffness(const BodyModel& m, int32_t i) const {
     return m.inertia[i] * sub_.inv_h2 + rest_stiffness_[i];
   }
-  // -dG/dx_i (f) and the vertex's 3x3 block (H; skipped when null) at positions x.
-  void vertex_system(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, Vec3& f, Mat3* H) const;
+  // -dG/dx_i (f) and the vertex's 3x3 block (H; skipped when null) at positions x. With the
+  // lane kernel, `tets` holds the vertex's tets gathered with x_i at `origin`.
+  void vertex_system(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, const VertexTets<v4d>* tets,
+                     const Vec3& origin, Vec3& f, Mat3* H) const;
   // The part of G that depends on x_i, with x_i at p: +inf if a tet of i would invert.
-  double vertex_energy(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, const Vec3& p) const;
+  double vertex_energy(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, const VertexTets<v4d>* tets,
+                       const Vec3& origin, const Vec3& p) const;
+  // The vertex's tets gathered at x for the lane kernel (this thread's buffer), or null when
+  // the per-tet forms are used.
+  const VertexTets<v4d>* gather_tets(int32_t i, const std::vector<Vec3>& x) const;
   // Contact (and friction) force on the body from one tool at vertex i, position p, added to
   // f, with its Hessian and energy when asked. Returns false when i does not touch the tool.
   bool tool_force(const BodyModel& m, const ToolPose& tool, int32_t i, const Vec3& p, Vec3& f, Mat3* H,
@@ -105,8 +112,10 @@ class VbdFamily final : public SolverFamily {
   VbdOptions opt_;
   std::unique_ptr<ThreadPool> pool_;
   int pool_threads_ = 0;
-  uint64_t model_id_ = 0;               // the model rest_stiffness_ belongs to
+  uint64_t model_id_ = 0;               // the model rest_stiffness_ and packs_ belong to
   std::vector<double> rest_stiffness_;  // sum over the vertex's tets of V0 (lambda + 2 mu) |b|^2
+  bool lanes_ = false;                  // the lane kernel applies (vbd_lanes.hpp)
+  VertexPacks<v4d> packs_;
   std::vector<Vec3> x_start_, y_, v_before_, v_last_, x_prev_, x_prev2_;
   std::vector<double> partial_;
   Substep sub_;
@@ -136,6 +145,16 @@ void VbdFamily::prepare_model(const BodyModel& m) {
     }
   }
   v_last_.clear();
+  // The lane kernel writes K through the Lame parameters: only for the isotropic K it has.
+  lanes_ = opt_.lanes && opt_.hessian == VbdHessian::GaussNewton && m.stiffness == stvk_stiffness(m.lame);
+  packs_ = lanes_ ? compile_vertex_packs<v4d>(m) : VertexPacks<v4d>{};
+}
+
+const VertexTets<v4d>* VbdFamily::gather_tets(int32_t i, const std::vector<Vec3>& x) const {
+  if (!lanes_) return nullptr;
+  thread_local VertexTets<v4d> tets;
+  tets.gather(packs_, i, x);
+  return &tets;
 }
 
 void VbdFamily::prepare_grabs(const BodyModel& m, const StepInputs& inputs, double h) {
@@ -202,12 +221,20 @@ bool VbdFamily::tool_force(const BodyModel& m, const ToolPose& tp, int32_t i, co
   return true;
 }
 
-void VbdFamily::vertex_system(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, Vec3& f, Mat3* H) const {
+void VbdFamily::vertex_system(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, const VertexTets<v4d>* tets,
+                              const Vec3& origin, Vec3& f, Mat3* H) const {
   const double mi = m.inertia[i] * sub_.inv_h2;
   f = -mi * (x[i] - y_[i]);
   if (H) *H = mi * Mat3::Identity();
   const VbdHessian mode = opt_.hessian;
-  for (int32_t a = m.vertex_tet_start[i]; a < m.vertex_tet_start[i + 1]; ++a) {
+  if (tets) {
+    Vec3 g;
+    Mat3 Ht;
+    tets->derivatives(x[i] - origin, m.lame, m.material.model, g, H ? &Ht : nullptr);
+    f -= g;
+    if (H) *H += Ht;
+  }
+  for (int32_t a = m.vertex_tet_start[i]; !tets && a < m.vertex_tet_start[i + 1]; ++a) {
     const TetRest& t = m.tets[m.vertex_tet_entry[a] >> 2];
     Vec3 g;
     Mat3 Ht;
@@ -228,9 +255,11 @@ void VbdFamily::vertex_system(const BodyModel& m, int32_t i, const std::vector<V
   if (!tools_.empty()) tool_forces(m, i, x[i], f, H, nullptr);
 }
 
-double VbdFamily::vertex_energy(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, const Vec3& p) const {
+double VbdFamily::vertex_energy(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, const VertexTets<v4d>* tets,
+                                const Vec3& origin, const Vec3& p) const {
   double e = 0.5 * m.inertia[i] * sub_.inv_h2 * (p - y_[i]).squaredNorm();
-  for (int32_t a = m.vertex_tet_start[i]; a < m.vertex_tet_start[i + 1]; ++a) {
+  if (tets && !tets->energy(p - origin, m.lame, m.material.model, e)) return HUGE_VAL;  // a tet would invert
+  for (int32_t a = m.vertex_tet_start[i]; !tets && a < m.vertex_tet_start[i + 1]; ++a) {
     const TetRest& t = m.tets[m.vertex_tet_entry[a] >> 2];
     std::array<Vec3, 4> q = gather(x, t.v);
     q[m.vertex_tet_entry[a] & 3] = p;
@@ -259,8 +288,10 @@ void VbdFamily::solve_vertex(const BodyModel& m, int32_t i, std::vector<Vec3>& x
   Vec3 f;
   Mat3 H;
   bool ok;
+  const Vec3 origin = x[i];
+  const VertexTets<v4d>* tets = gather_tets(i, x);
   if (!sub_.line_search) {
-    vertex_system(m, i, x, f, &H);
+    vertex_system(m, i, x, tets, origin, f, &H);
     const Vec3 dx = solve3(H, f, ok);
     if (ok && dx.allFinite()) x[i] += dx;
     return;
@@ -270,16 +301,15 @@ void VbdFamily::solve_vertex(const BodyModel& m, int32_t i, std::vector<Vec3>& x
   // step helps, the system changed along it (a contact began: its stiffness was not in H), so
   // take another Newton step from the rejected point, still judged against the start. Writing
   // x[i] while trying is safe: no other vertex of the colour reads it.
-  const Vec3 origin = x[i];
-  const double e0 = vertex_energy(m, i, x, origin);
+  const double e0 = vertex_energy(m, i, x, tets, origin, origin);
   for (int attempt = 0; attempt < kLocalNewtonSteps; ++attempt) {
-    vertex_system(m, i, x, f, &H);
+    vertex_system(m, i, x, tets, origin, f, &H);
     const Vec3 dx = solve3(H, f, ok);
     if (!ok || !dx.allFinite()) break;
     const Vec3 from = x[i];
     double scale = 1;
     for (int k = 0; k <= kLineSearchHalvings; ++k, scale *= 0.5)
-      if (vertex_energy(m, i, x, from + scale * dx) <= e0) {
+      if (vertex_energy(m, i, x, tets, origin, from + scale * dx) <= e0) {
         x[i] = from + scale * dx;
         return;
       }
@@ -303,7 +333,7 @@ double VbdFamily::gradient_norm(const BodyModel& m, const std::vector<Vec3>& x, 
     for (size_t i = b; i < e; ++i) {
       if (m.inv_mass[i] == 0) continue;
       Vec3 f;
-      vertex_system(m, int32_t(i), x, f, nullptr);
+      vertex_system(m, int32_t(i), x, gather_tets(int32_t(i), x), x[i], f, nullptr);
       sum += f.squaredNorm();
     }
     partial_[chunk] = sum;
