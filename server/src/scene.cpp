@@ -798,7 +798,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     const std::string& name = bodies_info_[b].name;
     try {
       const auto& contact = t.body_contact[b];
-      if (contact) t.particle_start = t.bodies[b]->state().x;
+      if (contact || !inputs.tools.empty()) t.particle_start = t.bodies[b]->state().x;
       const auto t_body = Clock::now();
       t.body_reports[b] = t.bodies[b]->step(t.settings.dt, t.colliders);
       if (contact) {
@@ -807,6 +807,19 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
         couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, t.settings.dt,
                                  t.particle_start);
         t.bodies[b]->set_state(ps);
+      }
+      if (!inputs.tools.empty()) {
+        // The rigid tools push the particles out and feel it: their reactions (the haptic
+        // stream's force) add the body's push to the tet body's.
+        ParticleState ps = t.bodies[b]->state();
+        if (report.tools.size() != inputs.tools.size()) report.tools.resize(inputs.tools.size());
+        size_t pushed = 0;
+        for (size_t k = 0; k < inputs.tools.size(); ++k)
+          pushed += couple_particles_to_tool(ps, t.bodies[b]->inverse_masses(), inputs.tools[k],
+                                             t.bodies[b]->contact_radius(), t.settings.dt, t.particle_start,
+                                             report.tools[k]);
+        if (pushed > 0) t.bodies[b]->set_state(ps);
+        t.body_reports[b].tool_contacts = pushed;
       }
       // What the body cost the tick: its step and its contact with the tet body.
       t.body_reports[b].wall_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_body).count();

@@ -5,6 +5,7 @@
 // field named when their spec is bad.
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
+#include "pliant/test/wait_until.hpp"
 
 #include "in_process_server.hpp"
 
@@ -15,6 +16,8 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <mutex>
+#include <thread>
 #include <unistd.h>
 
 using namespace pliant;
@@ -207,6 +210,59 @@ TEST(Bodies, SceneCarriesItsBodiesWhichFallUnderGravityWhilePinsHold) {
     EXPECT_GE(g.solver().bodies(b).max_constraint_error(), g.solver().bodies(b).constraint_error());
   }
   EXPECT_EQ(g.solver().bodies(0).substeps(), 8);  // the rope's spec
+}
+
+TEST(Bodies, TheHapticToolFeelsTheClothItCatches) {
+  // A 10 cm sphere held (one pose over the haptic stream) 5 cm under the middle of the cloth,
+  // away from the beam: the falling cloth lands on it, and the tool's feedback carries the
+  // cloth's push (down) while the cloth's stats count the particles it pushed.
+  BodiesServer srv;
+  Client c = srv.client();
+  ASSERT_TRUE(c.create_scene(bodies_request("t")).ok());
+  auto stream = c.haptic_stream();
+  std::mutex mu;
+  std::vector<v1::ToolFeedback> got;
+  std::thread reader([&] {
+    v1::ToolFeedback f;
+    while (stream->next(&f)) {
+      std::lock_guard lk(mu);
+      got.push_back(f);
+    }
+  });
+  v1::ToolPose pose;
+  pose.set_scene_id("t");
+  pose.set_shape(v1::TOOL_SHAPE_SPHERE);
+  pose.set_radius(0.1);
+  pose.set_seq(1);
+  set(pose.mutable_position(), 3.2, 1.85, 0.2);
+  ASSERT_TRUE(stream->send(pose));
+  double lowest = 0;
+  auto pushed_down = [&] {
+    std::lock_guard lk(mu);
+    for (const auto& f : got) lowest = std::min(lowest, f.force().y());
+    return lowest < 0;
+  };
+  ASSERT_TRUE(test::wait_until([&] { return c.step("t", 1).ok() && pushed_down(); }, test::kPatience,
+                               "feedback with the cloth's push on the tool"));
+  v1::StreamFramesRequest q;
+  q.set_scene_id("t");
+  q.add_fields(v1::FRAME_FIELD_SOLVER_STATS);
+  auto s = c.stream_frames(q);
+  v1::Frame f;
+  ASSERT_TRUE(s->next(&f));
+  s->cancel();
+  stream->close();
+  reader.join();
+  EXPECT_TRUE(stream->finish().ok());
+  ASSERT_EQ(f.solver().bodies_size(), 3);
+  EXPECT_EQ(f.solver().bodies(1).name(), "cloth");
+  EXPECT_GT(f.solver().bodies(1).tool_contacts(), 0u);
+  EXPECT_EQ(f.solver().bodies(0).tool_contacts(), 0u);  // the rope is elsewhere
+  EXPECT_EQ(f.solver().bodies(2).tool_contacts(), 0u);  // so is the water
+  // The cloth weighs 0.2 kg/m^2 x 0.16 m^2: a push of the order of its weight (0.31 N), and
+  // nothing from the beam, which the tool does not touch.
+  EXPECT_LT(lowest, -0.01);
+  EXPECT_GT(lowest, -100.0);
 }
 
 TEST(Bodies, GrabOnARopeParticleHoldsItsWeightAndMovesIt) {

@@ -219,3 +219,95 @@ TEST(Coupling, LeavesBlownUpParticlesToTheCaller) {
   EXPECT_EQ(s.particles.x[2], Vec3(1e300, -1e300, 1e300));
   for (const Vec3& v : s.body.v) EXPECT_TRUE(v.allFinite());
 }
+
+namespace {
+
+// 60 particles of 10 g around a 2 cm sphere tool moving at 0.3 m/s along x: some inside it, some
+// just outside its grown radius; one pinned particle inside.
+struct AroundATool {
+  ParticleState particles;
+  std::vector<double> w;
+  RigidTool tool = RigidTool::sphere(Vec3(0.01, 0.02, 0.0), 0.02);
+};
+
+AroundATool around_a_tool() {
+  AroundATool s;
+  s.tool.velocity = Vec3(0.3, 0.0, 0.0);
+  for (int i = 0; i < 60; ++i) {
+    const double a = 0.7 * i, b = 0.31 * i;
+    const double r = 0.012 + 0.0003 * (i % 40);  // 12 .. 23.7 mm from the centre
+    s.particles.x.push_back(s.tool.position + r * Vec3(std::cos(a) * std::sin(b + 0.2), std::cos(b + 0.2), std::sin(a) * std::sin(b + 0.2)));
+    s.particles.v.push_back(Vec3(0.05 * std::sin(double(i)), -0.1, 0.02 * std::cos(double(i))));
+    s.w.push_back(i == 7 ? 0.0 : 100.0);
+  }
+  return s;
+}
+
+}  // namespace
+
+TEST(ToolCoupling, PushesParticlesOutAndTheToolFeelsMinusTheirMomentum) {
+  AroundATool s = around_a_tool();
+  const ParticleState before = s.particles;
+  const double radius = 0.001, dt = 1.0 / 60;
+  ToolReaction r;
+  r.force = Vec3(1, 2, 3);  // the tet body's part: the particles' is added to it
+  const size_t pushed = couple_particles_to_tool(s.particles, s.w, s.tool, radius, dt, {}, r);
+  EXPECT_GT(pushed, 10u);
+  Vec3 gained = Vec3::Zero(), angular = Vec3::Zero();
+  size_t moved = 0;
+  for (size_t i = 0; i < s.w.size(); ++i) {
+    if (s.w[i] == 0) {
+      EXPECT_EQ(s.particles.x[i], before.x[i]) << "a pinned particle stays";
+      EXPECT_EQ(s.particles.v[i], before.v[i]);
+      continue;
+    }
+    EXPECT_GE((s.particles.x[i] - s.tool.position).norm(), s.tool.radius + radius - 1e-12) << "particle " << i;
+    const Vec3 dp = (s.particles.v[i] - before.v[i]) / s.w[i];
+    // The velocity change is the correction over dt.
+    EXPECT_NEAR((s.particles.x[i] - before.x[i] - dt * (s.particles.v[i] - before.v[i])).norm(), 0, 1e-15);
+    moved += s.particles.x[i] != before.x[i];
+    gained += dp;
+    angular += (s.particles.x[i] - s.tool.position).cross(dp);
+  }
+  EXPECT_EQ(moved, pushed);
+  // Newton's third law: what the particles gained, per second of the step, pushes the tool.
+  EXPECT_NEAR((r.force - Vec3(1, 2, 3) + gained / dt).norm(), 0, 1e-12 * gained.norm() / dt);
+  EXPECT_NEAR((r.torque + angular / dt).norm(), 0, 1e-12 * angular.norm() / dt + 1e-15);
+  EXPECT_TRUE(r.contacts.empty());
+  // Once out, nothing more.
+  ToolReaction again;
+  EXPECT_EQ(couple_particles_to_tool(s.particles, s.w, s.tool, radius, dt, {}, again), 0u);
+  EXPECT_EQ(again.force, Vec3::Zero());
+}
+
+TEST(ToolCoupling, StaticFrictionCarriesATouchingParticleAlongWithTheTool) {
+  // A particle 1 mm inside the bottom of a sphere that moved 2 mm along x during the step while
+  // the particle stood still: the slip (2 mm) is below mu_s x depth with mu_s 3, so the particle
+  // ends on the surface having moved with the tool; with no friction it only moves out.
+  for (double mu : {3.0, 0.0}) {
+    RigidTool tool = RigidTool::sphere(Vec3(0, 0.019, 0), 0.02);
+    tool.static_friction = tool.dynamic_friction = mu;
+    const double dt = 0.01;
+    tool.velocity = Vec3(0.2, 0, 0);
+    ParticleState p;
+    p.x = {Vec3(0, 0, 0)};
+    p.v = {Vec3::Zero()};
+    const std::vector<double> w = {1.0};
+    ToolReaction r;
+    ASSERT_EQ(couple_particles_to_tool(p, w, tool, 0.0, dt, std::vector<Vec3>{Vec3(0, 0, 0)}, r), 1u);
+    EXPECT_NEAR(p.x[0].y(), -0.001, 1e-12);
+    EXPECT_NEAR(p.x[0].x(), mu > 0 ? 0.002 : 0.0, 1e-12) << "mu " << mu;
+    EXPECT_NEAR(r.force.x(), mu > 0 ? -0.002 / dt / dt : 0.0, 1e-9);
+  }
+}
+
+TEST(ToolCoupling, RefusesMismatchedSizesAndBadRadiusOrStep) {
+  AroundATool s = around_a_tool();
+  ToolReaction r;
+  EXPECT_THROW(couple_particles_to_tool(s.particles, s.w, s.tool, -1.0, 0.01, {}, r), std::invalid_argument);
+  EXPECT_THROW(couple_particles_to_tool(s.particles, s.w, s.tool, 0.0, 0.0, {}, r), std::invalid_argument);
+  EXPECT_THROW(couple_particles_to_tool(s.particles, s.w, s.tool, 0.0, 0.01, std::vector<Vec3>(3), r),
+               std::invalid_argument);
+  s.w.pop_back();
+  EXPECT_THROW(couple_particles_to_tool(s.particles, s.w, s.tool, 0.0, 0.01, {}, r), std::invalid_argument);
+}

@@ -83,6 +83,7 @@ class ConstraintBody : public ParticleBody {
   const ParticleState& state() const override { return state_; }
   void set_state(const ParticleState& state) override;
   std::span<const double> inverse_masses() const override { return w_; }
+  double contact_radius() const override { return settings_.thickness; }
   std::span<const std::array<uint32_t, 3>> triangles() const override { return triangles_; }
 
   ParticleStepReport step(double dt, std::span<const Collider> colliders) override;

@@ -8,6 +8,7 @@
 // through its elasticity.
 #pragma once
 
+#include "pliant/interaction.hpp"
 #include "pliant/model.hpp"
 #include "pliant/particle_body.hpp"
 #include "pliant/state.hpp"
@@ -38,5 +39,20 @@ struct CouplingReport {
 CouplingReport couple_particles_to_body(const BodyModel& model, BodyState& body, ParticleState& particles,
                                         std::span<const double> particle_inv_mass, const CouplingSettings& settings,
                                         double dt, std::span<const Vec3> particle_start = {});
+
+// A rigid tool (the haptic bridge's sphere or capsule, at its end-of-step pose) against a particle
+// body after the body's step: every particle whose centre is inside the tool grown by `radius`
+// (the body's contact_radius) is put back on that surface, with Coulomb friction on its motion
+// relative to the tool over the step (static: the whole tangential slip taken back while it is
+// below static_friction x depth; else shortened by dynamic_friction x depth), and its velocity
+// changes by its correction / dt. The tool takes minus the momentum the particles gained, per
+// second of the step: added to `reaction` as a force and a torque about the tool's position
+// (the per-vertex contact list is the tet body's; particles are not listed). Pinned particles
+// (inverse mass 0) are left alone. Returns the particles pushed. `particle_start`: the positions
+// at the start of the step (empty: x - dt v). Throws std::invalid_argument naming the field when
+// sizes disagree or dt or radius is out of range.
+size_t couple_particles_to_tool(ParticleState& particles, std::span<const double> particle_inv_mass,
+                                const RigidTool& tool, double radius, double dt, std::span<const Vec3> particle_start,
+                                ToolReaction& reaction);
 
 }  // namespace pliant

@@ -103,6 +103,7 @@ class FluidBody final : public ParticleBody {
   const ParticleState& state() const override;
   void set_state(const ParticleState& state) override;
   std::span<const double> inverse_masses() const override;
+  double contact_radius() const override;  // particle_radius x spacing
 
   ParticleStepReport step(double dt, std::span<const Collider> colliders) override;
   void set_gravity(const Vec3& gravity) override;

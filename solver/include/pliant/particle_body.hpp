@@ -36,6 +36,7 @@ struct ParticleStepReport {
                                   // error; cloth/rope: RMS relative stretch)
   double max_constraint_error = 0.0;
   size_t contacts = 0;            // particle-collider contacts in the last substep
+  size_t tool_contacts = 0;       // particles the rigid tools pushed after the step (the scene's)
   double wall_ms = 0.0;
 };
 
@@ -56,6 +57,9 @@ class ParticleBody {
   virtual void set_state(const ParticleState& state) = 0;
   // Inverse masses, 1/kg; 0 for a pinned particle.
   virtual std::span<const double> inverse_masses() const = 0;
+  // How far from a collider or a tool a particle's centre stays, m (a fluid's particle radius,
+  // a cloth's or a rope's thickness).
+  virtual double contact_radius() const = 0;
   // Triangles to draw and to collide with (cloth); empty for fluids and ropes.
   virtual std::span<const std::array<uint32_t, 3>> triangles() const { return {}; }
 

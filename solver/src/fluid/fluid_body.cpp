@@ -707,6 +707,7 @@ FluidBody::~FluidBody() = default;
 size_t FluidBody::size() const { return impl_->n(); }
 const ParticleState& FluidBody::state() const { return impl_->state; }
 std::span<const double> FluidBody::inverse_masses() const { return impl_->inv_mass; }
+double FluidBody::contact_radius() const { return impl_->s.particle_radius * impl_->s.spacing; }
 const FluidSettings& FluidBody::settings() const { return impl_->s; }
 
 void FluidBody::set_gravity(const Vec3& gravity) {

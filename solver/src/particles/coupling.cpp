@@ -234,4 +234,48 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   return rep;
 }
 
+size_t couple_particles_to_tool(ParticleState& ps, std::span<const double> wp, const RigidTool& tool, double radius,
+                                double dt, std::span<const Vec3> particle_start, ToolReaction& reaction) {
+  if (wp.size() != ps.x.size() || ps.v.size() != ps.x.size())
+    throw std::invalid_argument(fmt::format("particles: {} positions, {} velocities and {} inverse masses differ",
+                                            ps.x.size(), ps.v.size(), wp.size()));
+  if (!particle_start.empty() && particle_start.size() != ps.x.size())
+    throw std::invalid_argument(fmt::format("particle_start has {} positions for {} particles", particle_start.size(),
+                                            ps.x.size()));
+  if (!(dt > 0) || !std::isfinite(dt)) throw std::invalid_argument(fmt::format("dt must be > 0 s, got {}", dt));
+  if (!(radius >= 0) || !std::isfinite(radius))
+    throw std::invalid_argument(fmt::format("radius must be >= 0 m, got {}", radius));
+  RigidTool grown = tool;
+  grown.radius += radius;
+  const Vec3 tool_motion = tool.velocity * dt;
+  const double inv_dt = 1.0 / dt;
+  size_t pushed = 0;
+  Vec3 impulse_sum = Vec3::Zero(), angular_sum = Vec3::Zero();
+  for (size_t i = 0; i < ps.x.size(); ++i) {
+    if (!(wp[i] > 0)) continue;
+    Vec3& xp = ps.x[i];
+    if (!xp.allFinite()) continue;  // a blown-up particle is the caller's to report
+    Vec3 q, n;
+    double depth;
+    if (!tool_contact(grown, xp, q, n, depth) || !(depth > 0)) continue;
+    const Vec3 before = xp;
+    xp += depth * n;
+    const Vec3 start = particle_start.empty() ? Vec3(before - dt * ps.v[i]) : particle_start[i];
+    const Vec3 slip = (xp - start) - tool_motion;
+    const Vec3 tangential = slip - slip.dot(n) * n;
+    const double tn = tangential.norm();
+    if (tn < tool.static_friction * depth) xp -= tangential;
+    else if (tn > 0) xp -= tangential * std::min(tool.dynamic_friction * depth / tn, 1.0);
+    const Vec3 dv = (xp - before) * inv_dt;
+    ps.v[i] += dv;
+    const Vec3 impulse = dv / wp[i];  // the particle's momentum change
+    impulse_sum += impulse;
+    angular_sum += (xp - tool.position).cross(impulse);
+    ++pushed;
+  }
+  reaction.force -= impulse_sum * inv_dt;
+  reaction.torque -= angular_sum * inv_dt;
+  return pushed;
+}
+
 }  // namespace pliant
