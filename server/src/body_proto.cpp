@@ -254,6 +254,11 @@ Error bodies_from_spec(const google::protobuf::RepeatedPtrField<v1::BodySpec>& b
         return fe;
       c.soft_body_friction = b.soft_body_friction();
     }
+    if (b.has_body_contact()) c.body_contact = b.body_contact();
+    if (b.has_body_friction()) {
+      if (Error fe = in_range(p + ".body_friction", b.body_friction(), 0.0, 10.0, false, ""); !fe.ok()) return fe;
+      c.body_friction = b.body_friction();
+    }
     total += particles;
     if (total > kMaxParticlesPerScene)
       return Error::make(Code::ResourceExhausted,
@@ -270,6 +275,8 @@ void bodies_to_spec(const std::vector<BodyConfig>& bodies, v1::SceneSpec* spec) 
     b->set_name(c.name);
     b->set_soft_body_contact(c.soft_body_contact);
     b->set_soft_body_friction(c.soft_body_friction);
+    b->set_body_contact(c.body_contact);
+    b->set_body_friction(c.body_friction);
     if (c.kind == "fluid") {
       auto* f = b->mutable_fluid();
       const FluidSettings& s = c.fluid;

@@ -76,7 +76,14 @@ struct Scene::TickState {
   std::map<uint64_t, ParticleGrab> body_grabs;
   // Each body's two-way contact with the tet body (nullopt: none).
   std::vector<std::optional<CouplingSettings>> body_contact;
-  std::vector<Vec3> particle_start;  // scratch: a body's positions before its step
+  // Contacts between particle bodies: the particles of `particles` against the triangles of
+  // `cloth`, both with body_contact on.
+  struct ClothPair {
+    size_t particles, cloth;
+    CouplingSettings settings;
+  };
+  std::vector<ClothPair> cloth_pairs;
+  std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
   std::vector<ParticleStepReport> body_reports;  // each body's step in the tick in progress
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
@@ -156,10 +163,21 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
     }
     ts_->body_contact.push_back(contact);
     ts_->bodies_initial.push_back(body->state());
+    ts_->body_start.emplace_back();
     ts_->bodies.push_back(std::move(body));
     bodies_info_.push_back(std::move(info));
   }
   ts_->bodies_last_good = ts_->bodies_initial;
+  for (size_t c = 0; c < ts_->bodies.size(); ++c) {
+    if (ts_->bodies[c]->triangles().empty() || !config.bodies[c].body_contact) continue;
+    for (size_t a = 0; a < ts_->bodies.size(); ++a) {
+      if (a == c || !config.bodies[a].body_contact) continue;
+      CouplingSettings cs;
+      cs.radius = ts_->bodies[a]->contact_radius() + ts_->bodies[c]->contact_radius();
+      cs.friction = std::max(config.bodies[a].body_friction, config.bodies[c].body_friction);
+      ts_->cloth_pairs.push_back({a, c, cs});
+    }
+  }
   config_ = std::move(config);
   model_shared_ = std::move(model);
   publish_status();
@@ -743,6 +761,82 @@ void Scene::carry_report(StepReport&& report, bool rolled_back, Frame& frame) {
   frame.solver = std::move(report);
 }
 
+// The particle bodies, after the tet body, with the tick's dt against the same colliders, each
+// followed by its contact with the tet body; then the contacts between bodies (particles against
+// cloths) and the tools' (their reactions, the haptic stream's force, add each body's push to
+// the tet body's). A cancelled tick stops between bodies (a body's own step is not interrupted).
+void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::string& failure) {
+  TickState& t = *ts_;
+  t.body_reports.assign(t.bodies.size(), ParticleStepReport{});
+  if (t.bodies.empty()) return;
+  const double dt = t.settings.dt;
+  auto ms_since = [](Clock::time_point from) {
+    return std::chrono::duration<double, std::milli>(Clock::now() - from).count();
+  };
+  // A throw or a blow-up names its body; the caller rolls the tick back.
+  auto guarded = [&](size_t b, auto&& work) {
+    if (!failure.empty()) return;
+    try {
+      work();
+    } catch (const std::exception& e) {
+      failure = "body '" + bodies_info_[b].name + "': " + e.what();
+    }
+  };
+  for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
+    if (cancel_tick_.load()) {
+      report.cancelled = true;
+      return;
+    }
+    guarded(b, [&] {
+      t.body_start[b] = t.bodies[b]->state().x;
+      const auto t_body = Clock::now();
+      t.body_reports[b] = t.bodies[b]->step(dt, t.colliders);
+      if (const auto& contact = t.body_contact[b]) {
+        // Two-way with the soft body: the particles move out, the tet body takes their momentum.
+        ParticleState ps = t.bodies[b]->state();
+        couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, dt, t.body_start[b]);
+        t.bodies[b]->set_state(ps);
+      }
+      t.body_reports[b].wall_ms = ms_since(t_body);  // its step and its contacts, below
+    });
+  }
+  for (const TickState::ClothPair& pair : t.cloth_pairs)
+    guarded(pair.particles, [&] {
+      const auto t_pair = Clock::now();
+      ParticleBody& a = *t.bodies[pair.particles];
+      ParticleBody& c = *t.bodies[pair.cloth];
+      ParticleState ps = a.state(), cs = c.state();
+      const CouplingReport r = couple_particles_to_cloth(ps, a.inverse_masses(), t.body_start[pair.particles], cs,
+                                                         c.inverse_masses(), c.triangles(), t.body_start[pair.cloth],
+                                                         pair.settings, dt);
+      if (r.contacts > 0) {
+        a.set_state(ps);
+        c.set_state(cs);
+      }
+      t.body_reports[pair.particles].body_contacts += r.contacts;
+      t.body_reports[pair.particles].wall_ms += ms_since(t_pair);
+    });
+  if (!inputs.tools.empty() && report.tools.size() != inputs.tools.size()) report.tools.resize(inputs.tools.size());
+  for (size_t b = 0; b < t.bodies.size() && !inputs.tools.empty(); ++b)
+    guarded(b, [&] {
+      const auto t_tools = Clock::now();
+      ParticleState ps = t.bodies[b]->state();
+      size_t pushed = 0;
+      for (size_t k = 0; k < inputs.tools.size(); ++k)
+        pushed += couple_particles_to_tool(ps, t.bodies[b]->inverse_masses(), inputs.tools[k],
+                                           t.bodies[b]->contact_radius(), dt, t.body_start[b], report.tools[k]);
+      if (pushed > 0) t.bodies[b]->set_state(ps);
+      t.body_reports[b].tool_contacts = pushed;
+      t.body_reports[b].wall_ms += ms_since(t_tools);
+    });
+  for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
+    const ParticleState& st = t.bodies[b]->state();
+    bool finite = true;
+    for (size_t i = 0; i < st.x.size() && finite; ++i) finite = st.x[i].allFinite() && st.v[i].allFinite();
+    if (!finite) failure = "body '" + bodies_info_[b].name + "': non-finite positions or velocities";
+  }
+}
+
 void Scene::tick_once(bool scheduled, Clock::time_point due) {
   TickState& t = *ts_;
   const auto start = Clock::now();
@@ -787,50 +881,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   } catch (const std::exception& e) {
     failure = std::string("solver error: ") + e.what();
   }
-  // The particle bodies, after the tet body, with the tick's dt against the same colliders;
-  // a cancelled tick stops between bodies (a body's own step is not interrupted).
-  t.body_reports.assign(t.bodies.size(), ParticleStepReport{});
-  for (size_t b = 0; b < t.bodies.size() && failure.empty() && !report.cancelled; ++b) {
-    if (cancel_tick_.load()) {
-      report.cancelled = true;
-      break;
-    }
-    const std::string& name = bodies_info_[b].name;
-    try {
-      const auto& contact = t.body_contact[b];
-      if (contact || !inputs.tools.empty()) t.particle_start = t.bodies[b]->state().x;
-      const auto t_body = Clock::now();
-      t.body_reports[b] = t.bodies[b]->step(t.settings.dt, t.colliders);
-      if (contact) {
-        // Two-way with the soft body: the particles move out, the tet body takes their momentum.
-        ParticleState ps = t.bodies[b]->state();
-        couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, t.settings.dt,
-                                 t.particle_start);
-        t.bodies[b]->set_state(ps);
-      }
-      if (!inputs.tools.empty()) {
-        // The rigid tools push the particles out and feel it: their reactions (the haptic
-        // stream's force) add the body's push to the tet body's.
-        ParticleState ps = t.bodies[b]->state();
-        if (report.tools.size() != inputs.tools.size()) report.tools.resize(inputs.tools.size());
-        size_t pushed = 0;
-        for (size_t k = 0; k < inputs.tools.size(); ++k)
-          pushed += couple_particles_to_tool(ps, t.bodies[b]->inverse_masses(), inputs.tools[k],
-                                             t.bodies[b]->contact_radius(), t.settings.dt, t.particle_start,
-                                             report.tools[k]);
-        if (pushed > 0) t.bodies[b]->set_state(ps);
-        t.body_reports[b].tool_contacts = pushed;
-      }
-      // What the body cost the tick: its step and its contact with the tet body.
-      t.body_reports[b].wall_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_body).count();
-      const ParticleState& st = t.bodies[b]->state();
-      bool finite = true;
-      for (size_t i = 0; i < st.x.size() && finite; ++i) finite = st.x[i].allFinite() && st.v[i].allFinite();
-      if (!finite) failure = "body '" + name + "': non-finite positions or velocities";
-    } catch (const std::exception& e) {
-      failure = "body '" + name + "': " + e.what();
-    }
-  }
+  if (failure.empty() && !report.cancelled) step_bodies(inputs, report, failure);
   std::string abort_reason;
   {
     std::lock_guard lk(abort_mu_);

@@ -91,6 +91,7 @@ void frame_to_proto(const Frame& f, const FrameSelection& sel, const std::vector
       bs->set_max_constraint_error(b.report.max_constraint_error);
       bs->set_contacts(static_cast<uint32_t>(b.report.contacts));
       bs->set_tool_contacts(static_cast<uint32_t>(b.report.tool_contacts));
+      bs->set_body_contacts(static_cast<uint32_t>(b.report.body_contacts));
     }
   out->set_late_ticks(f.counters.late_ticks);
   out->set_skipped_ticks(f.counters.skipped_ticks);

@@ -265,6 +265,92 @@ TEST(Bodies, TheHapticToolFeelsTheClothItCatches) {
   EXPECT_GT(lowest, -100.0);
 }
 
+namespace {
+
+// A 0.6 m cloth of 1 kg/m^2 pinned at its corners (y = 2, centred on x = 5) and 27 particles of
+// water (2 cm apart) 15 cm above its middle, away from the clamped beam1; lockstep.
+v1::CreateSceneRequest hammock_request(const std::string& id, bool water_contact) {
+  v1::CreateSceneRequest r;
+  r.set_scene_id(id);
+  auto* s = r.mutable_spec();
+  s->mutable_mesh()->set_builtin("beam1");
+  client::clamp_below_x(*s, 0.01);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+  s->mutable_tick()->set_dt(1.0 / 60);
+  auto* cloth = s->add_bodies();
+  cloth->set_name("hammock");
+  auto* cs = cloth->mutable_cloth();
+  auto* g = cs->mutable_grid();
+  g->set_resolution_x(16);
+  g->set_resolution_y(16);
+  g->set_size_x(0.6);
+  g->set_size_y(0.6);
+  cs->set_mass_per_area(1.0);
+  set(g->mutable_origin(), 4.7, 2, -0.3);
+  cs->set_self_collision(false);
+  cs->set_damping(1.0);
+  for (uint32_t corner : {0u, 15u, 240u, 255u}) cs->mutable_pins()->add_indices(corner);
+  auto* fluid = s->add_bodies();
+  fluid->set_name("water");
+  if (!water_contact) fluid->set_body_contact(false);
+  auto* fs_ = fluid->mutable_fluid();
+  fs_->set_spacing(0.02);
+  auto* blk = fs_->add_blocks();
+  set(blk->mutable_min(), 4.97, 2.15, -0.03);
+  set(blk->mutable_max(), 5.03, 2.21, 0.03);
+  return r;
+}
+
+}  // namespace
+
+TEST(Bodies, WaterPouredIntoAClothHammockStaysInIt) {
+  BodiesServer srv;
+  Client c = srv.client();
+  for (bool contact : {true, false}) {
+    SCOPED_TRACE(contact ? "body_contact on" : "water's body_contact off");
+    const std::string id = contact ? "on" : "off";
+    auto created = c.create_scene(hammock_request(id, contact));
+    ASSERT_TRUE(created.ok()) << created.status.to_string();
+    EXPECT_EQ(created->spec().bodies(1).body_contact(), contact);
+    EXPECT_EQ(created->spec().bodies(0).body_contact(), true);
+    ASSERT_TRUE(c.step(id, 90).ok());
+    v1::StreamFramesRequest q;
+    q.set_scene_id(id);
+    q.add_fields(v1::FRAME_FIELD_SOLVER_STATS);
+    auto fs = c.stream_frames(q);
+    v1::Frame f;
+    ASSERT_TRUE(fs->next(&f));
+    fs->cancel();
+    const v1::Snapshot snap = snapshot_of(c, id);
+    ASSERT_EQ(snap.bodies_size(), 2);
+    double cloth_lowest = 1e300, water_lowest = 1e300;
+    for (int i = 0; i < snap.bodies(0).x_size() / 3; ++i) cloth_lowest = std::min(cloth_lowest, snap.bodies(0).x(3 * i + 1));
+    for (int i = 0; i < snap.bodies(1).x_size() / 3; ++i) water_lowest = std::min(water_lowest, snap.bodies(1).x(3 * i + 1));
+    if (contact) {
+      EXPECT_GT(water_lowest, cloth_lowest) << "the water stays in the hammock";
+      EXPECT_LT(water_lowest, 2.0) << "resting in its sag";
+    } else {
+      EXPECT_LT(water_lowest, cloth_lowest - 1.0) << "without the contact the water falls through";
+      EXPECT_EQ(f.solver().bodies(1).body_contacts(), 0u);
+    }
+  }
+  // Over a second the hammock's stats count the water's contacts.
+  uint32_t touched = 0;
+  for (int k = 0; k < 60; ++k) {
+    ASSERT_TRUE(c.step("on", 1).ok());
+    v1::StreamFramesRequest q;
+    q.set_scene_id("on");
+    q.add_fields(v1::FRAME_FIELD_SOLVER_STATS);
+    auto fs = c.stream_frames(q);
+    v1::Frame f;
+    ASSERT_TRUE(fs->next(&f));
+    fs->cancel();
+    touched += f.solver().bodies(1).body_contacts();
+    EXPECT_EQ(f.solver().bodies(0).body_contacts(), 0u);  // the cloth's own particles touch no other cloth
+  }
+  EXPECT_GT(touched, 0u);
+}
+
 TEST(Bodies, GrabOnARopeParticleHoldsItsWeightAndMovesIt) {
   BodiesServer srv;
   Client c = srv.client();

@@ -3,6 +3,7 @@
 // contact radius outside the surface, the corrections carry equal and opposite momentum,
 // fixed vertices stay, and friction takes back tangential slip.
 #include "pliant/builtin_meshes.hpp"
+#include "pliant/cloth.hpp"
 #include "pliant/coupling.hpp"
 #include "pliant/fluid.hpp"
 #include "pliant/interaction.hpp"
@@ -310,4 +311,153 @@ TEST(ToolCoupling, RefusesMismatchedSizesAndBadRadiusOrStep) {
                std::invalid_argument);
   s.w.pop_back();
   EXPECT_THROW(couple_particles_to_tool(s.particles, s.w, s.tool, 0.0, 0.01, {}, r), std::invalid_argument);
+}
+
+namespace {
+
+// Signed distance of p from the closest of the cloth's triangles, positive on the side of `up`.
+double above_cloth(const ParticleState& cloth, std::span<const std::array<uint32_t, 3>> triangles, const Vec3& p,
+                   const Vec3& up) {
+  double best = INFINITY, signed_d = 0;
+  for (const auto& t : triangles) {
+    std::array<double, 3> b;
+    const Vec3 q = closest_point_on_triangle(p, cloth.x[t[0]], cloth.x[t[1]], cloth.x[t[2]], b);
+    const double d = (p - q).norm();
+    if (d < best) {
+      best = d;
+      signed_d = (p - q).dot(up) >= 0 ? d : -d;
+    }
+  }
+  return signed_d;
+}
+
+// A free, flat 0.4 m cloth (8 x 8, 0.5 g particles) at y = 0 that moved up 2 mm over the step.
+struct FlatCloth {
+  std::unique_ptr<ConstraintBody> body;
+  ParticleState state;
+  std::vector<Vec3> start;
+  std::vector<double> w;
+};
+
+FlatCloth flat_cloth() {
+  ClothGridSpec g;
+  g.nx = g.ny = 8;
+  g.size_x = g.size_y = 0.4;
+  g.origin = Vec3(-0.2, 0.0, -0.2);
+  FlatCloth c;
+  c.body = ConstraintBody::cloth_grid(g, ConstraintBodySettings{});
+  c.state = c.body->state();
+  c.start = c.state.x;
+  for (size_t i = 0; i < c.state.x.size(); ++i) {
+    c.state.x[i].y() += 0.002;
+    c.state.v[i] = Vec3(0, 0.12, 0);
+  }
+  c.w.assign(c.body->inverse_masses().begin(), c.body->inverse_masses().end());
+  return c;
+}
+
+}  // namespace
+
+TEST(ClothContact, KeepsParticlesOnTheirSideAndConservesMomentum) {
+  // 10 g particles over the cloth's interior that ended: through it from above or from below,
+  // within the contact radius of either side, or clear.
+  FlatCloth cloth = flat_cloth();
+  const double radius = 0.005, dt = 1.0 / 60;
+  ParticleState ps;
+  std::vector<Vec3> start;
+  std::vector<double> from;  // +1: started above, -1: below
+  const double ends[][2] = {{0.02, -0.01}, {0.02, 0.004}, {-0.02, -0.001}, {-0.02, 0.015}, {0.05, 0.03}};
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) {
+      const auto& e = ends[(i + 2 * j) % 5];
+      const Vec3 xz(-0.15 + 0.1 * i + 0.013 * j, 0, -0.15 + 0.1 * j + 0.007 * i);
+      start.push_back(xz + Vec3(0, e[0], 0));
+      ps.x.push_back(xz + Vec3(0.003, e[1], -0.002));
+      ps.v.push_back((ps.x.back() - start.back()) / dt);
+      from.push_back(e[0] > 0 ? 1 : -1);
+    }
+  const std::vector<double> wp(ps.x.size(), 100.0);
+  auto momentum = [&](const ParticleState& c) {
+    Vec3 m = Vec3::Zero();
+    for (size_t i = 0; i < c.v.size(); ++i) m += c.v[i] / cloth.w[i];
+    return m;
+  };
+  const Vec3 cloth_before = momentum(cloth.state);
+  Vec3 p0 = cloth_before;
+  for (size_t i = 0; i < ps.v.size(); ++i) p0 += ps.v[i] / wp[i];
+  const std::vector<Vec3> cloth_x = cloth.state.x;
+  CouplingSettings set;
+  set.radius = radius;
+  const CouplingReport rep = couple_particles_to_cloth(ps, wp, start, cloth.state, cloth.w, cloth.body->triangles(),
+                                                       cloth.start, set, dt);
+  EXPECT_EQ(rep.contacts, 13u);  // all but the clear ones
+  EXPECT_GT(rep.max_depth, 0.01);  // a crossing particle was deep on the wrong side
+  EXPECT_EQ(cloth.state.x, cloth_x) << "the cloth takes momentum, not a position correction";
+  Vec3 p1 = momentum(cloth.state);
+  for (size_t i = 0; i < ps.v.size(); ++i) p1 += ps.v[i] / wp[i];
+  EXPECT_NEAR((p1 - p0).norm(), 0, 1e-12 * p0.norm());
+  EXPECT_NEAR((rep.force_on_body * dt - (momentum(cloth.state) - cloth_before)).norm(), 0, 1e-12 * p0.norm());
+  for (size_t p = 0; p < ps.x.size(); ++p)
+    EXPECT_GT(from[p] * above_cloth(cloth.state, cloth.body->triangles(), ps.x[p], Vec3(0, 1, 0)), radius - 1e-12)
+        << "particle " << p << " started " << (from[p] > 0 ? "above" : "below") << ", ends at " << ps.x[p].transpose();
+}
+
+TEST(ClothContact, AClothSpringingBackPastAParticleStillHoldsIt) {
+  // The particle barely moved (1 mm down) while the cloth under it sprang up 3 cm past it: on
+  // neither the cloth's start nor its end does the particle's path cross a triangle, yet it is
+  // behind the cloth by the two's relative motion; it goes back on top.
+  FlatCloth cloth = flat_cloth();
+  for (size_t i = 0; i < cloth.start.size(); ++i) cloth.start[i].y() = cloth.state.x[i].y() - 0.03;
+  ParticleState ps;
+  ps.x = {Vec3(0.01, -0.011, 0.02)};
+  ps.v = {Vec3(0, -0.06, 0)};
+  const std::vector<Vec3> start = {Vec3(0.01, -0.01, 0.02)};
+  const std::vector<double> wp = {100.0};
+  Vec3 momentum_before = ps.v[0] / wp[0];
+  for (size_t i = 0; i < cloth.state.v.size(); ++i) momentum_before += cloth.state.v[i] / cloth.w[i];
+  CouplingSettings set;
+  set.radius = 0.004;
+  const auto rep = couple_particles_to_cloth(ps, wp, start, cloth.state, cloth.w, cloth.body->triangles(), cloth.start,
+                                             set, 1.0 / 60);
+  EXPECT_EQ(rep.contacts, 1u);
+  EXPECT_NEAR(ps.x[0].y(), 0.002 + 0.004, 1e-12);
+  // Inelastic: the 10 g particle slows the light cloth's rise and is slowed less than it (it
+  // keeps moving down), and the momentum is the same before and after.
+  Vec3 after = ps.v[0] / wp[0];
+  for (size_t i = 0; i < cloth.state.v.size(); ++i) after += cloth.state.v[i] / cloth.w[i];
+  EXPECT_NEAR((after - momentum_before).norm(), 0, 1e-12 * momentum_before.norm());
+  EXPECT_LT(ps.v[0].y(), 0) << "the heavy particle stops the light cloth's rise rather than the reverse";
+  EXPECT_GT(ps.v[0].y(), -0.06);
+}
+
+TEST(ClothContact, PinnedCornersTakeThePushAndBadInputsAreRefused) {
+  FlatCloth cloth = flat_cloth();
+  std::fill(cloth.w.begin(), cloth.w.end(), 0.0);
+  std::fill(cloth.state.v.begin(), cloth.state.v.end(), Vec3::Zero());
+  const ParticleState before = cloth.state;
+  ParticleState ps;
+  ps.x = {Vec3(0.01, -0.02, 0.01)};
+  ps.v = {Vec3(0, -3, 0)};
+  const std::vector<Vec3> start = {Vec3(0.01, 0.03, 0.01)};
+  const std::vector<double> wp = {50.0};  // 20 g
+  CouplingSettings set;
+  set.radius = 0.002;
+  const double dt = 0.01;
+  const auto rep = couple_particles_to_cloth(ps, wp, start, cloth.state, cloth.w, cloth.body->triangles(), cloth.start,
+                                             set, dt);
+  EXPECT_EQ(rep.contacts, 1u);
+  EXPECT_NEAR(ps.x[0].y(), 0.004, 1e-12);
+  EXPECT_EQ(cloth.state.v, before.v);
+  EXPECT_NEAR(ps.v[0].y(), 0.0, 1e-12) << "stopped on the pinned cloth";
+  // Its 3 m/s x 20 g went into the cloth, whose pins take it all.
+  EXPECT_NEAR(rep.force_on_body.y(), -0.06 / dt, 1e-9);
+  set.radius = 0;
+  EXPECT_THROW(couple_particles_to_cloth(ps, wp, start, cloth.state, cloth.w, cloth.body->triangles(), cloth.start, set, dt),
+               std::invalid_argument);
+  set.radius = 0.002;
+  EXPECT_THROW(couple_particles_to_cloth(ps, wp, {}, cloth.state, cloth.w, cloth.body->triangles(), cloth.start, set, dt),
+               std::invalid_argument);
+  const std::array<uint32_t, 3> bad{0, 1, 99};
+  EXPECT_THROW(couple_particles_to_cloth(ps, wp, start, cloth.state, cloth.w, std::span(&bad, 1), cloth.start, set, dt),
+               std::invalid_argument);
 }

@@ -13,6 +13,8 @@
 #include "pliant/particle_body.hpp"
 #include "pliant/state.hpp"
 
+#include <array>
+#include <cstdint>
 #include <span>
 
 namespace pliant {
@@ -39,6 +41,27 @@ struct CouplingReport {
 CouplingReport couple_particles_to_body(const BodyModel& model, BodyState& body, ParticleState& particles,
                                         std::span<const double> particle_inv_mass, const CouplingSettings& settings,
                                         double dt, std::span<const Vec3> particle_start = {});
+
+// Two-way contact between a particle body (a fluid, a rope, another cloth) and a cloth, after
+// both stepped: each particle stays at least `settings.radius` (the two bodies' contact radii
+// summed) from the cloth's triangles, on the side of the triangle it started the step on
+// (against the triangle where it started). A particle found behind a triangle goes back to its
+// side however far it got when the closest point is within the two's relative motion over the
+// step (a thin cloth is not tunnelled by a particle, nor does a cloth springing back pass
+// through one); the others are measured against their closest triangle. As with the tet body,
+// the particle takes the whole position correction (and Coulomb friction on its slip against
+// the triangle's point, up to friction x the correction), and the cloth takes the momentum the
+// correction gave it as a change of its corners' velocities by their barycentric weights, so
+// momentum is exact. `force_on_body`: the particles' push on the cloth over dt, N (the pinned
+// corners' share included). `*_start`: positions at the start of the step (the side comes from
+// them). Particles with inverse mass 0 are left alone. Throws std::invalid_argument naming the
+// field when sizes disagree or settings are out of range.
+CouplingReport couple_particles_to_cloth(ParticleState& particles, std::span<const double> particle_inv_mass,
+                                         std::span<const Vec3> particle_start, ParticleState& cloth,
+                                         std::span<const double> cloth_inv_mass,
+                                         std::span<const std::array<uint32_t, 3>> triangles,
+                                         std::span<const Vec3> cloth_start, const CouplingSettings& settings,
+                                         double dt);
 
 // A rigid tool (the haptic bridge's sphere or capsule, at its end-of-step pose) against a particle
 // body after the body's step: every particle whose centre is inside the tool grown by `radius`

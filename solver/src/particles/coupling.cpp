@@ -14,20 +14,32 @@ namespace pliant {
 namespace {
 
 // Surface triangles binned into a uniform grid by their boxes grown by the search reach: a
-// particle looks in its own cell only.
+// particle looks in its own cell only. With `swept_from`, a triangle's box also covers where
+// its corners were there (a cloth that moved during the step is found where it passed).
 class TriangleGrid {
  public:
-  TriangleGrid(const BodyModel& m, const std::vector<Vec3>& x, double reach) {
+  // `triangles`: 3-index arrays (the tet body's surface, a cloth's triangles) into x.
+  template <class Triangles>
+  TriangleGrid(const Triangles& triangles, std::span<const Vec3> x, double reach,
+               std::span<const Vec3> swept_from = {}) {
     double edge = 0;
-    for (const Triangle& t : m.surface) edge += (x[t[1]] - x[t[0]]).norm();
-    edge = m.surface.empty() ? reach : edge / double(m.surface.size());
+    for (const auto& t : triangles) edge += (x[t[1]] - x[t[0]]).norm();
+    edge = triangles.empty() ? reach : edge / double(triangles.size());
     cell_ = std::max(2 * reach, edge);
     std::vector<std::pair<uint64_t, int32_t>> entries;
-    for (size_t k = 0; k < m.surface.size(); ++k) {
-      const Triangle& t = m.surface[k];
+    for (size_t k = 0; k < triangles.size(); ++k) {
+      const auto& t = triangles[k];
       if (!x[t[0]].allFinite() || !x[t[1]].allFinite() || !x[t[2]].allFinite()) continue;
-      Vec3 lo = x[t[0]].cwiseMin(x[t[1]]).cwiseMin(x[t[2]]).array() - reach;
-      Vec3 hi = x[t[0]].cwiseMax(x[t[1]]).cwiseMax(x[t[2]]).array() + reach;
+      Vec3 lo = x[t[0]].cwiseMin(x[t[1]]).cwiseMin(x[t[2]]);
+      Vec3 hi = x[t[0]].cwiseMax(x[t[1]]).cwiseMax(x[t[2]]);
+      if (!swept_from.empty())
+        for (int c = 0; c < 3; ++c)
+          if (swept_from[t[c]].allFinite()) {
+            lo = lo.cwiseMin(swept_from[t[c]]);
+            hi = hi.cwiseMax(swept_from[t[c]]);
+          }
+      lo.array() -= reach;
+      hi.array() += reach;
       const auto a = cell_of(lo), b = cell_of(hi);
       for (int64_t i = a[0]; i <= b[0]; ++i)
         for (int64_t j = a[1]; j <= b[1]; ++j)
@@ -132,7 +144,7 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   if (m.surface.empty() || ps.x.empty()) return rep;
 
   // Contacts at the positions the step reached.
-  const TriangleGrid grid(m, body.x, s.radius);
+  const TriangleGrid grid(m.surface, std::span<const Vec3>(body.x), s.radius);
   std::vector<Contact> contacts;
   std::vector<int32_t> swept;
   for (size_t p = 0; p < ps.x.size(); ++p) {
@@ -231,6 +243,130 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
       if (m.inv_mass[t[a]] > 0) rep.force_on_body -= c.b[a] * impulse * inv_dt;
   }
   for (size_t i = 0; i < body.v.size(); ++i) body.v[i] += body_dv[i];
+  return rep;
+}
+
+CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const double> wp,
+                                         std::span<const Vec3> particle_start, ParticleState& cs,
+                                         std::span<const double> wc,
+                                         std::span<const std::array<uint32_t, 3>> triangles,
+                                         std::span<const Vec3> cloth_start, const CouplingSettings& s, double dt) {
+  if (!(s.radius > 0) || !std::isfinite(s.radius))
+    throw std::invalid_argument(fmt::format("contact radius must be > 0, got {}", s.radius));
+  if (!(s.friction >= 0) || !std::isfinite(s.friction))
+    throw std::invalid_argument(fmt::format("contact friction must be >= 0, got {}", s.friction));
+  if (!(dt > 0) || !std::isfinite(dt)) throw std::invalid_argument(fmt::format("contact dt must be > 0, got {}", dt));
+  check_particle_counts(ps, wp.size(), "particles");
+  check_particle_counts(cs, wc.size(), "cloth");
+  if (particle_start.size() != ps.x.size())
+    throw std::invalid_argument(fmt::format("particle_start has {} positions for {} particles", particle_start.size(),
+                                            ps.x.size()));
+  if (cloth_start.size() != cs.x.size())
+    throw std::invalid_argument(fmt::format("cloth_start has {} positions for {} particles", cloth_start.size(),
+                                            cs.x.size()));
+  for (const auto& t : triangles)
+    if (t[0] >= cs.x.size() || t[1] >= cs.x.size() || t[2] >= cs.x.size())
+      throw std::invalid_argument(fmt::format("cloth triangle ({}, {}, {}) is out of range ({} particles)", t[0], t[1],
+                                              t[2], cs.x.size()));
+  CouplingReport rep;
+  if (triangles.empty() || ps.x.empty()) return rep;
+  for (const Vec3& x : cs.x)
+    if (!x.allFinite()) return rep;  // a blown-up cloth: the caller rolls it back
+
+  const TriangleGrid grid(triangles, std::span<const Vec3>(cs.x), s.radius, cloth_start);
+  std::vector<int32_t> near;
+  const double inv_dt = 1.0 / dt;
+  for (size_t p = 0; p < ps.x.size(); ++p) {
+    Vec3& xp = ps.x[p];
+    const Vec3& start = particle_start[p];
+    if (!xp.allFinite() || !start.allFinite()) continue;
+    grid.near_segment(start, xp, 4096, near);
+    if (near.empty()) {
+      const auto cell = grid.near(xp);
+      near.assign(cell.begin(), cell.end());
+    }
+    double deepest = 0;  // C = distance along the contact normal - radius; a contact has C < 0
+    int32_t best = -1;
+    std::array<double, 3> best_b{};
+    Vec3 best_n = Vec3::Zero();
+    for (int32_t k : near) {
+      const auto& t = triangles[size_t(k)];
+      const Vec3 &a = cs.x[t[0]], &b = cs.x[t[1]], &c = cs.x[t[2]];
+      const Vec3 face = (b - a).cross(c - a);
+      if (!(face.squaredNorm() > 0)) continue;
+      // The particle's side: where it started, against the triangle where it started.
+      const Vec3 &sa = cloth_start[t[0]], &sb = cloth_start[t[1]], &sc = cloth_start[t[2]];
+      std::array<double, 3> bs;
+      const Vec3 qs = closest_point_on_triangle(start, sa, sb, sc, bs);
+      const double side = (start - qs).dot((sb - sa).cross(sc - sa));
+      const Vec3 n_face = face.normalized();
+      const Vec3 n_side = side < 0 ? Vec3(-n_face) : n_face;
+      std::array<double, 3> bw;
+      const Vec3 q = closest_point_on_triangle(xp, a, b, c, bw);
+      const Vec3 d = xp - q;
+      const double along = d.dot(n_side);
+      Vec3 n = n_side;
+      double C;
+      if (along >= 0) {
+        // On its side: apart along the line to the closest point (the face normal when on it).
+        const double len = d.norm();
+        if (len >= s.radius) continue;
+        if (len > 1e-12 * s.radius) n = d / len;
+        C = len - s.radius;
+      } else {
+        // Behind the triangle: one went through the other during the step when the closest
+        // point is within their relative motion (plus the radius), which neither the particle's
+        // path nor the triangle's start or end position alone shows (a cloth springing back past
+        // a particle); farther, the particle is behind another part of the cloth.
+        const Vec3 q_start = bw[0] * sa + bw[1] * sb + bw[2] * sc;
+        if (d.norm() > s.radius + ((xp - start) - (q - q_start)).norm()) continue;
+        C = along - s.radius;
+      }
+      if (C < deepest) {
+        deepest = C;
+        best = k;
+        best_b = bw;
+        best_n = n;
+      }
+    }
+    if (best < 0) continue;
+    const auto& t = triangles[size_t(best)];
+    const double w[3] = {wc[t[0]], wc[t[1]], wc[t[2]]};
+    const double wsum =
+        wp[p] + best_b[0] * best_b[0] * w[0] + best_b[1] * best_b[1] * w[1] + best_b[2] * best_b[2] * w[2];
+    if (!(wsum > 0)) continue;  // a pinned particle on pinned corners
+    rep.max_depth = std::max(rep.max_depth, -deepest);
+    ++rep.contacts;
+    // Positions: the particle goes back to its side at the radius, the cloth stays where its
+    // step put it (moving a light cloth's corners by a heavy particle's correction made it spring
+    // back through the particles within its next step). Velocities: a perfectly inelastic
+    // contact between the particle (inverse mass w_p) and the triangle's point (inverse mass
+    // sum_k b_k^2 w_k), an impulse along the normal that leaves them no approaching speed, shared
+    // by the corners' weights, and Coulomb friction on their tangential speed up to friction x
+    // that impulse: momentum is exact, and neither side gets more than their relative speed (a
+    // heavy particle carries a light cloth along, a light one stops on a heavy cloth).
+    if (wp[p] > 0) xp -= deepest * best_n;  // a pinned particle stays: the cloth only is pushed
+    auto relative = [&] {
+      Vec3 vq = Vec3::Zero();
+      for (int a = 0; a < 3; ++a) vq += best_b[a] * cs.v[t[a]];
+      return Vec3(ps.v[p] - vq);
+    };
+    auto apply = [&](const Vec3& impulse) {  // on the particle, momentum
+      ps.v[p] += wp[p] * impulse;
+      for (int a = 0; a < 3; ++a) cs.v[t[a]] -= w[a] * best_b[a] * impulse;
+      rep.force_on_body -= impulse * inv_dt;  // on the cloth, its pins included
+    };
+    const double vn = relative().dot(best_n);
+    if (vn >= 0) continue;  // already separating
+    const double jn = -vn / wsum;
+    apply(jn * best_n);
+    if (s.friction > 0) {
+      const Vec3 vr = relative();
+      const Vec3 vt = vr - vr.dot(best_n) * best_n;
+      const double speed = vt.norm();
+      if (speed > 0) apply(-std::min(speed / wsum, s.friction * jn) * (vt / speed));
+    }
+  }
   return rep;
 }
 

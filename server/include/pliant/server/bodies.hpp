@@ -38,6 +38,9 @@ struct BodyConfig {
   double linear_density = 0.1;     // rope, kg/m
   bool soft_body_contact = true;   // two-way contact with the scene's tet body
   double soft_body_friction = 0.3;
+  bool body_contact = true;        // two-way contact with the scene's cloths (and, for a cloth, of
+                                   // the other bodies with it)
+  double body_friction = 0.3;
   std::vector<uint32_t> pin_indices;
   std::vector<std::pair<Vec3, Vec3>> pin_boxes;  // (min, max)
 };

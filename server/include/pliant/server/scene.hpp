@@ -290,6 +290,9 @@ class Scene {
   bool post(Command fn);
   void run();
   void tick_once(bool scheduled, std::chrono::steady_clock::time_point due);
+  // The tick's particle bodies and their contacts (scene.cpp); `failure` names a body that threw or
+  // blew up, `report` gets the tools' share of the bodies' pushes and a cancellation.
+  void step_bodies(const StepInputs& inputs, StepReport& report, std::string& failure);
   void carry_report(StepReport&& report, bool rolled_back, Frame& frame);
   // A tick the cancel flag stopped: undone; with a reason from abort_tick, also pauses.
   void cancelled_tick(const std::string& abort_reason);
