@@ -273,6 +273,21 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
   for (const Vec3& x : cs.x)
     if (!x.allFinite()) return rep;  // a blown-up cloth: the caller rolls it back
 
+  // Nothing to do when no particle's path comes within the radius of the cloth's swept box (two
+  // bodies apart in the scene: no grid is built).
+  Vec3 lo = cs.x[0], hi = cs.x[0];
+  for (size_t i = 0; i < cs.x.size(); ++i) {
+    lo = lo.cwiseMin(cs.x[i]).cwiseMin(cloth_start[i]);
+    hi = hi.cwiseMax(cs.x[i]).cwiseMax(cloth_start[i]);
+  }
+  lo.array() -= s.radius;
+  hi.array() += s.radius;
+  bool near_box = false;
+  for (size_t p = 0; p < ps.x.size() && !near_box; ++p) {
+    const Vec3 plo = ps.x[p].cwiseMin(particle_start[p]), phi = ps.x[p].cwiseMax(particle_start[p]);
+    near_box = (plo.array() <= hi.array()).all() && (phi.array() >= lo.array()).all();
+  }
+  if (!near_box) return rep;
   const TriangleGrid grid(triangles, std::span<const Vec3>(cs.x), s.radius, cloth_start);
   std::vector<int32_t> near;
   const double inv_dt = 1.0 / dt;
