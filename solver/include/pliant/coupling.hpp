@@ -46,16 +46,16 @@ CouplingReport couple_particles_to_body(const BodyModel& model, BodyState& body,
 // both stepped: each particle stays at least `settings.radius` (the two bodies' contact radii
 // summed) from the cloth's triangles, on the side of the triangle it started the step on
 // (against the triangle where it started). A particle found behind a triangle goes back to its
-// side however far it got when the closest point is within the two's relative motion over the
-// step (a thin cloth is not tunnelled by a particle, nor does a cloth springing back pass
-// through one); the others are measured against their closest triangle. As with the tet body,
-// the particle takes the whole position correction (and Coulomb friction on its slip against
-// the triangle's point, up to friction x the correction), and the cloth takes the momentum the
-// correction gave it as a change of its corners' velocities by their barycentric weights, so
-// momentum is exact. `force_on_body`: the particles' push on the cloth over dt, N (the pinned
-// corners' share included). `*_start`: positions at the start of the step (the side comes from
-// them). Particles with inverse mass 0 are left alone. Throws std::invalid_argument naming the
-// field when sizes disagree or settings are out of range.
+// side however far it got when one went through the other during the step (its distance to the
+// triangle's plane, interpolated linearly, changes sign within the triangle of that moment): a
+// thin cloth is not tunnelled by a particle, nor does a cloth springing back pass through one.
+// Positions: only the particle moves (a pinned one stays). Velocities: a perfectly inelastic
+// contact between the particle and the triangle's point (inverse masses w_p and sum_k b_k^2 w_k,
+// b the barycentric weights), an impulse along the normal shared by the corners' weights, and
+// Coulomb friction on the tangential speed up to `settings.friction` x that impulse: momentum is
+// exact. `force_on_body`: the particles' push on the cloth over dt, N (the pinned corners'
+// share included). `*_start`: positions at the start of the step (the side comes from them).
+// Throws std::invalid_argument naming the field when sizes disagree or settings are out of range.
 CouplingReport couple_particles_to_cloth(ParticleState& particles, std::span<const double> particle_inv_mass,
                                          std::span<const Vec3> particle_start, ParticleState& cloth,
                                          std::span<const double> cloth_inv_mass,

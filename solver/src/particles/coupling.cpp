@@ -329,12 +329,21 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
         if (len > 1e-12 * s.radius) n = d / len;
         C = len - s.radius;
       } else {
-        // Behind the triangle: one went through the other during the step when the closest
-        // point is within their relative motion (plus the radius), which neither the particle's
-        // path nor the triangle's start or end position alone shows (a cloth springing back past
-        // a particle); farther, the particle is behind another part of the cloth.
-        const Vec3 q_start = bw[0] * sa + bw[1] * sb + bw[2] * sc;
-        if (d.norm() > s.radius + ((xp - start) - (q - q_start)).norm()) continue;
+        // Behind the triangle: a contact only if one went through the other during the step.
+        // With the particle and the corners moving linearly over it, the particle's distance to
+        // the triangle's plane goes from s0 to s1; where it changes sign the particle must be
+        // inside the triangle of that moment (within the radius) -- that catches a particle
+        // crossing the cloth and a cloth springing back past a particle, which neither the
+        // particle's path nor the triangle at its start or end alone shows; otherwise the
+        // particle is behind another part of the cloth (around this triangle's edge).
+        const Vec3 ns = (sb - sa).cross(sc - sa).normalized();
+        const double s0 = (start - sa).dot(ns), s1 = (xp - a).dot(n_face);
+        if (!((s0 > 0) != (s1 > 0)) || s0 == s1) continue;
+        const double tc = s0 / (s0 - s1);
+        const Vec3 pc = start + tc * (xp - start);
+        std::array<double, 3> bc;
+        const Vec3 qc = closest_point_on_triangle(pc, sa + tc * (a - sa), sb + tc * (b - sb), sc + tc * (c - sc), bc);
+        if ((pc - qc).norm() > s.radius) continue;
         C = along - s.radius;
       }
       if (C < deepest) {
