@@ -83,6 +83,7 @@ struct Scene::TickState {
     CouplingSettings settings;
   };
   std::vector<ClothPair> cloth_pairs;
+  std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
   std::vector<ParticleStepReport> body_reports;  // each body's step in the tick in progress
   // Realtime schedule: tick k is due at anchor + k * period.
@@ -178,6 +179,8 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
       ts_->cloth_pairs.push_back({a, c, cs});
     }
   }
+  ts_->in_cloth_pair.assign(ts_->bodies.size(), 0);
+  for (const TickState::ClothPair& p : ts_->cloth_pairs) ts_->in_cloth_pair[p.particles] = ts_->in_cloth_pair[p.cloth] = 1;
   config_ = std::move(config);
   model_shared_ = std::move(model);
   publish_status();
@@ -788,7 +791,8 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       return;
     }
     guarded(b, [&] {
-      t.body_start[b] = t.bodies[b]->state().x;
+      // The start positions, for the contacts that read them (none: no copy in the tick).
+      if (t.body_contact[b] || t.in_cloth_pair[b] || !inputs.tools.empty()) t.body_start[b] = t.bodies[b]->state().x;
       const auto t_body = Clock::now();
       t.body_reports[b] = t.bodies[b]->step(dt, t.colliders);
       if (const auto& contact = t.body_contact[b]) {

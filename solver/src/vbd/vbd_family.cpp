@@ -233,14 +233,15 @@ void VbdFamily::vertex_system(const BodyModel& m, int32_t i, const std::vector<V
     tets->derivatives(x[i] - origin, m.lame, m.material.model, g, H ? &Ht : nullptr);
     f -= g;
     if (H) *H += Ht;
-  }
-  for (int32_t a = m.vertex_tet_start[i]; !tets && a < m.vertex_tet_start[i + 1]; ++a) {
-    const TetRest& t = m.tets[m.vertex_tet_entry[a] >> 2];
-    Vec3 g;
-    Mat3 Ht;
-    tet_vertex_derivatives(t, m.vertex_tet_entry[a] & 3, gather(x, t.v), m.stiffness, m.material.model, mode, g, Ht);
-    f -= g;
-    if (H) *H += Ht;
+  } else {
+    for (int32_t a = m.vertex_tet_start[i]; a < m.vertex_tet_start[i + 1]; ++a) {
+      const TetRest& t = m.tets[m.vertex_tet_entry[a] >> 2];
+      Vec3 g;
+      Mat3 Ht;
+      tet_vertex_derivatives(t, m.vertex_tet_entry[a] & 3, gather(x, t.v), m.stiffness, m.material.model, mode, g, Ht);
+      f -= g;
+      if (H) *H += Ht;
+    }
   }
   if (!grabs_.empty() && grabbed_[i]) {
     const auto range = std::equal_range(grabs_.begin(), grabs_.end(), GrabTerm{i, 0, 0},
@@ -258,15 +259,18 @@ void VbdFamily::vertex_system(const BodyModel& m, int32_t i, const std::vector<V
 double VbdFamily::vertex_energy(const BodyModel& m, int32_t i, const std::vector<Vec3>& x, const VertexTets<v4d>* tets,
                                 const Vec3& origin, const Vec3& p) const {
   double e = 0.5 * m.inertia[i] * sub_.inv_h2 * (p - y_[i]).squaredNorm();
-  if (tets && !tets->energy(p - origin, m.lame, m.material.model, e)) return HUGE_VAL;  // a tet would invert
-  for (int32_t a = m.vertex_tet_start[i]; !tets && a < m.vertex_tet_start[i + 1]; ++a) {
-    const TetRest& t = m.tets[m.vertex_tet_entry[a] >> 2];
-    std::array<Vec3, 4> q = gather(x, t.v);
-    q[m.vertex_tet_entry[a] & 3] = p;
-    Mat3 ds;
-    for (int c = 0; c < 3; ++c) ds.col(c) = q[c] - q[3];
-    if (!((ds * t.dm_inv).determinant() > 0)) return HUGE_VAL;  // the step would invert a tet
-    e += tet_energy(t, q, m.stiffness, m.material.model);
+  if (tets) {
+    if (!tets->energy(p - origin, m.lame, m.material.model, e)) return HUGE_VAL;  // a tet would invert
+  } else {
+    for (int32_t a = m.vertex_tet_start[i]; a < m.vertex_tet_start[i + 1]; ++a) {
+      const TetRest& t = m.tets[m.vertex_tet_entry[a] >> 2];
+      std::array<Vec3, 4> q = gather(x, t.v);
+      q[m.vertex_tet_entry[a] & 3] = p;
+      Mat3 ds;
+      for (int c = 0; c < 3; ++c) ds.col(c) = q[c] - q[3];
+      if (!((ds * t.dm_inv).determinant() > 0)) return HUGE_VAL;  // the step would invert a tet
+      e += tet_energy(t, q, m.stiffness, m.material.model);
+    }
   }
   if (!grabs_.empty() && grabbed_[i]) {
     const auto range = std::equal_range(grabs_.begin(), grabs_.end(), GrabTerm{i, 0, 0},
