@@ -15,7 +15,7 @@
 #   hippo      the thesis hippo hanging from its first 10% of x (x <= -0.07159 fixed), I Newton
 #              iterations per tick, 2 solver threads (server --threads 2 unless --server-threads)
 #   armadillo-hanging  the thesis armadillo with the thesis's clamp (x <= -0.04936 fixed), as hippo
-# --linear L: newton's linear solver (auto | direct | cg | cg-jacobi | cg-factor; default auto).
+# --linear L: newton's linear solver (auto | direct | cg | cg-jacobi | cg-factor | cg-twolevel; default auto).
 set -euo pipefail
 seconds=20 warmup=5 rounds=1 iterations=1 scene=armadillo server_threads="" linear=""
 while [ $# -gt 0 ]; do

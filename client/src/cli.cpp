@@ -130,9 +130,10 @@ Scene flags (create and update):
                         (auto: the server measures the methods on the body and keeps the most
                         accurate within --time-budget-ms, default half the tick)
   --sweep gauss-seidel|jacobi|sequential   --substeps N   --iterations N   --window M   --omega W
-  --newton-linear-solver auto|direct|cg|cg-jacobi|cg-factor
-                        how newton solves each iteration (cg-factor: a large body's rest shape
-                        right within the ticks, each tick slower; docs/solver.md)
+  --newton-linear-solver auto|direct|cg|cg-jacobi|cg-factor|cg-twolevel
+                        how newton solves each iteration (cg-twolevel, what cg uses on a large
+                        body: vertex blocks plus a coarse solve; cg-factor: an earlier
+                        factorisation whatever the size; docs/solver.md)
   --tolerance T         --time-budget-ms MS    --threads N     --paused (create paused)
   --wave-courant C      let the server pick the substeps: the fewest with a pressure wave
                         crossing at most C elements per substep (0.3 resolves the material)
@@ -560,7 +561,7 @@ bool read_settings(Args& a, v1::SolverSettings* so, v1::TickSettings* tick, v1::
   }
   if (auto v = a.get("newton-linear-solver")) {
     auto l = parse_newton_linear_solver(*v);
-    if (!l) throw Usage("--newton-linear-solver '" + *v + "' is not one of auto|direct|cg|cg-jacobi|cg-factor");
+    if (!l) throw Usage("--newton-linear-solver '" + *v + "' is not one of auto|direct|cg|cg-jacobi|cg-factor|cg-twolevel");
     so->set_newton_linear_solver(proto::newton_linear_solver_to(*l));
     any = true;
   }
@@ -1267,7 +1268,7 @@ std::vector<Opt> settings_flags() {
       {"mode", "MODE", "realtime | lockstep | as-fast-as-possible"},
       {"method", "METHOD", "xpbd|sor|lambda-sor|chebyshev|anderson|anderson-sor|extrapolation|vbd|newton|auto"},
       {"sweep", "SWEEP", "gauss-seidel | jacobi | sequential"},
-      {"newton-linear-solver", "L", "newton's linear solver: auto | direct | cg | cg-jacobi | cg-factor"},
+      {"newton-linear-solver", "L", "newton's linear solver: auto | direct | cg | cg-jacobi | cg-factor | cg-twolevel"},
       {"substeps", "N", "substeps per tick"},
       {"iterations", "N", "solver iterations per substep"},
       {"window", "M", "Anderson window"},

@@ -28,12 +28,13 @@ constexpr std::array<std::pair<Sweep, v1::Sweep>, 3> kSweeps{{
     {Sweep::Sequential, v1::SWEEP_SEQUENTIAL},
 }};
 
-constexpr std::array<std::pair<NewtonLinearSolver, v1::NewtonLinearSolver>, 5> kNewtonLinearSolvers{{
+constexpr std::array<std::pair<NewtonLinearSolver, v1::NewtonLinearSolver>, 6> kNewtonLinearSolvers{{
     {NewtonLinearSolver::Auto, v1::NEWTON_LINEAR_SOLVER_AUTO},
     {NewtonLinearSolver::Direct, v1::NEWTON_LINEAR_SOLVER_DIRECT},
     {NewtonLinearSolver::Cg, v1::NEWTON_LINEAR_SOLVER_CG},
     {NewtonLinearSolver::CgJacobi, v1::NEWTON_LINEAR_SOLVER_CG_JACOBI},
     {NewtonLinearSolver::CgFactor, v1::NEWTON_LINEAR_SOLVER_CG_FACTOR},
+    {NewtonLinearSolver::CgTwoLevel, v1::NEWTON_LINEAR_SOLVER_CG_TWOLEVEL},
 }};
 
 constexpr std::array<std::pair<Damping, v1::Damping>, 3> kDampings{{

@@ -81,9 +81,12 @@ common options:
                       Newton step on the implicit-Euler potential; iterations = Newton iterations)
   --newton-linear-solver L   newton's linear solver: direct (sparse LDL^T) | cg (inexact
                       Newton: CG preconditioned by an earlier factorisation up to 20000 free
-                      dofs, by 3x3 vertex blocks above) | cg-jacobi (vertex blocks only) |
-                      cg-factor (the factorisation whatever the size) | auto (default: cg above
-                      5000 free dofs)
+                      dofs, by cg-twolevel above) | cg-jacobi (vertex blocks only) |
+                      cg-factor (the factorisation whatever the size) | cg-twolevel (vertex
+                      blocks plus a coarse solve on rigid motions of vertex aggregates; what cg
+                      uses above 20000 free dofs) | auto (default: cg above 5000 free dofs)
+  --newton-forcing F  newton with CG: the loosest relative residual CG is asked for per
+                      iteration (default 0: 0.5, or 0.01 with the two-level preconditioner)
   --sweep S           gauss-seidel (coloured, parallel) | jacobi | sequential (one tet at a time
                       in mesh order, one thread: the thesis's sweep; needs --threads 1)
   --tet-order O       renumber the tets before building the body: mesh (as given; the beams:
@@ -123,7 +126,7 @@ accuracy:  --methods LIST  --budget-ms T (default 100)  --start bend|sag (defaul
            the two places meaning "grows with the budget", e.g.
              xpbd:64x1,xpbd:16x4,xpbd:1xN,xpbd:Nx1,anderson-sor:1xN:omega=2,chebyshev:1xN:rho=0.99
            keys: omega window sweep form rho gamma delay relaxation cond floor line-search
-           linear (newton: direct | cg | cg-jacobi | cg-factor | auto).
+           linear (newton: direct | cg | cg-jacobi | cg-factor | cg-twolevel | auto).
            1xN records every iteration of one step (hook time excluded); other N specs run
            the whole step for N = 1, 2, 3, 4, 6, 8, 11, 16, ... until a run takes T ms; a fixed
            spec is one point. Every time is the fastest of up to 3 runs (per iteration for
@@ -154,7 +157,7 @@ run:       --steps N  --out DIR  --every K  --tip-csv FILE (last line: JSON with
 const std::set<std::string> kValued = {
     "mesh", "young", "poisson", "density", "method", "sweep", "anderson-form", "iterations",
     "substeps", "wave-courant", "dt", "omega", "window", "rho", "gamma", "delay", "tolerance", "time-budget-ms", "threads",
-    "log-level", "csv", "newton-linear-solver", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
+    "log-level", "csv", "newton-linear-solver", "newton-forcing", "match", "bend-mm", "fix-x-max", "max-steps", "speed-tol", "damping",
     "steps", "out", "every", "tip-csv", "inversion-floor", "inertia-floor", "support-inertia", "model",
     "methods", "budget-ms", "start", "csv-dir", "png", "tet-order", "seed", "fix-group"};
 const std::set<std::string> kFlags = {"progress", "quiet", "no-line-search", "dynamic", "substep-floor"};
@@ -226,7 +229,7 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   }
   if (auto v = a.str("newton-linear-solver")) {
     auto l = parse_newton_linear_solver(*v);
-    if (!l) throw cli::UsageError("--newton-linear-solver: unknown linear solver '" + *v + "' (auto, direct, cg, cg-jacobi, cg-factor)");
+    if (!l) throw cli::UsageError("--newton-linear-solver: unknown linear solver '" + *v + "' (auto, direct, cg, cg-jacobi, cg-factor, cg-twolevel)");
     s.newton_linear_solver = *l;
   }
   if (auto v = a.str("anderson-form")) {
@@ -245,6 +248,9 @@ SolverSettings settings_from(const cli::Args& a, SolverSettings s) {
   s.chebyshev.delay = int(a.integer("delay", s.chebyshev.delay, 0, 1000000));
   s.tolerance = a.number("tolerance", s.tolerance);
   s.time_budget_ms = a.number("time-budget-ms", s.time_budget_ms);
+  s.newton_forcing = a.number("newton-forcing", s.newton_forcing);
+  if (!(s.newton_forcing >= 0 && s.newton_forcing < 1))
+    throw cli::UsageError("--newton-forcing: a relative residual in [0, 1), not " + std::to_string(s.newton_forcing));
   s.threads = int(a.integer("threads", s.threads, 1, 256));
   s.inversion_floor = a.number("inversion-floor", s.inversion_floor);
   if (a.has("no-line-search")) s.line_search = false;
@@ -420,11 +426,17 @@ int cmd_static(const cli::Args& a) {
       .add("kinetic_energy", kinetic_energy(*model, r.state)).add("at_rest", r.at_rest).add("diverged", r.diverged)
       .add("inverted_tets", long(count_inverted(*model, r.state.x)))
       .add("last_step_iterations", r.last_report.iterations)
-      .add("last_step_wall_ms", r.last_report.wall_ms);
+      .add("last_step_wall_ms", r.last_report.wall_ms)
+      .add("last_step_phase_ms", nlohmann::ordered_json{{"projection", r.last_report.times.projection_ms},
+                                                        {"accelerator", r.last_report.times.anderson_ms},
+                                                        {"update", r.last_report.times.update_ms},
+                                                        {"residual", r.last_report.times.residual_ms},
+                                                        {"other", r.last_report.times.other_ms}});
   if (s.method == Method::Newton)
     j.add("newton_linear_solver",
           std::string(to_string(newton_uses_cg(*model, s) ? NewtonLinearSolver::Cg : NewtonLinearSolver::Direct)))
-        .add("last_step_cg_iterations", r.last_report.linear_iterations);
+        .add("last_step_cg_iterations", r.last_report.linear_iterations)
+        .add("last_step_hessian_reused", r.last_report.hessian_reused);
   std::cout << j.str() << std::endl;
   return r.diverged ? 3 : (r.at_rest ? 0 : 4);
 }

@@ -117,7 +117,7 @@ MethodSpec parse_method_spec(std::string_view text_in, const SolverSettings& bas
     else if (key == "line-search") s.line_search = spec_number(text, key, value) != 0;
     else if (key == "linear") {
       const auto l = parse_newton_linear_solver(value);
-      if (!l) bad_spec(text, "unknown linear solver '" + value + "' (auto, direct, cg, cg-jacobi, cg-factor)");
+      if (!l) bad_spec(text, "unknown linear solver '" + value + "' (auto, direct, cg, cg-jacobi, cg-factor, cg-twolevel)");
       s.newton_linear_solver = *l;
     }
     else if (key == "sweep") {

@@ -72,7 +72,8 @@ struct Potential {
 }  // namespace
 
 TEST(NewtonCg, ReachesTheSameStepAsTheDirectSolve) {
-  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi, NewtonLinearSolver::CgFactor})
+  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi, NewtonLinearSolver::CgFactor,
+                                    NewtonLinearSolver::CgTwoLevel})
   for (const char* mesh : {"beam1", "beam3"})
     for (double young : {1e5, 1e7}) {
       auto m = clamped(mesh, young);
@@ -94,7 +95,7 @@ TEST(NewtonCg, ReachesTheSameStepAsTheDirectSolve) {
 }
 
 TEST(NewtonCg, EveryIterationLowersThePotential) {
-  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi}) {
+  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi, NewtonLinearSolver::CgTwoLevel}) {
   auto m = clamped("beam3", 1e6);
   const BodyState start = bent_moving(*m);
   SolverSettings s = newton(linear, 12);
@@ -113,7 +114,7 @@ TEST(NewtonCg, EveryIterationLowersThePotential) {
 }
 
 TEST(NewtonCg, AStepStoppedByItsBudgetEndsNoWorseThanItsStart) {
-  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi})
+  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi, NewtonLinearSolver::CgTwoLevel})
   for (double young : {1e5, 1e7}) {
     auto m = clamped("beam3", young);
     const BodyState start = bent_moving(*m);
@@ -144,6 +145,8 @@ TEST(NewtonCg, AutoChoosesByTheNumberOfFreeDofs) {
   EXPECT_EQ(parse_newton_linear_solver("cg-jacobi"), NewtonLinearSolver::CgJacobi);
   EXPECT_EQ(parse_newton_linear_solver("cg-factor"), NewtonLinearSolver::CgFactor);
   EXPECT_TRUE(newton_uses_cg(NewtonLinearSolver::CgFactor, 3));
+  EXPECT_EQ(parse_newton_linear_solver("cg-twolevel"), NewtonLinearSolver::CgTwoLevel);
+  EXPECT_TRUE(newton_uses_cg(NewtonLinearSolver::CgTwoLevel, 3));
   EXPECT_FALSE(parse_newton_linear_solver("ldlt"));
   // beam3 stays with the factorisation under auto.
   auto m = clamped("beam3", 1e6);
@@ -153,7 +156,7 @@ TEST(NewtonCg, AutoChoosesByTheNumberOfFreeDofs) {
 }
 
 TEST(NewtonCg, AHardGrabReachesItsTargetAndAFloorHoldsTheBody) {
-  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi}) {
+  for (NewtonLinearSolver linear : {NewtonLinearSolver::Cg, NewtonLinearSolver::CgJacobi, NewtonLinearSolver::CgTwoLevel}) {
     // The grab's penalty is 1e6 x the stiffness it holds: the worst conditioning CG meets.
     auto m = clamped("beam1", 1e6);
     SolverSettings s = newton(linear, 30);

@@ -45,10 +45,12 @@ enum class NewtonLinearSolver {
   Auto,    // direct up to kNewtonDirectMaxDofs free dofs, cg above
   Direct,  // sparse LDL^T (Eigen SimplicialLDLT): the exact Newton direction
   Cg,      // inexact Newton: conjugate gradients to a forcing term, preconditioned by a factorisation
-           // of an earlier Hessian (refreshed when CG slows) up to 20,000 free dofs, else as cg-jacobi
+           // of an earlier Hessian (refreshed when CG slows) up to 20,000 free dofs, else as cg-twolevel
   CgJacobi,  // the same preconditioned by the inverses of the 3x3 vertex blocks only
   CgFactor,  // cg preconditioned by the earlier factorisation whatever the size (a large body's
              // slow modes converge within the ticks; each tick pays the factor's solves)
+  CgTwoLevel,  // cg preconditioned by the vertex blocks plus a coarse solve on piecewise rigid
+               // motions of vertex aggregates (a large body's slow modes at a small cost per tick)
 };
 
 // Free dofs above which newton_linear_solver auto uses cg: beam3 (4,320 free dofs) stays direct,
@@ -104,6 +106,9 @@ struct SolverSettings {
   int threads = 1;          // worker threads for the sweeps (1: all on the calling thread)
   // Method newton: the linear solver of each iteration (auto: by the body's size).
   NewtonLinearSolver newton_linear_solver = NewtonLinearSolver::Auto;
+  // Method newton with CG: the loosest relative residual CG is asked for in an iteration (its
+  // forcing term's cap; 0: the preconditioner's default, 0.5 or 0.01 for the two-level one).
+  double newton_forcing = 0;
   bool record_residuals = true;  // compute ||r|| after every iteration (needed by Anderson)
 };
 
@@ -116,7 +121,7 @@ std::string_view method_names();  // "xpbd, sor, ..., auto": the accepted names,
 std::string_view sweep_names();   // "gauss-seidel, jacobi, sequential"
 std::optional<Damping> parse_damping(std::string_view s); // "none" | "simple" | "rigid"
 std::string_view to_string(NewtonLinearSolver s);
-std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s);  // "auto" | "direct" | "cg" | "cg-jacobi" | "cg-factor"
+std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s);  // "auto" | "direct" | "cg" | "cg-jacobi" | "cg-factor" | "cg-twolevel"
 // Whether method newton on a body with `free_dofs` free degrees of freedom solves with cg.
 bool newton_uses_cg(NewtonLinearSolver s, int free_dofs);
 std::string_view to_string(AndersonForm f);

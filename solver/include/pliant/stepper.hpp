@@ -43,6 +43,7 @@ struct StepReport {
   int contacts = 0;                    // active contacts at the end of the step
   int volume_corrections = 0;          // inversion-floor projections in the last iteration
   int linear_iterations = 0;           // method newton with cg: CG iterations over all substeps
+  int hessian_reused = 0;              // method newton with cg: iterations that kept an earlier Hessian
   // One per StepInputs::tools, same order: force/torque on the tool averaged over the substeps
   // of the step (= impulse during the step / dt), and the vertices that touched it.
   std::vector<ToolReaction> tools;

@@ -17,12 +17,16 @@
 // Inexact Newton (newton_linear_solver cg, or auto above kNewtonDirectMaxDofs free dofs): where
 // the factorisation does not fit a tick, H d = -g is solved by conjugate gradients on the same
 // assembled matrix, preconditioned by a factorisation of an earlier Hessian (single precision
-// where it keeps every pivot positive, else double; up to kFactorPreconditionerMaxDofs) or by the inverses of its 3x3 vertex blocks, to a relative
-// residual eta = min(kMaxForcing, sqrt(|g| / |g0|)) (a forcing term that tightens as Newton
-// converges, so the outer iteration stays superlinear); the time budget stops CG too, and its
-// last iterate is still a descent direction for the line search. Negative curvature of the
-// exact Hessian sends the iteration back to the projected one, as the failed factorisation does.
+// where it keeps every pivot positive, else double; up to kFactorPreconditionerMaxDofs) or above
+// that by the two-level preconditioner (newton/two_level.hpp: the 3x3 vertex blocks plus a coarse
+// solve on rigid motions of vertex aggregates), to a relative residual
+// eta = min(cap, sqrt(|g| / |g0|)) (a forcing term that tightens as Newton converges, so the outer
+// iteration stays superlinear); the time budget stops CG too, and its last iterate is still a
+// descent direction for the line search. Negative curvature of the exact Hessian sends the
+// iteration back to the projected one, as the failed factorisation does. A body that has hardly
+// moved since its last Hessian keeps it (a chord step with the exact gradient).
 #include "kernels/projection.hpp"
+#include "newton/two_level.hpp"
 #include "step/family.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
@@ -54,6 +58,10 @@ constexpr double kStickSpeed = 1e-3;
 // Inexact Newton: the loosest relative residual CG is asked for (first iterations), and the
 // most CG iterations per Newton iteration.
 constexpr double kMaxForcing = 0.5;
+// The same for the two-level preconditioner, measured on the hanging armadillo (docs/solver.md,
+// "The armadillo at 1 MPa"): its norm weighs the slow modes little, and at one half a tick's CG
+// left the sag 7% short (0.1: creeping 8% long after the first swing; 0.01: within 0.1%).
+constexpr double kTwoLevelForcing = 0.01;
 constexpr int kMaxCgIterations = 2000;
 // Up to this many free dofs CG is preconditioned by a factorisation of an earlier Hessian (the
 // hippo's costs a few ticks' budget, once; the armadillo's 1.8 s and each of its solves tens of
@@ -61,6 +69,24 @@ constexpr int kMaxCgIterations = 2000;
 // when a solve needs more than kRefactorAfter CG iterations.
 constexpr int kFactorPreconditionerMaxDofs = 20000;
 constexpr int kRefactorAfter = 20;
+// The two-level preconditioner's aggregation rounds (each round groups a node with its
+// neighbours: one round gives aggregates of about 15 vertices on a tet mesh, two about 15 of those).
+constexpr int kTwoLevelRounds = 2;
+// Inexact Newton keeps the last projected Hessian while no free vertex has moved more than this
+// fraction of the mean edge since it was assembled.
+constexpr double kHessianReuseMotion = 1e-3;
+// Which preconditioner CG uses for `linear` on a body of ndof free dofs.
+enum class Preconditioning { Factor, TwoLevel, Blocks };
+Preconditioning preconditioning_for(NewtonLinearSolver linear, int ndof) {
+  switch (linear) {
+    case NewtonLinearSolver::CgFactor: return Preconditioning::Factor;
+    case NewtonLinearSolver::CgTwoLevel: return Preconditioning::TwoLevel;
+    case NewtonLinearSolver::CgJacobi: return Preconditioning::Blocks;
+    default: return ndof <= kFactorPreconditionerMaxDofs ? Preconditioning::Factor : Preconditioning::TwoLevel;
+  }
+}
+double max_forcing(Preconditioning p) { return p == Preconditioning::TwoLevel ? kTwoLevelForcing : kMaxForcing; }
+
 // Relative size below which a change of the incremental potential is round-off of its sum (tens of
 // thousands of terms of mixed sign, each with a relative error of a few 1e-16).
 constexpr double kEnergyResolution = 1e-13;
@@ -166,6 +192,7 @@ class NewtonFamily final : public SolverFamily {
                            const std::function<bool()>& out_of_time, int& iterations);
   using Preconditioner = std::function<void(const Eigen::VectorXd& r, Eigen::VectorXd& z)>;
   // The CG loop itself, z = M^-1 r by `precondition`.
+  Preconditioning preconditioning(NewtonLinearSolver linear) const { return preconditioning_for(linear, ndof_); }
   bool preconditioned_cg(ThreadPool& tp, double eta, bool projected, const std::function<bool()>& out_of_time,
                          int& iterations, const Preconditioner& precondition);
 
@@ -191,6 +218,21 @@ class NewtonFamily final : public SolverFamily {
   std::vector<int32_t> corner_begin_, corner_at_;
   Eigen::VectorXd cg_r_, cg_z_, cg_p_, cg_q_;  // CG's residual, preconditioned residual, direction, H p
   std::vector<Eigen::Matrix3d> block_inverse_;  // per free vertex (dof / 3): its diagonal block's inverse
+  TwoLevelPreconditioner two_level_;
+  // The projected Hessian in H_ was assembled at hessian_x_ for substep hessian_at_h_ (0: H_ holds
+  // something else: the exact Hessian, penalties, or nothing yet).
+  double hessian_at_h_ = 0;
+  bool hessian_changed_ = true;  // H_'s values changed since the two-level blocks were inverted
+  std::vector<Vec3> hessian_x_;
+  double max_motion_since_hessian(const std::vector<Vec3>& x) const {
+    double d2 = 0;
+    for (size_t i = 0; i < x.size(); ++i)
+      if (dof_[i] >= 0) d2 = std::max(d2, (x[i] - hessian_x_[i]).squaredNorm());
+    return std::sqrt(d2);
+  }
+  std::vector<Vec3> free_rest_;   // rest positions of the free vertices, in dof order
+  bool two_level_built_ = false;  // two_level_ has this model's aggregates
+  bool coarse_ready_ = false;     // two_level_ holds a coarse operator of an earlier Hessian
   bool factored_ = false;   // cholesky_ holds a factorisation of an earlier Hessian (CG's preconditioner)
   bool refactor_ = false;   // the last CG solve was slow: refresh it at the next one
   size_t factored_contacts_ = 0, factored_attachments_ = 0;  // the penalties it was factorised with
@@ -282,6 +324,12 @@ void NewtonFamily::compile(const BodyModel& m) {
   }
   analysed_ = false;
   factored_ = refactor_ = false;
+  two_level_built_ = coarse_ready_ = false;
+  hessian_at_h_ = 0;
+  hessian_changed_ = true;
+  free_rest_.clear();
+  for (size_t v = 0; v < nv; ++v)
+    if (dof_[v] >= 0) free_rest_.push_back(m.rest_positions[v]);
   g_.setZero(ndof_);
 }
 
@@ -404,8 +452,8 @@ void NewtonFamily::multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::Vec
 
 bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projected, NewtonLinearSolver linear,
                                        const std::function<bool()>& out_of_time, int& iterations) {
-  const bool use_factor = linear == NewtonLinearSolver::CgFactor ||
-                          (ndof_ <= kFactorPreconditionerMaxDofs && linear != NewtonLinearSolver::CgJacobi);
+  const Preconditioning kind = preconditioning(linear);
+  const bool use_factor = kind == Preconditioning::Factor;
   // Refactorised from a projected Hessian only (the exact one may not be positive definite, and a
   // failed factorisation would lose the earlier factor).
   // Contacts and grabs add penalties far stiffer than the body: a factor without them (or with
@@ -422,6 +470,28 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
     factored_attachments_ = attachment_k_.size();
     spdlog::debug("newton cg: preconditioner factorised ({}, {})", factored_ ? "ok" : "not positive definite",
                   cholesky_.single() ? "single" : "double");
+  }
+  if (kind == Preconditioning::TwoLevel) {
+    if (!two_level_built_) {
+      two_level_.build(block_begin_, block_row_, free_rest_, kTwoLevelRounds);
+      two_level_built_ = true;
+      hessian_changed_ = true;
+      spdlog::debug("newton cg: {} aggregates, {} coarse dofs", two_level_.aggregates(), two_level_.coarse_dofs());
+    }
+    if (hessian_changed_) two_level_.update_blocks(H_);
+    hessian_changed_ = false;
+    if ((!coarse_ready_ || refactor_) && projected) {
+      coarse_ready_ = two_level_.refresh_coarse(H_);
+      refactor_ = false;
+      factored_contacts_ = contacts_.size();
+      factored_attachments_ = attachment_k_.size();
+      spdlog::debug("newton cg: coarse operator refreshed ({})", coarse_ready_ ? "ok" : "not positive definite");
+    }
+    const int before = iterations;
+    const bool ok = preconditioned_cg(tp, eta, projected, out_of_time, iterations,
+                                      [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) { two_level_.apply(r, z); });
+    if (iterations - before > kRefactorAfter) refactor_ = true;
+    return ok;
   }
   if (use_factor && factored_) {
     const int before = iterations;
@@ -819,10 +889,12 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       start_energy = energy[best];
     }
     contacts_.clear();
+    const double start_ms = ms_since(t_sub);  // prediction and warm start
     const double budget = s.time_budget_ms > 0
                               ? std::max(1e-6, (s.time_budget_ms - (ms_since(t_start) - hook_ms)) / (n - sub))
                               : 0.0;
     StepReport rep;
+    rep.times.other_ms += start_ms;
     attachment_k_.assign(in.attachments.size(), 0.0);
     const bool cg = newton_uses_cg(s.newton_linear_solver, ndof_);
     if (!cg && !analysed_) {
@@ -837,10 +909,23 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
     for (int it = 0; it < s.iterations; ++it) {
       const auto t_asm = Clock::now();
       bool exact = full_step;
-      assemble(m, x, h, tp, true, exact);
+      // Inexact Newton on a body that has hardly moved since its Hessian was assembled keeps that
+      // Hessian (a chord step: the gradient is exact, so the fixed point is the same; the matrix
+      // differs by about the relative motion): only without contacts and grabs, whose penalties
+      // go into the matrix, and only for the projected Hessian.
+      const bool reuse = cg && !exact && hessian_at_h_ == h && in.attachments.empty() && !inputs_have_obstacles_ &&
+                         max_motion_since_hessian(x) <= kHessianReuseMotion * m.mean_edge;
+      assemble(m, x, h, tp, !reuse, exact);
+      hessian_changed_ |= !reuse;
+      if (!reuse) {
+        hessian_at_h_ = exact ? 0.0 : h;
+        hessian_x_ = x;
+      }
+      rep.hessian_reused += reuse;
       if (it == 0) set_contact_stiffness(m, h);
       find_contacts(m, x, h, in);
       add_interaction(m, x, h, in, true);
+      if (!contacts_.empty() || !in.attachments.empty()) hessian_at_h_ = 0;  // H_ holds their penalties
       const double gnorm = g_.norm();
       rep.times.projection_ms += ms_since(t_asm);
       if (g0 < 0) rep.residual_initial = rep.residual_final = g0 = gnorm;
@@ -853,7 +938,8 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         break;
       }
       const auto t_solve = Clock::now();
-      const double eta = std::min(kMaxForcing, std::sqrt(gnorm / g0));
+      const double cap = s.newton_forcing > 0 ? s.newton_forcing : max_forcing(preconditioning(s.newton_linear_solver));
+      const double eta = std::min(cap, std::sqrt(gnorm / g0));
       auto solve = [&] {
         return cg ? conjugate_gradients(tp, eta, !exact, s.newton_linear_solver, out_of_time,
                                       rep.linear_iterations) : cholesky_.factorize(H_);
@@ -863,6 +949,9 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         // Not positive definite here: the projected Hessian instead.
         exact = false;
         assemble(m, x, h, tp, true, false);
+        hessian_changed_ = true;
+        hessian_at_h_ = contacts_.empty() && in.attachments.empty() ? h : 0.0;
+        hessian_x_ = x;
         add_interaction(m, x, h, in, true);
         factored = solve();
       }

@@ -89,19 +89,22 @@ std::string_view to_string(NewtonLinearSolver s) {
     case NewtonLinearSolver::Cg: return "cg";
     case NewtonLinearSolver::CgJacobi: return "cg-jacobi";
     case NewtonLinearSolver::CgFactor: return "cg-factor";
+    case NewtonLinearSolver::CgTwoLevel: return "cg-twolevel";
   }
   return "?";
 }
 
 std::optional<NewtonLinearSolver> parse_newton_linear_solver(std::string_view s) {
   for (NewtonLinearSolver v : {NewtonLinearSolver::Auto, NewtonLinearSolver::Direct, NewtonLinearSolver::Cg,
-                               NewtonLinearSolver::CgJacobi, NewtonLinearSolver::CgFactor})
+                               NewtonLinearSolver::CgJacobi, NewtonLinearSolver::CgFactor,
+                               NewtonLinearSolver::CgTwoLevel})
     if (to_string(v) == s) return v;
   return std::nullopt;
 }
 
 bool newton_uses_cg(NewtonLinearSolver s, int free_dofs) {
   return s == NewtonLinearSolver::Cg || s == NewtonLinearSolver::CgJacobi || s == NewtonLinearSolver::CgFactor ||
+         s == NewtonLinearSolver::CgTwoLevel ||
          (s == NewtonLinearSolver::Auto && free_dofs > kNewtonDirectMaxDofs);
 }
 

@@ -63,6 +63,7 @@ void add_substep(StepReport& total, StepReport&& r) {
   total.contacts = r.contacts;
   total.volume_corrections = r.volume_corrections;
   total.linear_iterations += r.linear_iterations;
+  total.hessian_reused += r.hessian_reused;
   total.times.projection_ms += r.times.projection_ms;
   total.times.anderson_ms += r.times.anderson_ms;
   total.times.update_ms += r.times.update_ms;
