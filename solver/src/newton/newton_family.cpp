@@ -509,14 +509,7 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
     Eigen::Matrix3d b;
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) b(i, j) = values[diag_entry_[9 * v + 3 * i + j]];
-    Eigen::LLT<Eigen::Matrix3d> llt(b);
-    Eigen::Matrix3d& inv = block_inverse_[size_t(dof_[v] / 3)];
-    if (llt.info() == Eigen::Success) {
-      inv = llt.solve(Eigen::Matrix3d::Identity());
-    } else {
-      inv.setZero();
-      for (int i = 0; i < 3; ++i) inv(i, i) = 1.0 / std::max(std::abs(b(i, i)), 1e-300);
-    }
+    block_inverse_[size_t(dof_[v] / 3)] = invert_block(b);
   }
   return preconditioned_cg(tp, eta, projected, out_of_time, iterations, [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
     z.resize(ndof_);
@@ -790,10 +783,12 @@ void NewtonFamily::warm_start_pass(const BodyModel& m,
       const TetRest& tet = m.tets[t];
       double start_ratio = 0;
       for (int c = 0; c < kCandidates; ++c) {
-        const std::array<Vec3, 4> corners = gather(*candidates[size_t(c)], tet.v);
-        part.elastic[size_t(c)] += strain_energy(tet, m.stiffness, corners, m.material.model);
+        // strain_energy() and volume_ratio() to the bit, from one deformation gradient.
+        const Mat3 F = deformation_gradient(tet, gather(*candidates[size_t(c)], tet.v));
+        const Vec6 C = tet.sqrt_volume * strain_vector(F, m.material.model);
+        part.elastic[size_t(c)] += 0.5 * C.dot(m.stiffness * C);
         if (!(floor > 0)) continue;
-        const double ratio = volume_ratio(tet, corners);
+        const double ratio = F.determinant();
         if (c == 0) start_ratio = volume_ratio_[t] = ratio;
         else if (ratio < std::min(floor, start_ratio)) part.kept[size_t(c)] = false;
       }

@@ -87,6 +87,14 @@ Eigen::Matrix3d cross_matrix(const Vec3& a) {
 
 }  // namespace
 
+Eigen::Matrix3d invert_block(const Eigen::Matrix3d& b) {
+  Eigen::LLT<Eigen::Matrix3d> llt(b);
+  if (llt.info() == Eigen::Success) return llt.solve(Eigen::Matrix3d::Identity());
+  Eigen::Matrix3d inv = Eigen::Matrix3d::Zero();
+  for (int i = 0; i < 3; ++i) inv(i, i) = 1.0 / std::max(std::abs(b(i, i)), 1e-300);
+  return inv;
+}
+
 void TwoLevelPreconditioner::build(const std::vector<int32_t>& block_begin, const std::vector<int32_t>& block_row,
                                    const std::vector<Vec3>& position, int rounds) {
   block_begin_ = block_begin;
@@ -163,7 +171,6 @@ void TwoLevelPreconditioner::update_blocks(const Eigen::SparseMatrix<double>& H)
   const size_t nb = block_begin_.size() - 1;
   const int* outer = H.outerIndexPtr();
   const double* values = H.valuePtr();
-  // Block inverses (the diagonal's where a block is not positive definite).
   for (size_t q = 0; q < nb; ++q) {
     Eigen::Matrix3d b;
     const int32_t first = block_begin_[q];
@@ -171,13 +178,7 @@ void TwoLevelPreconditioner::update_blocks(const Eigen::SparseMatrix<double>& H)
     while (block_row_[size_t(self)] != int32_t(q)) ++self;
     for (int j = 0; j < 3; ++j)
       for (int i = 0; i < 3; ++i) b(i, j) = values[outer[3 * q + j] + 3 * (self - first) + i];
-    Eigen::LLT<Eigen::Matrix3d> llt(b);
-    if (llt.info() == Eigen::Success) {
-      block_inverse_[q] = llt.solve(Eigen::Matrix3d::Identity());
-    } else {
-      block_inverse_[q].setZero();
-      for (int i = 0; i < 3; ++i) block_inverse_[q](i, i) = 1.0 / std::max(std::abs(b(i, i)), 1e-300);
-    }
+    block_inverse_[q] = invert_block(b);
   }
 }
 

@@ -23,6 +23,10 @@
 
 namespace pliant::detail {
 
+// The inverse of a 3x3 diagonal block of the Hessian, or of its diagonal where the block is not
+// positive definite (as the exact Hessian's may not be).
+Eigen::Matrix3d invert_block(const Eigen::Matrix3d& b);
+
 class TwoLevelPreconditioner {
  public:
   // The Hessian's block graph: block column q holds the 3x3 blocks of block rows
