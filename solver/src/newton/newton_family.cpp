@@ -191,8 +191,8 @@ class NewtonFamily final : public SolverFamily {
   bool conjugate_gradients(ThreadPool& tp, double eta, bool projected, NewtonLinearSolver linear,
                            const std::function<bool()>& out_of_time, int& iterations);
   using Preconditioner = std::function<void(const Eigen::VectorXd& r, Eigen::VectorXd& z)>;
-  // The CG loop itself, z = M^-1 r by `precondition`.
   Preconditioning preconditioning(NewtonLinearSolver linear) const { return preconditioning_for(linear, ndof_); }
+  // The CG loop itself, z = M^-1 r by `precondition`.
   bool preconditioned_cg(ThreadPool& tp, double eta, bool projected, const std::function<bool()>& out_of_time,
                          int& iterations, const Preconditioner& precondition);
 
