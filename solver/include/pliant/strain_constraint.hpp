@@ -71,6 +71,8 @@ Mat6x12 strain_jacobian(const TetRest& tet, const std::array<Vec3, 4>& x,
 // Elastic energy of the tet, 1/2 C^T K C.
 double strain_energy(const TetRest& tet, const Mat6& stiffness, const std::array<Vec3, 4>& x,
                      ElasticModel model = ElasticModel::StVK);
+// The same from the tet's deformation gradient F (for callers that need F as well).
+double strain_energy(const TetRest& tet, const Mat6& stiffness, const Mat3& F, ElasticModel model);
 
 // Gradient (12) and Hessian (12x12) of that energy; the Hessian includes the second-derivative
 // terms of C (for Corotated, those of the rotation). With project_psd the Hessian is made

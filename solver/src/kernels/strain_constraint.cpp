@@ -151,9 +151,13 @@ Mat3 corotated_rotation_inverse(const Mat3& S) {
   return G.inverse();
 }
 
-double strain_energy(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x, ElasticModel model) {
-  const Vec6 C = strain_constraint(tet, x, model);
+double strain_energy(const TetRest& tet, const Mat6& K, const Mat3& F, ElasticModel model) {
+  const Vec6 C = tet.sqrt_volume * strain_vector(F, model);
   return 0.5 * C.dot(K * C);
+}
+
+double strain_energy(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x, ElasticModel model) {
+  return strain_energy(tet, K, deformation_gradient(tet, x), model);
 }
 
 namespace {

@@ -783,10 +783,9 @@ void NewtonFamily::warm_start_pass(const BodyModel& m,
       const TetRest& tet = m.tets[t];
       double start_ratio = 0;
       for (int c = 0; c < kCandidates; ++c) {
-        // strain_energy() and volume_ratio() to the bit, from one deformation gradient.
+        // The energy and the volume ratio from one deformation gradient.
         const Mat3 F = deformation_gradient(tet, gather(*candidates[size_t(c)], tet.v));
-        const Vec6 C = tet.sqrt_volume * strain_vector(F, m.material.model);
-        part.elastic[size_t(c)] += 0.5 * C.dot(m.stiffness * C);
+        part.elastic[size_t(c)] += strain_energy(tet, m.stiffness, F, m.material.model);
         if (!(floor > 0)) continue;
         const double ratio = F.determinant();
         if (c == 0) start_ratio = volume_ratio_[t] = ratio;
@@ -912,7 +911,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
                          max_motion_since_hessian(x) <= kHessianReuseMotion * m.mean_edge;
       assemble(m, x, h, tp, !reuse, exact);
       hessian_changed_ |= !reuse;
-      if (!reuse) {
+      if (cg && !reuse) {
         hessian_at_h_ = exact ? 0.0 : h;
         hessian_x_ = x;
       }
@@ -945,8 +944,10 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         exact = false;
         assemble(m, x, h, tp, true, false);
         hessian_changed_ = true;
-        hessian_at_h_ = contacts_.empty() && in.attachments.empty() ? h : 0.0;
-        hessian_x_ = x;
+        if (cg) {
+          hessian_at_h_ = contacts_.empty() && in.attachments.empty() ? h : 0.0;
+          hessian_x_ = x;
+        }
         add_interaction(m, x, h, in, true);
         factored = solve();
       }

@@ -44,7 +44,6 @@ class TwoLevelPreconditioner {
 
   int aggregates() const { return int(agg_first_.size()); }
   int coarse_dofs() const { return coarse_dofs_; }
-  bool coarse_ok() const { return coarse_ok_; }
 
  private:
   std::vector<int32_t> block_begin_, block_row_;
