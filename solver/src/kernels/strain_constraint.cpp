@@ -227,8 +227,30 @@ Eigen::Matrix4d clamp_stress_term_to_psd(const Eigen::Matrix4d& G, const std::ar
 // How the Hessian is made positive semi-definite.
 enum class Psd { None, Whole, Parts };
 
+// The Green-strain energy's gradient alone, without the Jacobian: row i of J is sqrt(V0) times
+// f_i b_k[i] (stretch) or f_c b_k[a] + f_a b_k[c] (shear a-c), so J^T K C gathers into
+// dE/dx_k = sqrt(V0) F T b_k^T with T the symmetric matrix of K C's entries (00 11 22 on the
+// diagonal, the shears off it): the first Piola-Kirchhoff stress times V0, applied to b_k.
+Vec12 green_strain_gradient(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x) {
+  const Mat3 F = deformation_gradient(tet, x);
+  const Vec6 KC = K * (tet.sqrt_volume * strain_vector(F));
+  Mat3 T;
+  for (int i = 0; i < 3; ++i) T(i, i) = KC[i];
+  for (int s = 0; s < 3; ++s) T(kShearA[s], kShearB[s]) = T(kShearB[s], kShearA[s]) = KC[3 + s];
+  const Mat3 P = tet.sqrt_volume * F * T;
+  const Mat3 G = P * tet.dm_inv.transpose();  // column k: dE/dx_k for k < 3
+  Vec12 g;
+  for (int k = 0; k < 3; ++k) g.segment<3>(3 * k) = G.col(k);
+  g.segment<3>(9) = -(G.col(0) + G.col(1) + G.col(2));
+  return g;
+}
+
 void derivatives(const TetRest& tet, const Mat6& K, const std::array<Vec3, 4>& x, Vec12* gradient,
                  Mat12* hessian, Psd psd, ElasticModel model) {
+  if (!hessian && model != ElasticModel::Corotated) {
+    if (gradient) *gradient = green_strain_gradient(tet, K, x);
+    return;
+  }
   const Vec6 C = strain_constraint(tet, x, model);
   const Mat6x12 J = strain_jacobian(tet, x, model);
   const Vec6 KC = K * C;

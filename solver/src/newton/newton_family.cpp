@@ -30,6 +30,7 @@
 #include "step/family.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
+#include "step/volume_floor.hpp"
 
 #include "pliant/strain_constraint.hpp"
 
@@ -90,6 +91,8 @@ double max_forcing(Preconditioning p) { return p == Preconditioning::TwoLevel ? 
 // Relative size below which a change of the incremental potential is round-off of its sum (tens of
 // thousands of terms of mixed sign, each with a relative error of a few 1e-16).
 constexpr double kEnergyResolution = 1e-13;
+// Passes of the inversion floor after an iteration, at most (each repeats while one still acts).
+constexpr int kVolumePasses = 20;
 
 // The sparse Cholesky factorisation of the Hessian, its symbolic analysis (ordering, elimination
 // tree) done once per model. Eigen's simplicial LDL^T: CHOLMOD's supernodal LL^T (Debian
@@ -170,13 +173,11 @@ class NewtonFamily final : public SolverFamily {
   // The warm start's candidates in one pass over the tets (each tet's corners loaded once for
   // all of them): energy[c] = inertial_elastic_energy of candidate c, to the bit; kept[c] whether
   // no tet of it falls below the inversion floor `floor` (0: no floor) or below where it was in
-  // candidate 0, the substep's start, whose volume ratios go into volume_ratio_.
+  // candidate 0, the substep's start.
   static constexpr int kCandidates = 3;
   void warm_start_pass(const BodyModel& m, const std::array<const std::vector<Vec3>*, kCandidates>& candidates,
                        double h, double floor, std::array<double, kCandidates>& energy,
                        std::array<bool, kCandidates>& kept);
-  // Whether some tet of x is at or below the floor (or not finite): the floor pass has work.
-  bool any_near_floor(const BodyModel& m, const std::vector<Vec3>& x, double floor) const;
   // lagged_ = contacts_ with their normal forces at the current positions.
   void remember_normal_forces();
   // contact_force_ for contacts_ at x (tool contacts need them; empty work without one).
@@ -237,7 +238,7 @@ class NewtonFamily final : public SolverFamily {
   bool refactor_ = false;   // the last CG solve was slow: refresh it at the next one
   size_t factored_contacts_ = 0, factored_attachments_ = 0;  // the penalties it was factorised with
   std::vector<Vec3> y_, x_start_, trial_, v_before_;
-  std::vector<double> volume_ratio_;  // per tet, at the start of the substep (the warm start's floor)
+  VolumeFloor volume_floor_;
   std::vector<Contact> contacts_;
   std::vector<Contact> lagged_;  // the contacts at the end of the last iteration, normal force k depth
   std::vector<double> attachment_k_;
@@ -774,11 +775,11 @@ void NewtonFamily::warm_start_pass(const BodyModel& m,
     std::array<bool, kCandidates> kept{true, true, true};
   };
   std::vector<Part> parts(size_t(pool_->size()));
-  if (floor > 0) volume_ratio_.resize(m.tets.size());
   // Chunked as elastic_energy() chunks the tets and summed in the same order, so that each
   // candidate's energy is the bits potential() gives for it.
   pool_->parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
-    Part& part = parts[size_t(chunk)];
+    // Summed here and stored once: the chunks' parts share cache lines.
+    Part part;
     for (size_t t = b; t < e; ++t) {
       const TetRest& tet = m.tets[t];
       double start_ratio = 0;
@@ -788,10 +789,11 @@ void NewtonFamily::warm_start_pass(const BodyModel& m,
         part.elastic[size_t(c)] += strain_energy(tet, m.stiffness, F, m.material.model);
         if (!(floor > 0)) continue;
         const double ratio = F.determinant();
-        if (c == 0) start_ratio = volume_ratio_[t] = ratio;
+        if (c == 0) start_ratio = ratio;
         else if (ratio < std::min(floor, start_ratio)) part.kept[size_t(c)] = false;
       }
     }
+    parts[size_t(chunk)] = part;
   }, 2048);
   for (int c = 0; c < kCandidates; ++c) {
     double e = 0;
@@ -806,21 +808,6 @@ void NewtonFamily::warm_start_pass(const BodyModel& m,
     energy[size_t(c)] = e;
     kept[size_t(c)] = k;
   }
-}
-
-bool NewtonFamily::any_near_floor(const BodyModel& m, const std::vector<Vec3>& x, double floor) const {
-  // Slightly above the floor: enforce_volume_floor computes det F in another order, so a tet it
-  // would act on is never missed here.
-  const double bound = floor + 1e-9 * std::max(1.0, std::abs(floor));
-  std::vector<char> found(size_t(pool_->size()), 0);
-  pool_->parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
-    for (size_t t = b; t < e; ++t)
-      if (!(volume_ratio(m.tets[t], gather(x, m.tets[t].v)) >= bound)) {
-        found[size_t(chunk)] = 1;
-        return;
-      }
-  }, 2048);
-  return std::any_of(found.begin(), found.end(), [](char f) { return f != 0; });
 }
 
 double NewtonFamily::potential(const BodyModel& m, const std::vector<Vec3>& x, double h,
@@ -995,14 +982,11 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       full_step = moved && alpha == 1.0;
       // Inversion safety as in the projection family: tets pushed under the floor are pushed back
       // by the unilateral volume constraint (repeated while a pass still acts, at most 20).
-      if (moved && s.inversion_floor > 0 && any_near_floor(m, x, s.inversion_floor))
-        for (int pass = 0; pass < 20; ++pass) {
-          int hits = 0;
-          for (const TetRest& t : m.tets) hits += enforce_volume_floor(t, x, m.inv_mass, s.inversion_floor);
-          rep.volume_corrections += hits;
-          if (hits == 0) break;
-          full_step = false;
-        }
+      if (moved && s.inversion_floor > 0) {
+        const int hits = volume_floor_.enforce(m, x, s.inversion_floor, kVolumePasses, tp);
+        rep.volume_corrections += hits;
+        if (hits > 0) full_step = false;
+      }
       rep.times.other_ms += ms_since(t_ls);
       rep.iterations++;
       // The residual after the iteration: |grad G| at the new positions, over the free dofs.

@@ -9,6 +9,7 @@
 #include "pliant/strain_constraint.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
+#include "step/volume_floor.hpp"
 
 #include <Eigen/Dense>
 
@@ -105,12 +106,12 @@ class VbdFamily final : public SolverFamily {
   void sweep(const BodyModel& m, std::vector<Vec3>& x, ThreadPool& tp) const;
   double gradient_norm(const BodyModel& m, const std::vector<Vec3>& x, ThreadPool& tp);
   void chebyshev(const BodyModel& m, std::vector<Vec3>& x, double omega);
-  int volume_floor(const BodyModel& m, std::vector<Vec3>& x, double floor) const;
   void accumulate_reactions(const BodyModel& m, const std::vector<Vec3>& x, const StepInputs& inputs,
                             StepReport& total);
 
   VbdOptions opt_;
   std::unique_ptr<ThreadPool> pool_;
+  VolumeFloor volume_floor_;
   int pool_threads_ = 0;
   uint64_t model_id_ = 0;               // the model rest_stiffness_ and packs_ belong to
   std::vector<double> rest_stiffness_;  // sum over the vertex's tets of V0 (lambda + 2 mu) |b|^2
@@ -353,16 +354,6 @@ void VbdFamily::chebyshev(const BodyModel& m, std::vector<Vec3>& x, double omega
     if (m.inv_mass[i] > 0) x[i] = omega * (x[i] - x_prev2_[i]) + x_prev2_[i];
 }
 
-int VbdFamily::volume_floor(const BodyModel& m, std::vector<Vec3>& x, double floor) const {
-  int total = 0;
-  for (int pass = 0; pass < kVolumePasses; ++pass) {
-    int hits = 0;
-    for (const TetRest& t : m.tets) hits += enforce_volume_floor(t, x, m.inv_mass, floor);
-    total += hits;
-    if (hits == 0) break;
-  }
-  return total;
-}
 
 // The substep's tool reactions (minus the contact forces on the body, at the substep's end
 // positions) and grab forces, added to the step's sums.
@@ -506,7 +497,8 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
       }
     }
     const auto t_end = Clock::now();
-    if (s.inversion_floor > 0) total.volume_corrections = volume_floor(m, state.x, s.inversion_floor);
+    if (s.inversion_floor > 0)
+      total.volume_corrections = volume_floor_.enforce(m, state.x, s.inversion_floor, kVolumePasses, tp);
     total.contacts = collider_contacts;
     accumulate_reactions(m, state.x, inputs, total);
     finish_substep(m, state, x_start_, s, h);
