@@ -221,10 +221,21 @@ class NewtonFamily final : public SolverFamily {
   std::vector<Eigen::Matrix3d> block_inverse_;  // per free vertex (dof / 3): its diagonal block's inverse
   TwoLevelPreconditioner two_level_;
   // The projected Hessian in H_ was assembled at hessian_x_ for substep hessian_at_h_ (0: H_ holds
-  // something else: the exact Hessian, penalties, or nothing yet).
+  // something else: the exact Hessian, a grab's penalties, or nothing yet). Contact penalties
+  // added to it since (penalties_in_hessian_) come off by restoring elastic_values_, H_'s values
+  // as assembled, saved before the first penalty went in (elastic_saved_) when H_ may be kept.
   double hessian_at_h_ = 0;
   bool hessian_changed_ = true;  // H_'s values changed since the two-level blocks were inverted
   std::vector<Vec3> hessian_x_;
+  std::vector<double> elastic_values_;
+  bool elastic_saved_ = false, penalties_in_hessian_ = false;
+  // H_ was just assembled (its values are the elastic and inertial Hessian alone).
+  void hessian_assembled() {
+    elastic_saved_ = penalties_in_hessian_ = false;
+    hessian_changed_ = true;
+  }
+  // add_interaction into the Hessian, saving H_'s values first when penalties go in.
+  void add_interaction_to_hessian(const BodyModel& m, const std::vector<Vec3>& x, double h, const StepInputs& in);
   double max_motion_since_hessian(const std::vector<Vec3>& x) const {
     double d2 = 0;
     for (size_t i = 0; i < x.size(); ++i)
@@ -327,7 +338,7 @@ void NewtonFamily::compile(const BodyModel& m) {
   factored_ = refactor_ = false;
   two_level_built_ = coarse_ready_ = false;
   hessian_at_h_ = 0;
-  hessian_changed_ = true;
+  hessian_assembled();
   free_rest_.clear();
   for (size_t v = 0; v < nv; ++v)
     if (dof_[v] >= 0) free_rest_.push_back(m.rest_positions[v]);
@@ -693,6 +704,19 @@ void NewtonFamily::tool_contact_forces(const BodyModel& m, const std::vector<Vec
   }
 }
 
+void NewtonFamily::add_interaction_to_hessian(const BodyModel& m, const std::vector<Vec3>& x, double h,
+                                              const StepInputs& in) {
+  if (!contacts_.empty() || !in.attachments.empty()) {
+    if (!elastic_saved_ && hessian_at_h_ > 0) {  // only a Hessian that may be kept
+      elastic_values_.assign(H_.valuePtr(), H_.valuePtr() + H_.nonZeros());
+      elastic_saved_ = true;
+    }
+    penalties_in_hessian_ = true;
+    hessian_changed_ = true;
+  }
+  add_interaction(m, x, h, in, true);
+}
+
 void NewtonFamily::add_interaction(const BodyModel& m, const std::vector<Vec3>& x, double h,
                                    const StepInputs& in, bool hessian) {
   double* values = H_.valuePtr();
@@ -892,21 +916,25 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       bool exact = full_step;
       // Inexact Newton on a body that has hardly moved since its Hessian was assembled keeps that
       // Hessian (a chord step: the gradient is exact, so the fixed point is the same; the matrix
-      // differs by about the relative motion): only without contacts and grabs, whose penalties
-      // go into the matrix, and only for the projected Hessian.
-      const bool reuse = cg && !exact && hessian_at_h_ == h && in.attachments.empty() && !inputs_have_obstacles_ &&
+      // differs by about the relative motion): only for the projected Hessian, and not with grabs
+      // (a dragged body moves); contacts' penalties are taken off and put back fresh.
+      const bool reuse = cg && !exact && hessian_at_h_ == h && in.attachments.empty() &&
                          max_motion_since_hessian(x) <= kHessianReuseMotion * m.mean_edge;
+      if (reuse && penalties_in_hessian_) {
+        std::copy(elastic_values_.begin(), elastic_values_.end(), H_.valuePtr());
+        penalties_in_hessian_ = false;
+        hessian_changed_ = true;
+      }
       assemble(m, x, h, tp, !reuse, exact);
-      hessian_changed_ |= !reuse;
+      if (!reuse) hessian_assembled();
       if (cg && !reuse) {
-        hessian_at_h_ = exact ? 0.0 : h;
+        hessian_at_h_ = exact || !in.attachments.empty() ? 0.0 : h;
         hessian_x_ = x;
       }
       rep.hessian_reused += reuse;
       if (it == 0) set_contact_stiffness(m, h);
       find_contacts(m, x, h, in);
-      add_interaction(m, x, h, in, true);
-      if (!contacts_.empty() || !in.attachments.empty()) hessian_at_h_ = 0;  // H_ holds their penalties
+      add_interaction_to_hessian(m, x, h, in);
       const double gnorm = g_.norm();
       rep.times.projection_ms += ms_since(t_asm);
       if (g0 < 0) rep.residual_initial = rep.residual_final = g0 = gnorm;
@@ -930,12 +958,12 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         // Not positive definite here: the projected Hessian instead.
         exact = false;
         assemble(m, x, h, tp, true, false);
-        hessian_changed_ = true;
+        hessian_assembled();
         if (cg) {
-          hessian_at_h_ = contacts_.empty() && in.attachments.empty() ? h : 0.0;
+          hessian_at_h_ = in.attachments.empty() ? h : 0.0;
           hessian_x_ = x;
         }
-        add_interaction(m, x, h, in, true);
+        add_interaction_to_hessian(m, x, h, in);
         factored = solve();
       }
       if (!factored) {
