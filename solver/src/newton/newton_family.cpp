@@ -225,7 +225,10 @@ class NewtonFamily final : public SolverFamily {
   // added to it since (penalties_in_hessian_) come off by restoring elastic_values_, H_'s values
   // as assembled, saved before the first penalty went in (elastic_saved_) when H_ may be kept.
   double hessian_at_h_ = 0;
-  bool hessian_changed_ = true;  // H_'s values changed since the two-level blocks were inverted
+  // H_'s values changed since the preconditioner's vertex blocks were inverted: the two-level
+  // blocks (two_level_) or the block-Jacobi inverses (block_inverse_), whichever was last built.
+  bool hessian_changed_ = true;
+  Preconditioning blocks_of_ = Preconditioning::Factor;  // Factor: neither
   std::vector<Vec3> hessian_x_;
   std::vector<double> elastic_values_;
   bool elastic_saved_ = false, penalties_in_hessian_ = false;
@@ -490,8 +493,9 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
       hessian_changed_ = true;
       spdlog::debug("newton cg: {} aggregates, {} coarse dofs", two_level_.aggregates(), two_level_.coarse_dofs());
     }
-    if (hessian_changed_) two_level_.update_blocks(H_);
+    if (hessian_changed_ || blocks_of_ != Preconditioning::TwoLevel) two_level_.update_blocks(H_);
     hessian_changed_ = false;
+    blocks_of_ = Preconditioning::TwoLevel;
     if ((!coarse_ready_ || refactor_) && projected) {
       coarse_ready_ = two_level_.refresh_coarse(H_);
       refactor_ = false;
@@ -513,15 +517,20 @@ bool NewtonFamily::conjugate_gradients(ThreadPool& tp, double eta, bool projecte
     return ok;
   }
   // The block-Jacobi preconditioner: each free vertex's 3x3 diagonal block inverted (its
-  // diagonal's where the block is not positive definite, as the exact Hessian's may not be).
-  const double* values = H_.valuePtr();
-  block_inverse_.resize(size_t(ndof_ / 3));
-  for (size_t v = 0; v < dof_.size(); ++v) {
-    if (dof_[v] < 0) continue;
-    Eigen::Matrix3d b;
-    for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) b(i, j) = values[diag_entry_[9 * v + 3 * i + j]];
-    block_inverse_[size_t(dof_[v] / 3)] = invert_block(b);
+  // diagonal's where the block is not positive definite, as the exact Hessian's may not be),
+  // again only when H_ changed (not for a Hessian kept at rest).
+  if (hessian_changed_ || blocks_of_ != Preconditioning::Blocks || block_inverse_.size() != size_t(ndof_ / 3)) {
+    const double* values = H_.valuePtr();
+    block_inverse_.resize(size_t(ndof_ / 3));
+    for (size_t v = 0; v < dof_.size(); ++v) {
+      if (dof_[v] < 0) continue;
+      Eigen::Matrix3d b;
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) b(i, j) = values[diag_entry_[9 * v + 3 * i + j]];
+      block_inverse_[size_t(dof_[v] / 3)] = invert_block(b);
+    }
+    hessian_changed_ = false;
+    blocks_of_ = Preconditioning::Blocks;
   }
   return preconditioned_cg(tp, eta, projected, out_of_time, iterations, [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
     z.resize(ndof_);
