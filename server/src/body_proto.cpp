@@ -90,7 +90,6 @@ Error fluid_from(const v1::FluidSpec& f, const std::string& p, BodyConfig* c, si
   PLIANT_OPT_DOUBLE(f, relaxation, s.relaxation, 0.0, 1.0, true, "")
   PLIANT_OPT_DOUBLE(f, support_ratio, s.support_ratio, 1.5, 4.0, false, "")
   PLIANT_OPT_DOUBLE(f, particle_radius, s.particle_radius, 0.0, 1.0, true, "")
-  s.sort_interval = 0;  // bit-identical restores (the sorted order is not in the state)
   PLIANT_OPT_INT(f, sort_interval, s.sort_interval, 0, 1000)
   if (f.has_container_density()) s.container_density = f.container_density();
   if (f.has_container()) {

@@ -128,6 +128,8 @@ Error snapshot_to_proto(const SceneSnapshot& s, v1::Snapshot* out) {
     pb->mutable_lambda()->Add(st.lambda.begin(), st.lambda.end());
     pb->set_time(st.time);
     pb->set_steps(st.steps);
+    pb->mutable_solver_order()->Add(st.order.begin(), st.order.end());
+    pb->set_substeps(st.substeps);
     for (const auto& [gid, g] : s.body_grabs) {
       if (g.body != b) continue;
       auto* pg = pb->add_grabs();
@@ -203,6 +205,21 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
       return invalid(fmt::format("{}.time must be a finite value >= 0 s, got {}", f, pb.time()));
     st.time = pb.time();
     st.steps = pb.steps();
+    if (pb.solver_order_size() != 0) {
+      if (static_cast<size_t>(pb.solver_order_size()) != n)
+        return invalid(fmt::format("{}.solver_order has {} entries, expected {} (one per particle) or none", f,
+                                   pb.solver_order_size(), n));
+      std::vector<char> seen(n, 0);
+      for (size_t k = 0; k < n; ++k) {
+        const uint32_t u = pb.solver_order(static_cast<int>(k));
+        if (u >= n || seen[u])
+          return invalid(fmt::format("{}.solver_order[{}] = {} {} (a permutation of 0..{})", f, k, u,
+                                     u >= n ? "is out of range" : "appears twice", n - 1));
+        seen[u] = 1;
+      }
+      st.order.assign(pb.solver_order().begin(), pb.solver_order().end());
+    }
+    st.substeps = pb.substeps();
     for (int g = 0; g < pb.grabs_size(); ++g) {
       const auto& pg = pb.grabs(g);
       const std::string gf = fmt::format("{}.grabs[{}]", f, g);

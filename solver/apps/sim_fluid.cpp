@@ -17,7 +17,7 @@ namespace pliant::sim {
 
 const std::set<std::string> kFluidValued = {"scene", "particles", "substeps", "iterations", "seconds", "threads",
                                             "dt", "spacing", "relaxation", "scorr-k", "xsph", "vorticity",
-                                            "settled-after", "friction", "log-level"};
+                                            "settled-after", "friction", "sort-interval", "log-level"};
 const std::set<std::string> kFluidFlags = {"quiet", "progress"};
 
 const char* kFluidUsage = R"(usage: pliant-sim fluid [options]
@@ -39,6 +39,7 @@ simulated second (when stderr is a terminal, or with --progress), then one JSON 
   --xsph C           XSPH viscosity c (default 0.01)
   --vorticity E      vorticity confinement epsilon, m/s (default 0)
   --friction MU      the container's static and dynamic friction (default 0)
+  --sort-interval N  re-sort the particles in cell order every N substeps (default 10; 0: never)
   --settled-after F  the settled window is the run's last (1 - F) (default 0.75)
   --progress         progress lines even when stderr is not a terminal
   --quiet            no progress lines
@@ -66,6 +67,7 @@ int cmd_fluid(const cli::Args& a) {
   s.substeps = static_cast<int>(a.integer("substeps", 2, 1, 1000));
   s.iterations = static_cast<int>(a.integer("iterations", 4, 1, 1000));
   s.threads = static_cast<int>(a.integer("threads", 2, 1, 256));
+  s.sort_interval = static_cast<int>(a.integer("sort-interval", s.sort_interval, 0, 1000000));
   s.relaxation = a.number("relaxation", s.relaxation);
   s.scorr_k = a.number("scorr-k", s.scorr_k);
   s.xsph = a.number("xsph", s.xsph);

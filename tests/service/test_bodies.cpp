@@ -11,6 +11,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -482,6 +484,13 @@ TEST(Bodies, SnapshotRestoreContinuesBitIdentically) {
     EXPECT_EQ(a.bodies(i).time(), b.bodies(i).time());
   }
   ASSERT_EQ(b.bodies(0).grabs_size(), 1);
+  // The fluid re-sorts its particles (sort_interval 10 by default, 2 substeps a tick): its order
+  // and substep count travel with the snapshot, which is what keeps it bit for bit.
+  ASSERT_EQ(a.bodies(2).solver_order_size() * 3, a.bodies(2).x_size());
+  EXPECT_TRUE(std::equal(a.bodies(2).solver_order().begin(), a.bodies(2).solver_order().end(),
+                         b.bodies(2).solver_order().begin()));
+  EXPECT_EQ(a.bodies(2).substeps(), b.bodies(2).substeps());
+  EXPECT_GT(a.bodies(2).substeps(), 0u);
 
   // A snapshot whose body state does not fit its spec is refused, naming it.
   v1::Snapshot broken = a;
@@ -502,6 +511,13 @@ TEST(Bodies, SnapshotRestoreContinuesBitIdentically) {
   refused = c.restore_snapshot(restore);
   EXPECT_EQ(refused.status.code, kInvalidArgument);
   EXPECT_NE(refused.status.message.find("snapshot.bodies[2]"), std::string::npos) << refused.status.message;
+  broken = a;
+  broken.mutable_bodies(2)->set_solver_order(1, broken.bodies(2).solver_order(0));
+  *restore.mutable_snapshot() = broken;
+  refused = c.restore_snapshot(restore);
+  EXPECT_EQ(refused.status.code, kInvalidArgument);
+  EXPECT_NE(refused.status.message.find("snapshot.bodies[2].solver_order[1]"), std::string::npos)
+      << refused.status.message;
 }
 
 TEST(Bodies, UpdatedGravityActsOnTheBodiesAndSurvivesARestore) {

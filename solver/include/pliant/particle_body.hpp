@@ -26,6 +26,12 @@ struct ParticleState {
   std::vector<double> lambda;   // the last substep's multipliers (kind-defined order)
   double time = 0.0;            // simulated seconds
   uint64_t steps = 0;
+  // A kind that keeps the particles in an order of its own (a fluid's cell order) says which:
+  // order[k] is the particle (creation index) in its slot k, and substeps counts the substeps
+  // run, on which its re-sort schedule depends. With them a restored body continues bit for bit.
+  // Empty: the kind has no such order, or (set_state) keep the body's current one.
+  std::vector<uint32_t> order;
+  uint64_t substeps = 0;
 };
 
 // What one step did, for frames and logs.

@@ -585,6 +585,8 @@ struct FluidBody::Impl {
       state.v[u] = v[i];
       state.lambda[u] = lam_sum[i];
     }
+    state.order = perm;
+    state.substeps = substeps_done;
   }
 };
 
@@ -731,6 +733,24 @@ void FluidBody::set_state(const ParticleState& st) {
       throw std::invalid_argument("fluid: state.lambda[" + std::to_string(i) + "] is not finite");
   }
   require(std::isfinite(st.time), "state.time", "must be finite", st.time);
+  if (!st.order.empty()) {
+    // The solver's particle order: a permutation of the particles.
+    if (st.order.size() != N)
+      throw std::invalid_argument("fluid: state.order has " + std::to_string(st.order.size()) + " entries, the body " +
+                                  std::to_string(N) + " particles (or give none)");
+    std::vector<char> seen(N, 0);
+    for (size_t k = 0; k < N; ++k) {
+      const uint32_t u = st.order[k];
+      if (u >= N || seen[u])
+        throw std::invalid_argument("fluid: state.order[" + std::to_string(k) + "] = " + std::to_string(u) +
+                                    (u >= N ? " is out of range" : " appears twice") + " (a permutation of the " +
+                                    std::to_string(N) + " particles)");
+      seen[u] = 1;
+    }
+    m.perm = st.order;
+    for (size_t k = 0; k < N; ++k) m.inv[m.perm[k]] = static_cast<uint32_t>(k);
+    m.substeps_done = st.substeps;
+  }
   for (size_t i = 0; i < N; ++i) {
     const uint32_t k = m.inv[i];
     m.x[k] = st.x[i];
