@@ -618,7 +618,8 @@ state.showBodies = (on) => {
 state.project = (xyz) => {
   const v = new THREE.Vector3(...xyz).project(camera);
   const r = canvas.getBoundingClientRect();
-  return { x: r.left + ((v.x + 1) / 2) * r.width, y: r.top + ((1 - v.y) / 2) * r.height };
+  // depth: the normalised device depth, smaller is nearer the camera.
+  return { x: r.left + ((v.x + 1) / 2) * r.width, y: r.top + ((1 - v.y) / 2) * r.height, depth: v.z };
 };
 
 // What the grab draws: its line and force arrow, when visible (read by the browser test).
