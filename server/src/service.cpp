@@ -6,6 +6,7 @@
 #include "pliant/server/edge.hpp"
 #include "pliant/server/metrics.hpp"
 #include "pliant/server/stream_proto.hpp"
+#include "pliant/server/streams.hpp"
 
 #include "pliant/mesh_io.hpp"
 #include "pliant/v1/pliant.grpc.pb.h"
@@ -22,7 +23,6 @@
 #include <array>
 #include <atomic>
 #include <condition_variable>
-#include <deque>
 #include <map>
 #include <optional>
 #include <filesystem>
@@ -154,77 +154,6 @@ class SceneServiceImpl final : public v1::SceneService::Service {
   ServiceContext sc_;
 };
 
-// A few threads that run the streams' work (building a frame or feedback message and starting
-// its write) for every open StreamFrames and HapticStream call, now or at a given time
-// (max_rate_hz). Open streams cost no thread of their own: an idle stream is a registered
-// frame listener and a reactor.
-class StreamPump {
- public:
-  explicit StreamPump(int threads) {
-    for (int i = 0; i < threads; ++i) threads_.emplace_back([this] { run(); });
-  }
-  ~StreamPump() {
-    {
-      std::lock_guard lk(mu_);
-      stop_ = true;
-    }
-    cv_.notify_all();
-    for (auto& t : threads_) t.join();
-  }
-  StreamPump(const StreamPump&) = delete;
-  StreamPump& operator=(const StreamPump&) = delete;
-
-  void post(std::function<void()> fn) {
-    {
-      std::lock_guard lk(mu_);
-      ready_.push_back(std::move(fn));
-    }
-    cv_.notify_one();
-  }
-  void post_at(Clock::time_point when, std::function<void()> fn) {
-    {
-      std::lock_guard lk(mu_);
-      timers_.emplace(when, std::move(fn));
-    }
-    cv_.notify_one();
-  }
-
- private:
-  void run() {
-    std::unique_lock lk(mu_);
-    while (true) {
-      const auto now = Clock::now();
-      while (!timers_.empty() && timers_.begin()->first <= now) {
-        ready_.push_back(std::move(timers_.begin()->second));
-        timers_.erase(timers_.begin());
-      }
-      if (!ready_.empty()) {
-        auto fn = std::move(ready_.front());
-        ready_.pop_front();
-        lk.unlock();
-        try {
-          fn();
-        } catch (const std::exception& e) {
-          spdlog::error("stream pump: internal error: {}", e.what());
-        }
-        fn = nullptr;  // drops what it holds outside the lock
-        lk.lock();
-        continue;
-      }
-      if (stop_) return;
-      if (timers_.empty()) cv_.wait(lk);
-      else cv_.wait_until(lk, timers_.begin()->first);
-    }
-  }
-
-  std::mutex mu_;
-  std::condition_variable cv_;
-  std::deque<std::function<void()>> ready_;
-  std::multimap<Clock::time_point, std::function<void()>> timers_;
-  bool stop_ = false;
-  std::vector<std::thread> threads_;
-};
-
 // A call refused before it started streaming (Reactor: the call's reactor type).
 template <class Reactor>
 class Refused final : public Reactor {
@@ -233,184 +162,43 @@ class Refused final : public Reactor {
   void OnDone() override { delete this; }
 };
 
-// What StreamFrames and HapticStream share: the scene's tick wakes the stream (a frame
-// listener), and the stream pump then looks at the scene's newest frame, at most one look
-// queued and none while a write is in flight (the write's completion looks again). So a
-// stream holds at most one message, and a reader that falls behind gets the newest frame next.
-class PumpedStream : public std::enable_shared_from_this<PumpedStream> {
+// One StreamFrames call on gRPC's callback API: FrameStream (streams.hpp) decides what to send,
+// this writes it as a v1::Frame message and finishes the call.
+class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>, public FrameStream {
  public:
-  virtual ~PumpedStream() = default;
+  FrameStreamReactor(const ServiceContext& sc, StreamPump& pump, grpc::CallbackServerContext* ctx, Setup setup,
+                     FrameSelection selection)
+      : FrameStream(pump, [registry = sc.registry] { return registry->shutting_down(); }, std::move(setup)),
+        peer_(ctx->peer()), selection_(std::move(selection)) {}
 
- protected:
-  explicit PumpedStream(StreamPump& pump) : pump_(pump) {}
-
-  // Keeps the stream alive until release() (from OnDone).
-  void hold(std::shared_ptr<PumpedStream> self) { self_ = std::move(self); }
-  // Registers the frame listener on `scene` (once, after hold()).
-  void listen(const std::shared_ptr<Scene>& scene) {
-    std::weak_ptr<PumpedStream> weak = self_;
-    listener_ = scene->add_frame_listener([weak] {
-      if (auto s = weak.lock()) s->wake();
-    });
-    listened_ = scene;
-  }
-  // From OnDone: no more wake-ups. A look still queued holds its own reference and may outlive
-  // the call, so look() checks finished_ first.
-  std::shared_ptr<PumpedStream> release() {
-    if (listened_) listened_->remove_frame_listener(listener_);
-    listened_.reset();
-    return std::move(self_);
-  }
-
-  // A look now, unless one is queued or a write is in flight.
-  void wake() {
-    std::lock_guard lk(mu_);
-    if (finished_ || writing_ || scheduled_) return;
-    schedule_locked(Clock::time_point{});
-  }
-  // A look at `when` (mu_ held; the caller checked nothing else is queued).
-  void schedule_locked(Clock::time_point when) {
-    scheduled_ = true;
-    auto fn = [s = shared_from_this()] {
-      {
-        std::lock_guard lk2(s->mu_);
-        s->scheduled_ = false;
-      }
-      s->look();
-    };
-    if (when == Clock::time_point{}) pump_.post(std::move(fn));
-    else pump_.post_at(when, std::move(fn));
-  }
-  // Looks at the scene: sends the newest message when one is due, or ends the call.
-  virtual void look() = 0;
-
-  StreamPump& pump_;
-  std::mutex mu_;
-  bool writing_ = false;    // a StartWrite whose OnWriteDone has not run
-  bool scheduled_ = false;  // a look is queued (now or at a later time)
-  bool finished_ = false;   // Finish was called (or is due once the write in flight completes)
-
- private:
-  std::shared_ptr<Scene> listened_;
-  uint64_t listener_ = 0;
-  std::shared_ptr<PumpedStream> self_;  // alive until OnDone
-};
-
-// One StreamFrames call on gRPC's callback API. It holds at most one frame message: the
-// scene's tick wakes it (a frame listener), and when no write is in flight it sends the
-// scene's newest frame; a frame published while a write is in flight replaces the one waiting,
-// and the write's completion sends the newest with the count of frames skipped in between.
-class FrameStreamReactor final : public grpc::ServerWriteReactor<v1::Frame>, public PumpedStream {
- public:
-  struct Setup {
-    std::shared_ptr<Scene> scene;
-    std::shared_ptr<void> slot;
-    FrameSelection selection;
-    uint64_t every = 1;
-    Clock::duration min_interval{};
-  };
-
-  FrameStreamReactor(const ServiceContext& sc, StreamPump& pump, grpc::CallbackServerContext* ctx, Setup setup)
-      : PumpedStream(pump), sc_(sc), peer_(ctx->peer()), setup_(std::move(setup)), next_allowed_(Clock::now()) {
-    // Start with the latest frame, so a paused scene's subscriber sees its current state.
-    auto latest = setup_.scene->latest_frame();
-    after_ = latest ? latest->seq - 1 : 0;
-  }
-
-  // Registers the listener and sends the first frame (or waits for it).
   void begin(std::shared_ptr<FrameStreamReactor> self) {
-    hold(std::move(self));
-    listen(setup_.scene);
-    spdlog::debug("StreamFrames: {} subscribed to '{}'", peer_, setup_.scene->id());
-    wake();
+    spdlog::debug("StreamFrames: {} subscribed to '{}'", peer_, setup().scene->id());
+    FrameStream::begin(std::move(self));
   }
 
-  void OnWriteDone(bool ok) override {
-    {
-      std::lock_guard lk(mu_);
-      writing_ = false;
-      if (!ok) finishing_ = true;  // the client went away (or the call was cancelled)
-    }
-    if (!ok) return finish(grpc::Status::OK);
-    look();
-  }
-
-  void OnCancel() override { finish(grpc::Status(grpc::StatusCode::CANCELLED, "the call was cancelled")); }
-
+  void OnWriteDone(bool ok) override { write_done(ok); }
+  void OnCancel() override { cancelled(); }
   void OnDone() override {
-    auto keep = release();  // may destroy this at the end of the scope
-    setup_.slot.reset();  // frees the stream's place in the limits
-    spdlog::debug("StreamFrames: {} left '{}'", peer_, setup_.scene->id());
+    spdlog::debug("StreamFrames: {} left '{}'", peer_, setup().scene->id());
+    done();  // may destroy this
   }
 
  private:
-  // Sends the newest frame when one is due; ends the call when the scene or the server is gone.
-  void look() override {
-    std::unique_lock lk(mu_);
-    if (finished_ || finishing_ || writing_ || scheduled_) return;
-    if (sc_.registry->shutting_down()) {
-      lk.unlock();
-      return finish(to_status(Error::make(Code::Unavailable, "the server is shutting down")));
-    }
-    Scene& scene = *setup_.scene;
-    auto frame = scene.latest_frame();
-    bool due = frame && frame->seq > after_;
-    if (due && have_last_ && frame->seq < last_sent_ + setup_.every) {  // decimation
-      after_ = frame->seq;
-      due = false;
-    }
-    if (!due) {
-      if (scene.stopped()) {
-        lk.unlock();
-        return finish(to_status(Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", scene.id()))));
-      }
-      return;
-    }
-    const bool limited = setup_.min_interval > Clock::duration::zero();
-    const auto now = Clock::now();
-    if (limited && now < next_allowed_) {
-      // Rate limit: look again when the slot opens, and send whatever is newest then.
-      schedule_locked(next_allowed_);
-      return;
-    }
-    uint64_t skipped = 0;
-    if (have_last_ && !limited) skipped = (frame->seq - last_sent_) / setup_.every - 1;
+  void start_write(const Frame& frame, uint64_t skipped) override {
     msg_.Clear();
-    frame_to_proto(*frame, setup_.selection, scene.surface_vertices(), skipped, &msg_);
-    // Keep the decimation's phase when a late reader sends an off-phase frame.
-    last_sent_ = have_last_ ? frame->seq - (frame->seq - last_sent_) % setup_.every : frame->seq;
-    have_last_ = true;
-    after_ = frame->seq;
-    if (limited) {
-      next_allowed_ += setup_.min_interval;
-      if (next_allowed_ < now) next_allowed_ = now;
-    }
-    writing_ = true;
-    lk.unlock();
+    frame_to_proto(frame, selection_, setup().scene->surface_vertices(), skipped, &msg_);
     StartWrite(&msg_);
   }
 
-  void finish(grpc::Status s) {
-    {
-      std::lock_guard lk(mu_);
-      if (finished_) return;
-      finished_ = true;
-    }
-    if (!s.ok() && s.error_code() != grpc::StatusCode::CANCELLED)
-      spdlog::debug("StreamFrames from {}: {}", peer_, s.error_message());
-    Finish(std::move(s));
+  void end_call(const Error& status) override {
+    if (!status.ok() && status.code != Code::Cancelled)
+      spdlog::debug("StreamFrames from {}: {}", peer_, status.message);
+    Finish(to_status(status));
   }
 
-  const ServiceContext& sc_;
   const std::string peer_;
-  Setup setup_;
-
-  bool finishing_ = false;  // the write failed: no more writes
-  v1::Frame msg_;           // the message being written (one per stream)
-  uint64_t after_ = 0;      // the newest frame seq looked at
-  bool have_last_ = false;
-  uint64_t last_sent_ = 0;  // decimation phase
-  Clock::time_point next_allowed_;
+  const FrameSelection selection_;
+  v1::Frame msg_;  // the message being written (one per stream)
 };
 
 class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_StreamFrames<v1::FrameService::Service> {
@@ -423,10 +211,11 @@ class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_Strea
   grpc::ServerWriteReactor<v1::Frame>* StreamFrames(grpc::CallbackServerContext* c,
                                                     const v1::StreamFramesRequest* r) override {
     FrameStreamReactor::Setup setup;
-    const grpc::Status s = guarded(sc_, "StreamFrames", c, [&] { return prepare(*r, &setup); });
+    FrameSelection selection;
+    const grpc::Status s = guarded(sc_, "StreamFrames", c, [&] { return prepare(*r, &setup, &selection); });
     if (!s.ok()) return new Refused<grpc::ServerWriteReactor<v1::Frame>>(s);
     try {
-      auto reactor = std::make_shared<FrameStreamReactor>(sc_, pump_, c, std::move(setup));
+      auto reactor = std::make_shared<FrameStreamReactor>(sc_, pump_, c, std::move(setup), std::move(selection));
       reactor->begin(reactor);
       return reactor.get();
     } catch (const std::exception& e) {
@@ -437,10 +226,10 @@ class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_Strea
   }
 
  private:
-  Error prepare(const v1::StreamFramesRequest& r, FrameStreamReactor::Setup* out) {
+  Error prepare(const v1::StreamFramesRequest& r, FrameStreamReactor::Setup* out, FrameSelection* selection) {
     if (Error e = sc_.registry->find(r.scene_id(), &out->scene); !e.ok()) return e;
     if (Error e = sc_.registry->open_stream(out->scene->id(), &out->slot); !e.ok()) return e;
-    if (Error e = parse_stream_request(r, &out->selection); !e.ok()) return e;
+    if (Error e = parse_stream_request(r, selection); !e.ok()) return e;
     out->every = r.every_nth_tick() <= 1 ? 1 : r.every_nth_tick();
     out->min_interval = r.max_rate_hz() > 0
         ? std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / r.max_rate_hz()))
@@ -452,160 +241,42 @@ class FrameServiceImpl final : public v1::FrameService::WithCallbackMethod_Strea
   StreamPump& pump_;
 };
 
-// One HapticStream call on gRPC's callback API. Poses are read one at a time and posted to the
-// scene (never waiting for the tick); the tick wakes the stream, which sends one feedback
-// message per published tick that has the tool in it, with at most one write in flight (ticks
-// published meanwhile are counted in the next message's skipped_ticks). The tool lives as long
-// as the stream: it is removed when the stream ends, whatever ends it.
+// One HapticStream call on gRPC's callback API: ToolStream (streams.hpp) takes the poses and
+// decides what to send, this reads the poses and writes v1::ToolFeedback messages.
 class HapticStreamReactor final : public grpc::ServerBidiReactor<v1::ToolPose, v1::ToolFeedback>,
-                                  public PumpedStream {
+                                  public ToolStream {
  public:
   HapticStreamReactor(const ServiceContext& sc, StreamPump& pump, grpc::CallbackServerContext* ctx)
-      : PumpedStream(pump), sc_(sc), peer_(ctx->peer()) {}
+      : ToolStream(pump, *sc.registry, ctx->peer()), peer_(ctx->peer()) {}
 
   // Holds itself until OnDone and waits for the first pose.
   void begin(std::shared_ptr<HapticStreamReactor> self) {
-    hold(std::move(self));
+    ToolStream::begin(std::move(self));
     StartRead(&pose_);
   }
 
   void OnReadDone(bool ok) override {
-    if (!ok) return end(grpc::Status::OK);  // the client closed its side (or went away)
-    const Error e = attached_ ? next_pose() : first_pose();
-    if (!e.ok()) return end(to_status(e));
-    {
-      std::lock_guard lk(mu_);
-      if (finished_) return;  // ended meanwhile (scene gone, cancelled): read no more
-    }
-    StartRead(&pose_);
+    if (pose_read(ok, pose_)) StartRead(&pose_);
   }
-
-  void OnWriteDone(bool ok) override {
-    std::optional<grpc::Status> due;
-    {
-      std::lock_guard lk(mu_);
-      writing_ = false;
-      if (finished_) due = std::move(due_);
-    }
-    if (due) return finish_call(std::move(*due));
-    if (!ok) return end(grpc::Status::OK);  // the client went away
-    look();
-  }
-
-  void OnCancel() override { end(grpc::Status(grpc::StatusCode::CANCELLED, "the call was cancelled")); }
-
-  void OnDone() override {
-    auto keep = release();  // may destroy this at the end of the scope
-    slot_.reset();          // frees the stream's place in the limits
-  }
+  void OnWriteDone(bool ok) override { write_done(ok); }
+  void OnCancel() override { cancelled(); }
+  void OnDone() override { done(); }  // may destroy this
 
  private:
-  // The first pose names the scene and attaches the tool. Runs in OnReadDone (reads are
-  // serial); mu_ only guards what the pump and OnCancel read too.
-  Error first_pose() {
-    std::shared_ptr<Scene> scene;
-    if (Error e = sc_.registry->find(pose_.scene_id(), &scene); !e.ok()) return e;
-    std::shared_ptr<void> slot;
-    if (Error e = sc_.registry->open_stream(scene->id(), &slot); !e.ok()) return e;
-    RigidTool tool;
-    if (Error e = parse_tool_pose(pose_, nullptr, &tool); !e.ok()) return e;
-    {
-      std::lock_guard lk(mu_);
-      if (finished_) return Error::make(Code::Cancelled, "the call was cancelled");  // attach nothing
-      scene_ = scene;
-      slot_ = std::move(slot);
-      tool_ = tool;
-      tool_id_ = scene->new_tool_id();
-      scene->set_tool(tool_id_, tool_, pose_.seq(), pose_.client_time_ns());
-      auto latest = scene->latest_frame();
-      after_ = latest ? latest->seq : 0;
-    }
-    attached_ = true;
-    spdlog::debug("HapticStream: {} attached tool {} to '{}'", peer_, tool_id_, scene->id());
-    listen(scene);
-    wake();  // a scene stopped meanwhile ends the stream now
-    return {};
-  }
-
-  Error next_pose() {
-    if (!pose_.scene_id().empty() && pose_.scene_id() != scene_->id())
-      return Error::make(Code::InvalidArgument, fmt::format("scene_id {} differs from the stream's scene '{}'",
-                                                            echo(pose_.scene_id()), scene_->id()));
-    RigidTool next;
-    if (Error e = parse_tool_pose(pose_, &tool_, &next); !e.ok()) return e;
-    tool_ = next;
-    std::lock_guard lk(mu_);
-    if (!finished_) scene_->set_tool(tool_id_, tool_, pose_.seq(), pose_.client_time_ns());
-    return {};
-  }
-
-  // Sends the feedback of the newest tick when there is one; ends the call when the scene or
-  // the server is gone.
-  void look() override {
-    std::unique_lock lk(mu_);
-    if (finished_ || writing_ || scheduled_ || !scene_) return;
-    if (sc_.registry->shutting_down()) {
-      lk.unlock();
-      return end(to_status(Error::make(Code::Unavailable, "the server is shutting down")));
-    }
-    auto frame = scene_->latest_frame();
-    if (!frame || frame->seq <= after_) {
-      if (scene_->stopped()) {
-        const std::string id = scene_->id();
-        lk.unlock();
-        return end(to_status(Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", id))));
-      }
-      return;
-    }
-    const uint64_t skipped = after_ > 0 && frame->seq > after_ + 1 ? frame->seq - after_ - 1 : 0;
-    after_ = frame->seq;
-    if (!tool_feedback_to_proto(*frame, tool_id_, skipped, &msg_)) return;  // its first pose is not in a tick yet
-    writing_ = true;
-    lk.unlock();
+  void start_write(const Frame& frame, uint64_t tool_id, uint64_t skipped) override {
+    tool_feedback_to_proto(frame, tool_id, skipped, &msg_);
     StartWrite(&msg_);
   }
 
-  // Ends the call with `s`: removes the tool at once, and finishes now or, with a write in
-  // flight, when it completes (no write starts after this).
-  void end(grpc::Status s) {
-    bool now = false;
-    std::shared_ptr<Scene> scene;
-    uint64_t tool_id = 0;
-    {
-      std::lock_guard lk(mu_);
-      if (finished_) return;
-      finished_ = true;
-      now = !writing_;
-      if (!now) due_ = s;
-      scene = scene_;
-      tool_id = tool_id_;
-    }
-    if (scene) {
-      scene->remove_tool(tool_id);
-      spdlog::debug("HapticStream: {} detached tool {} from '{}'", peer_, tool_id, scene->id());
-    }
-    if (now) finish_call(std::move(s));
+  void end_call(const Error& status) override {
+    if (!status.ok() && status.code != Code::Cancelled)
+      spdlog::debug("HapticStream from {}: {}", peer_, status.message);
+    Finish(to_status(status));
   }
 
-  void finish_call(grpc::Status s) {
-    if (!s.ok() && s.error_code() != grpc::StatusCode::CANCELLED)
-      spdlog::debug("HapticStream from {}: {}", peer_, s.error_message());
-    Finish(std::move(s));
-  }
-
-  const ServiceContext& sc_;
   const std::string peer_;
   v1::ToolPose pose_;      // the read in flight (reads are serial)
-  bool attached_ = false;  // the first pose was taken (read side only)
-  RigidTool tool_;         // the last pose's tool (read side only)
-
-  // Under mu_:
-  std::shared_ptr<Scene> scene_;
-  std::shared_ptr<void> slot_;
-  uint64_t tool_id_ = 0;
-  uint64_t after_ = 0;                // the newest frame seq looked at
-  std::optional<grpc::Status> due_;   // the status to finish with once the write completes
-  v1::ToolFeedback msg_;              // the message being written (one per stream)
+  v1::ToolFeedback msg_;   // the message being written (one per stream)
 };
 
 class InteractionServiceImpl final

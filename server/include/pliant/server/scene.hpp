@@ -355,10 +355,12 @@ Error Scene::call(Fn fn, T* out, std::chrono::steady_clock::time_point deadline,
     Error error;
     T value{};
   };
+  // Only the command holds the promise: a command dropped unrun (the scene stopped) breaks it,
+  // and the caller answers at once instead of at its deadline.
   auto done = std::make_shared<std::promise<Outcome>>();
   auto future = done->get_future();
   Error queued = enqueue(
-      [done, fn = std::move(fn)]() mutable {
+      [done = std::move(done), fn = std::move(fn)]() mutable {
         Outcome o;
         o.error = fn(o.value);
         done->set_value(std::move(o));
