@@ -1,11 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
 // The server's own threads racing, without gRPC: client calls on the scene registry from several
 // threads at once (create, delete, update, pause, resume, reset, step, forces, grabs, snapshots),
-// frame streams and haptic tool streams (the same FrameStream and ToolStream the gRPC service runs,
-// over a transport whose writes complete on another thread, as gRPC's do), the checkpoint writer and the
-// watchdog. Every synchronisation involved is Pliant's own, so ThreadSanitizer sees all of it: CI
-// runs these tests under TSan (docs/service.md, "Fuzzing and sanitizers"); the gRPC tests cannot
-// be checked so.
+// frame streams and haptic tool streams (the same FrameStream and ToolStream the gRPC service
+// runs, over a transport whose writes complete on another thread, as gRPC's do), the checkpoint
+// writer and the watchdog. Every synchronisation involved is Pliant's own, so ThreadSanitizer sees
+// all of it: CI runs these tests under TSan (docs/service.md, "Fuzzing and sanitizers"); the gRPC
+// tests cannot be checked so.
 #include "pliant/server/registry.hpp"
 #include "pliant/server/streams.hpp"
 
@@ -468,8 +468,9 @@ TEST(ServiceThreads, ClientsStreamsAndCheckpointsRaceWithoutLosingAScene) {
         frames += int(got.size());
         for (size_t k = 1; k < got.size(); ++k) {
           // A restore or reset publishes on: seq never goes back, whatever happens to the scene.
-          if (got[k].seq <= got[k - 1].seq) fail("stream on " + id + ": frame seq went from " +
-                                                 std::to_string(got[k - 1].seq) + " to " + std::to_string(got[k].seq));
+          if (got[k].seq <= got[k - 1].seq)
+            fail("stream on " + id + ": frame seq went from " + std::to_string(got[k - 1].seq) + " to " +
+                 std::to_string(got[k].seq));
           if (every == 1 && !limited && got[k].skipped != got[k].seq - got[k - 1].seq - 1)
             fail("stream on " + id + ": skipped " + std::to_string(got[k].skipped) + " between seq " +
                  std::to_string(got[k - 1].seq) + " and " + std::to_string(got[k].seq));
