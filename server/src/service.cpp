@@ -24,7 +24,6 @@
 #include <atomic>
 #include <condition_variable>
 #include <map>
-#include <optional>
 #include <filesystem>
 #include <fstream>
 #include <future>

@@ -7,6 +7,8 @@
 #include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
+#include <utility>
+
 namespace pliant::server {
 
 StreamPump::StreamPump(int threads) {
@@ -80,10 +82,49 @@ void PumpedStream::listen(const std::shared_ptr<Scene>& scene) {
   listened_ = scene;
 }
 
-std::shared_ptr<PumpedStream> PumpedStream::release() {
+void PumpedStream::done() {
   if (listened_) listened_->remove_frame_listener(listener_);
   listened_.reset();
-  return std::move(self_);
+  auto keep = std::move(self_);  // may destroy this at the end of the scope
+  std::shared_ptr<void> slot;
+  {
+    std::lock_guard lk(mu_);
+    slot = std::move(slot_);
+  }
+  slot.reset();  // frees the stream's place in the limits (takes the registry's lock: not under mu_)
+}
+
+void PumpedStream::write_done(bool ok) {
+  std::optional<Error> status;
+  bool ending = false;  // this completion ends the call: the client is gone
+  {
+    std::lock_guard lk(mu_);
+    writing_ = false;
+    if (finished_) {
+      status = std::exchange(due_, std::nullopt);
+    } else if (!ok) {
+      finished_ = ending = true;
+      status = Error{};
+    }
+  }
+  if (ending) on_finish();
+  if (status) return end_call(*status);
+  look();  // returns at once when the call has ended
+}
+
+void PumpedStream::cancelled() { finish(Error::make(Code::Cancelled, "the call was cancelled")); }
+
+void PumpedStream::finish(const Error& status) {
+  bool now;
+  {
+    std::lock_guard lk(mu_);
+    if (finished_) return;
+    finished_ = true;
+    now = !writing_;
+    if (!now) due_ = status;  // the write's completion ends the call
+  }
+  on_finish();
+  if (now) end_call(status);
 }
 
 void PumpedStream::wake() {
@@ -110,6 +151,7 @@ void PumpedStream::schedule_locked(Clock::time_point when) {
 FrameStream::FrameStream(StreamPump& pump, std::function<bool()> server_closing, Setup setup)
     : PumpedStream(pump), server_closing_(std::move(server_closing)), setup_(std::move(setup)),
       next_allowed_(Clock::now()) {
+  slot_ = std::move(setup_.slot);
   auto latest = setup_.scene->latest_frame();
   after_ = latest ? latest->seq - 1 : 0;
 }
@@ -120,33 +162,9 @@ void FrameStream::begin(std::shared_ptr<FrameStream> self) {
   wake();
 }
 
-void FrameStream::write_done(bool ok) {
-  std::optional<Error> due;
-  {
-    std::lock_guard lk(mu_);
-    writing_ = false;
-    if (!ok) failed_ = true;
-    if (finished_) {
-      due = std::move(due_);
-      due_.reset();
-      if (!due) return;  // ended already
-    }
-  }
-  if (due) return end_call(*due);
-  if (!ok) return finish(Error{});  // the reader went away (or the call was cancelled)
-  look();
-}
-
-void FrameStream::cancelled() { finish(Error::make(Code::Cancelled, "the call was cancelled")); }
-
-void FrameStream::done() {
-  auto keep = release();  // may destroy this at the end of the scope
-  setup_.slot.reset();    // frees the stream's place in the limits
-}
-
 void FrameStream::look() {
   std::unique_lock lk(mu_);
-  if (finished_ || failed_ || writing_ || scheduled_) return;
+  if (finished_ || writing_ || scheduled_) return;
   if (server_closing_ && server_closing_()) {
     lk.unlock();
     return finish(Error::make(Code::Unavailable, "the server is shutting down"));
@@ -187,19 +205,6 @@ void FrameStream::look() {
   start_write(*frame, skipped);
 }
 
-void FrameStream::finish(const Error& status) {
-  {
-    std::lock_guard lk(mu_);
-    if (finished_) return;
-    finished_ = true;
-    if (writing_) {  // the write's completion ends the call
-      due_ = status;
-      return;
-    }
-  }
-  end_call(status);
-}
-
 // ---------------------------------------------------------------------------------------------
 
 ToolStream::ToolStream(StreamPump& pump, SceneRegistry& registry, std::string peer)
@@ -207,12 +212,12 @@ ToolStream::ToolStream(StreamPump& pump, SceneRegistry& registry, std::string pe
 
 bool ToolStream::pose_read(bool ok, const v1::ToolPose& pose) {
   if (!ok) {
-    end(Error{});  // the client closed its side (or went away)
+    finish(Error{});  // the client closed its side (or went away)
     return false;
   }
   const Error e = attached_ ? next_pose(pose) : first_pose(pose);
   if (!e.ok()) {
-    end(e);
+    finish(e);
     return false;
   }
   std::lock_guard lk(mu_);
@@ -256,39 +261,19 @@ Error ToolStream::next_pose(const v1::ToolPose& pose) {
   return {};
 }
 
-void ToolStream::write_done(bool ok) {
-  std::optional<Error> due;
-  {
-    std::lock_guard lk(mu_);
-    writing_ = false;
-    if (finished_) due = std::move(due_);
-  }
-  if (due) return end_call(*due);
-  if (!ok) return end(Error{});  // the client went away
-  look();
-}
-
-void ToolStream::cancelled() { end(Error::make(Code::Cancelled, "the call was cancelled")); }
-
-void ToolStream::done() {
-  auto keep = release();  // may destroy this at the end of the scope
-  std::lock_guard lk(mu_);
-  slot_.reset();  // frees the stream's place in the limits
-}
-
 void ToolStream::look() {
   std::unique_lock lk(mu_);
   if (finished_ || writing_ || scheduled_ || !scene_) return;
   if (registry_.shutting_down()) {
     lk.unlock();
-    return end(Error::make(Code::Unavailable, "the server is shutting down"));
+    return finish(Error::make(Code::Unavailable, "the server is shutting down"));
   }
   auto frame = scene_->latest_frame();
   if (!frame || frame->seq <= after_) {
     if (scene_->stopped()) {
       const std::string id = scene_->id();
       lk.unlock();
-      return end(Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", id)));
+      return finish(Error::make(Code::NotFound, fmt::format("scene_id '{}' was deleted", id)));
     }
     return;
   }
@@ -303,24 +288,17 @@ void ToolStream::look() {
   start_write(*frame, tool_id, skipped);
 }
 
-void ToolStream::end(const Error& status) {
-  bool now = false;
+void ToolStream::on_finish() {
   std::shared_ptr<Scene> scene;
-  uint64_t tool_id = 0;
+  uint64_t tool_id;
   {
     std::lock_guard lk(mu_);
-    if (finished_) return;
-    finished_ = true;
-    now = !writing_;
-    if (!now) due_ = status;
     scene = scene_;
     tool_id = tool_id_;
   }
-  if (scene) {
-    scene->remove_tool(tool_id);
-    spdlog::debug("HapticStream: {} detached tool {} from '{}'", peer_, tool_id, scene->id());
-  }
-  if (now) end_call(status);
+  if (!scene) return;  // never attached
+  scene->remove_tool(tool_id);
+  spdlog::debug("HapticStream: {} detached tool {} from '{}'", peer_, tool_id, scene->id());
 }
 
 }  // namespace pliant::server

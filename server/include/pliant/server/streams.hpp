@@ -50,41 +50,59 @@ class StreamPump {
   std::vector<std::thread> threads_;
 };
 
-// What the streams share: held alive by itself from hold() until release(), woken by the
-// scene's frame listener, looks queued on the pump.
+// What the streams share: held alive by itself from hold() until done(), woken by the scene's
+// frame listener, looks queued on the pump, at most one write in flight, and the end of the call
+// (never while a write is in flight). The transport implements end_call and reports back through
+// write_done, cancelled and done.
 class PumpedStream : public std::enable_shared_from_this<PumpedStream> {
  public:
   using Clock = StreamPump::Clock;
   virtual ~PumpedStream() = default;
 
+  // From the transport: the write it was asked for completed (ok false: the client is gone).
+  void write_done(bool ok);
+  // From the transport: the call was cancelled.
+  void cancelled();
+  // From the transport: the call is over (end_call done, no write in flight); may destroy this.
+  void done();
+
  protected:
   explicit PumpedStream(StreamPump& pump) : pump_(pump) {}
 
-  // Keeps the stream alive until release() (from the transport's end of call).
+  // Keeps the stream alive until done().
   void hold(std::shared_ptr<PumpedStream> self) { self_ = std::move(self); }
   // Registers the frame listener on `scene` (once, after hold()).
   void listen(const std::shared_ptr<Scene>& scene);
-  // No more wake-ups. A look still queued holds its own reference and may outlive the call, so
-  // look() checks finished_ first.
-  std::shared_ptr<PumpedStream> release();
 
   // A look now, unless one is queued or a write is in flight.
   void wake();
   // A look at `when` (mu_ held; the caller checked nothing else is queued).
   void schedule_locked(Clock::time_point when);
-  // Looks at the scene: sends the newest message when one is due, or ends the call.
+  // Looks at the scene: starts a write of the newest message when one is due (writing_ set under
+  // mu_, the write started without it), or ends the call.
   virtual void look() = 0;
+
+  // Ends the call with `status`: end_call now, or with a write in flight when it completes (no
+  // write starts after this). Only the first call counts.
+  void finish(const Error& status);
+  // Runs once when the call is ended, before end_call, without the lock.
+  virtual void on_finish() {}
+  // Ends the call with `status` (Ok: the client went away or closed it). Called once, never while
+  // a write is in flight, without the lock.
+  virtual void end_call(const Error& status) = 0;
 
   StreamPump& pump_;
   std::mutex mu_;
   bool writing_ = false;    // a write whose completion has not been reported
   bool scheduled_ = false;  // a look is queued (now or at a later time)
   bool finished_ = false;   // the call was ended (or is, once the write in flight completes)
+  std::shared_ptr<void> slot_;  // the stream's place in the registry's limits, freed by done()
 
  private:
+  std::optional<Error> due_;  // under mu_: the status to end with once the write completes
   std::shared_ptr<Scene> listened_;
   uint64_t listener_ = 0;
-  std::shared_ptr<PumpedStream> self_;  // alive until release()
+  std::shared_ptr<PumpedStream> self_;  // alive until done()
 };
 
 // One frame subscription: the newest frame when the reader is ready for it, every `every`-th
@@ -108,33 +126,18 @@ class FrameStream : public PumpedStream {
   // stream starts with the scene's latest frame, so a paused scene's reader sees its state.
   void begin(std::shared_ptr<FrameStream> self);
 
-  // From the transport: the write started by start_write completed (ok false: the reader is gone).
-  void write_done(bool ok);
-  // From the transport: the call was cancelled.
-  void cancelled();
-  // From the transport: the call is over (no write in flight, end_call done); may destroy this.
-  void done();
-
   const Setup& setup() const { return setup_; }
 
  protected:
   // Starts writing `frame`, `skipped` frames after the last one written (one write at a time;
   // write_done follows). Called without the stream's lock.
   virtual void start_write(const Frame& frame, uint64_t skipped) = 0;
-  // Ends the call with `status` (Ok: the reader went away). Called once, never while a write is
-  // in flight, without the lock.
-  virtual void end_call(const Error& status) = 0;
 
  private:
   void look() override;
-  // Ends the call with `status`: now, or with a write in flight when it completes (no write
-  // starts after this).
-  void finish(const Error& status);
 
   const std::function<bool()> server_closing_;
-  std::optional<Error> due_;  // under mu_: the status to end with once the write completes
   Setup setup_;
-  bool failed_ = false;     // a write failed: no more writes
   uint64_t after_ = 0;      // the newest frame seq looked at
   bool have_last_ = false;
   uint64_t last_sent_ = 0;  // decimation phase
@@ -158,28 +161,18 @@ class ToolStream : public PumpedStream {
   // From the transport: a pose was read (ok false: the client closed its side or went away).
   // Returns whether to read the next one. Reads are serial.
   bool pose_read(bool ok, const v1::ToolPose& pose);
-  // From the transport: the write started by start_write completed (ok false: the client is gone).
-  void write_done(bool ok);
-  // From the transport: the call was cancelled.
-  void cancelled();
-  // From the transport: the call is over; may destroy this.
-  void done();
 
  protected:
   // Starts writing tool `tool_id`'s feedback from `frame` (which has it), `skipped` published
   // ticks after the last one looked at; write_done follows. Called without the stream's lock.
   virtual void start_write(const Frame& frame, uint64_t tool_id, uint64_t skipped) = 0;
-  // Ends the call with `status` (Ok: the client closed it). Called once, never while a write is
-  // in flight, without the lock.
-  virtual void end_call(const Error& status) = 0;
 
  private:
   Error first_pose(const v1::ToolPose& pose);
   Error next_pose(const v1::ToolPose& pose);
   void look() override;
-  // Ends the call: removes the tool at once, and calls end_call now or, with a write in flight,
-  // when it completes (no write starts after this).
-  void end(const Error& status);
+  // The tool goes when the call ends, whatever ends it.
+  void on_finish() override;
 
   SceneRegistry& registry_;
   const std::string peer_;
@@ -188,10 +181,8 @@ class ToolStream : public PumpedStream {
 
   // Under mu_:
   std::shared_ptr<Scene> scene_;
-  std::shared_ptr<void> slot_;
   uint64_t tool_id_ = 0;
-  uint64_t after_ = 0;                // the newest frame seq looked at
-  std::optional<Error> due_;          // the status to end with once the write completes
+  uint64_t after_ = 0;  // the newest frame seq looked at
 };
 
 }  // namespace pliant::server
