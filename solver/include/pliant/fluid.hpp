@@ -58,7 +58,8 @@ struct FluidBlock {
 // Particles entering through a disc (radius) or a rectangle (half sizes along two axes
 // orthogonal to `direction`) at `speed`: one lattice layer every d / speed seconds, which is
 // speed * area / d^3 particles per second; stops at `max_particles` (its own) or at the
-// body's cap.
+// body's cap. The rectangle's half_u runs along `u_axis` made orthogonal to the direction
+// (zero, or parallel to it: an axis of the solver's choosing).
 struct FluidEmitter {
   enum class Shape { Disc, Rectangle };
   Shape shape = Shape::Disc;
@@ -67,6 +68,7 @@ struct FluidEmitter {
   double radius = 0.05;      // disc, m
   double half_u = 0.05;      // rectangle, m
   double half_v = 0.05;
+  Vec3 u_axis{0, 0, 0};
   double speed = 1.0;        // m/s
   size_t max_particles = 100000;
 };
@@ -95,11 +97,19 @@ class FluidBody final : public ParticleBody {
             const std::vector<FluidEmitter>& emitters = {});
   ~FluidBody() override;
 
+  // Particles the blocks created, and the lattice points of each emitter's layer (in the
+  // emitters' order): with the state's emitter progress they give the particle count.
+  size_t block_particles() const;
+  std::vector<size_t> emitter_layer_sizes() const;
+
   std::string kind() const override { return "fluid"; }
   size_t size() const override;
   // Particles in the order they were created (blocks first, then emitted ones); the solver
   // keeps its own cache-friendly order internally. lambda: each particle's density multiplier
-  // summed over the last substep's iterations (m^2; pressure() converts it).
+  // summed over the last substep's iterations (m^2; pressure() converts it). emitters: each
+  // emitter's progress. set_state accepts a state with another particle count when its
+  // emitters' progress gives that count (blocks + the particles emitted): a snapshot taken
+  // before or after some layers were emitted; grabs of particles it drops are released.
   const ParticleState& state() const override;
   void set_state(const ParticleState& state) override;
   std::span<const double> inverse_masses() const override;

@@ -17,6 +17,13 @@
 
 namespace pliant {
 
+// How far an emitter has got: the distance its flow moved since its last layer (m) and the
+// particles it has created. With it a restored body emits its next layer when the original would.
+struct EmitterProgress {
+  double travelled = 0.0;
+  uint64_t emitted = 0;
+};
+
 // The mutable part of a particle body. Kinds keep their multipliers here (one per
 // constraint, in the body's constraint order) so a restored snapshot warm-starts like the
 // original did.
@@ -32,6 +39,10 @@ struct ParticleState {
   // Empty: the kind has no such order, or (set_state) keep the body's current one.
   std::vector<uint32_t> order;
   uint64_t substeps = 0;
+  // A kind that creates particles as it runs (a fluid's emitters): one entry per emitter, and
+  // the particle count follows from them. Empty: none, or (set_state) keep the body's current
+  // progress, and then its particle count.
+  std::vector<EmitterProgress> emitters;
 };
 
 // What one step did, for frames and logs.
@@ -59,8 +70,9 @@ class ParticleBody {
   virtual std::string kind() const = 0;
   virtual size_t size() const = 0;  // particles
   virtual const ParticleState& state() const = 0;
-  // Replaces the state (a snapshot's restore): sizes must match the body, else
-  // std::invalid_argument naming what differs.
+  // Replaces the state (a snapshot's restore, a rollback): sizes must match the body (a body
+  // with emitters: the count its state's emitter progress gives), else std::invalid_argument
+  // naming what differs.
   virtual void set_state(const ParticleState& state) = 0;
   // Inverse masses, 1/kg; 0 for a pinned particle.
   virtual std::span<const double> inverse_masses() const = 0;

@@ -124,6 +124,7 @@ struct FluidBody::Impl {
   ParticleState state;  // creation order
   std::vector<double> inv_mass;
   std::vector<Emitter> emitters;
+  size_t block_count = 0;  // particles the blocks created (the first ones in creation order)
   std::map<uint64_t, Grab> grabs;
   fluid::NeighbourGrid grid;
   std::unique_ptr<ThreadPool> pool;
@@ -587,6 +588,21 @@ struct FluidBody::Impl {
     }
     state.order = perm;
     state.substeps = substeps_done;
+    state.emitters.resize(emitters.size());
+    for (size_t e = 0; e < emitters.size(); ++e) state.emitters[e] = {emitters[e].travelled, emitters[e].emitted};
+  }
+
+  // Another particle count (a restored state emitted more or fewer layers): the solver's order
+  // becomes the creation order and grabs of particles that no longer exist are released.
+  void resize(size_t count) {
+    for (auto* a : {&x, &v, &state.x, &state.v}) a->resize(count, Vec3::Zero());
+    lam_sum.resize(count, 0.0);
+    state.lambda.resize(count, 0.0);
+    inv_mass.assign(count, 1.0 / mass);
+    perm.resize(count);
+    std::iota(perm.begin(), perm.end(), 0u);
+    inv = perm;
+    for (auto it = grabs.begin(); it != grabs.end();) it = it->second.particle >= count ? grabs.erase(it) : std::next(it);
   }
 };
 
@@ -671,18 +687,25 @@ FluidBody::FluidBody(const FluidSettings& st, const std::vector<FluidBlock>& blo
         for (long a = 0; a < nx; ++a)
           m.add_particle(b.min + st.spacing * Vec3(a + 0.5, bb + 0.5, c + 0.5), b.velocity);
   }
+  m.block_count = m.n();
   for (size_t ei = 0; ei < emitters.size(); ++ei) {
     const FluidEmitter& e = emitters[ei];
     const std::string f = "emitters[" + std::to_string(ei) + "]";
     require_vec(e.centre, f + ".centre");
     require_vec(e.direction, f + ".direction");
     require(e.direction.norm() > 1e-12, f + ".direction", "must not be zero", e.direction.norm());
+    require_vec(e.u_axis, f + ".u_axis");
     require(std::isfinite(e.speed) && e.speed > 0, f + ".speed", "must be > 0", e.speed);
     Impl::Emitter em;
     em.spec = e;
     em.spec.direction = e.direction.normalized();
     Vec3 u, w;
     basis(em.spec.direction, u, w);
+    const Vec3 across = e.u_axis - e.u_axis.dot(em.spec.direction) * em.spec.direction;
+    if (across.norm() > 1e-9 * std::max(1.0, e.u_axis.norm())) {
+      u = across.normalized();
+      w = em.spec.direction.cross(u);
+    }
     if (e.shape == FluidEmitter::Shape::Disc) {
       require(std::isfinite(e.radius) && e.radius > 0, f + ".radius", "must be > 0", e.radius);
       const int r = static_cast<int>(std::floor(e.radius / st.spacing + 1e-9));
@@ -702,11 +725,18 @@ FluidBody::FluidBody(const FluidSettings& st, const std::vector<FluidBlock>& blo
   }
   if (m.n() == 0 && m.emitters.empty())
     throw std::invalid_argument("fluid: blocks hold no particle and there is no emitter (zero particles)");
+  m.state.emitters.assign(m.emitters.size(), EmitterProgress{});
 }
 
 FluidBody::~FluidBody() = default;
 
 size_t FluidBody::size() const { return impl_->n(); }
+size_t FluidBody::block_particles() const { return impl_->block_count; }
+std::vector<size_t> FluidBody::emitter_layer_sizes() const {
+  std::vector<size_t> out;
+  for (const Impl::Emitter& e : impl_->emitters) out.push_back(e.layer.size());
+  return out;
+}
 const ParticleState& FluidBody::state() const { return impl_->state; }
 std::span<const double> FluidBody::inverse_masses() const { return impl_->inv_mass; }
 double FluidBody::contact_radius() const { return impl_->s.particle_radius * impl_->s.spacing; }
@@ -721,7 +751,30 @@ double FluidBody::support_radius() const { return impl_->h; }
 
 void FluidBody::set_state(const ParticleState& st) {
   Impl& m = *impl_;
-  const size_t N = m.n();
+  // The particle count: the body's own, or the one the state's emitter progress gives.
+  size_t N = m.n();
+  if (!st.emitters.empty()) {
+    if (st.emitters.size() != m.emitters.size())
+      throw std::invalid_argument("fluid: state.emitters has " + std::to_string(st.emitters.size()) +
+                                  " entries, the body " + std::to_string(m.emitters.size()) + " emitters (or give none)");
+    N = m.block_count;
+    for (size_t e = 0; e < st.emitters.size(); ++e) {
+      const EmitterProgress& ep = st.emitters[e];
+      const Impl::Emitter& em = m.emitters[e];
+      const std::string f = "state.emitters[" + std::to_string(e) + "]";
+      require(std::isfinite(ep.travelled) && ep.travelled >= 0 && ep.travelled < m.s.spacing, f + ".travelled",
+              "must be in [0, spacing)", ep.travelled);
+      if (ep.emitted > em.spec.max_particles || ep.emitted % em.layer.size() != 0)
+        throw std::invalid_argument("fluid: " + f + ".emitted is " + std::to_string(ep.emitted) +
+                                    ", not a whole number of layers of " + std::to_string(em.layer.size()) +
+                                    " particles up to the emitter's max_particles " +
+                                    std::to_string(em.spec.max_particles));
+      N += ep.emitted;
+    }
+    if (N > m.s.max_particles)
+      throw std::invalid_argument("fluid: state.emitters give " + std::to_string(N) +
+                                  " particles, more than max_particles " + std::to_string(m.s.max_particles));
+  }
   check_particle_counts(st, N, "fluid");
   if (!st.lambda.empty() && st.lambda.size() != N)
     throw std::invalid_argument("fluid: state.lambda has " + std::to_string(st.lambda.size()) +
@@ -747,9 +800,16 @@ void FluidBody::set_state(const ParticleState& st) {
                                     std::to_string(N) + " particles)");
       seen[u] = 1;
     }
+  }
+  if (N != m.n()) m.resize(N);
+  if (!st.order.empty()) {
     m.perm = st.order;
     for (size_t k = 0; k < N; ++k) m.inv[m.perm[k]] = static_cast<uint32_t>(k);
     m.substeps_done = st.substeps;
+  }
+  for (size_t e = 0; e < st.emitters.size(); ++e) {
+    m.emitters[e].travelled = st.emitters[e].travelled;
+    m.emitters[e].emitted = st.emitters[e].emitted;
   }
   for (size_t i = 0; i < N; ++i) {
     const uint32_t k = m.inv[i];
