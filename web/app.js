@@ -268,8 +268,33 @@ function buildBodies(topo) {
   }
 }
 
+// A fluid's new particle count: a new geometry of that size (the old one's GPU buffers are
+// freed), the particles it had keep their previous positions for the speed colours, new ones
+// start still.
+function resizeFluid(b, positions) {
+  const old = b.geometry;
+  const g = new THREE.BufferGeometry();
+  b.attr = dynamicAttr(Float32Array.from(positions));
+  g.setAttribute('position', b.attr);
+  b.colors = new THREE.BufferAttribute(new Float32Array(positions.length), 3);
+  b.colors.setUsage ? b.colors.setUsage(THREE.DynamicDrawUsage) : (b.colors.dynamic = true);
+  g.setAttribute('color', b.colors);
+  // The speed colours of the next drawn frame compare with these: the particles it had where
+  // they were, new ones where they are (still).
+  const prev = Float32Array.from(positions);
+  prev.set(b.prev.subarray(0, Math.min(b.prev.length, prev.length)));
+  b.prev = prev;
+  const col = b.colors.array;
+  for (let i = 0; i < col.length; i += 3) col.set(STILL_WATER, i);
+  for (const o of b.objects) if (o.geometry === old) o.geometry = g;
+  b.geometry = g;
+  b.particles = positions.length / 3;
+  old.dispose();
+}
+
 // Fluid colours from each particle's speed since the last drawn frame (dt s): still water
 // blue, 1 m/s and faster white.
+const STILL_WATER = [0.16, 0.5, 0.9];
 function speedColors(b, dt) {
   const x = b.attr.array, prev = b.prev, col = b.colors.array;
   for (let i = 0; i < x.length; i += 3) {
@@ -295,7 +320,13 @@ function applyFrame(buffer) {
     frameDirty = true;
   }
   for (let i = 0; i < bodies.length && i < bodyPositions.length; ++i) {
-    if (bodyPositions[i].length !== bodies[i].attr.array.length) continue;
+    if (bodyPositions[i].length !== bodies[i].attr.array.length) {
+      // A fluid's emitters add particles (a rollback or a restore may take some back); cloth
+      // and ropes keep their count.
+      if (bodies[i].kind !== 'fluid') continue;
+      resizeFluid(bodies[i], bodyPositions[i]);
+      bodyScratch[i] = new Float32Array(bodyPositions[i].length);
+    }
     bodies[i].attr.array = bodyPositions[i];
     bodies[i].dirty = true;
     frameDirty = true;

@@ -960,7 +960,9 @@ int cmd_watch(Client& c, Args& a, bool json) {
 // One particle body's series in a recording: body-<name>_<tick>.vtu and body-<name>.pvd.
 struct BodyRecording {
   std::string name;
-  size_t particles = 0;
+  size_t particles = 0;      // at creation
+  size_t max_particles = 0;  // a fluid with emitters grows up to it
+  bool grows = false;
   std::optional<VtuRecorder> recorder;
   RecordingFrame previous;
   bool have_previous = false;
@@ -1010,8 +1012,10 @@ void fill_frame(const google::protobuf::RepeatedField<float>& xyz, size_t n, dou
     for (int k = 0; k < 3; ++k) frame.positions[i][k] = xyz[static_cast<int>(3 * i + k)];
   frame.velocity.assign(n, Vec3::Zero());
   const double dt = frame.time - previous.time;
+  // Particles an emitter added since the previous frame have no earlier position: speed 0.
   if (have_previous && !rolled_back && dt > 0)
-    for (size_t i = 0; i < n; ++i) frame.velocity[i] = (frame.positions[i] - previous.positions[i]) / dt;
+    for (size_t i = 0; i < std::min(n, previous.positions.size()); ++i)
+      frame.velocity[i] = (frame.positions[i] - previous.positions[i]) / dt;
 }
 
 // record: frames with positions into binary .vtu files and a .pvd collection (and one series per
@@ -1067,6 +1071,8 @@ int cmd_record(Client& c, Args& a, bool json) {
       BodyRecording& br = bodies[static_cast<size_t>(b)];
       br.name = bt.name();
       br.particles = bt.particle_count();
+      br.max_particles = std::max<size_t>(bt.max_particle_count(), bt.particle_count());
+      br.grows = bt.kind() == "fluid" && br.max_particles > br.particles;
       const std::string stem = "body-" + file_safe(bt.name());
       br.recorder.emplace(*out, body_topology(bt), stem, stem);
     }
@@ -1093,9 +1099,13 @@ int cmd_record(Client& c, Args& a, bool json) {
       // Each body by name (a frame lists the bodies in spec order, as the topology does).
       for (const v1::FrameBody& bf : f.bodies())
         for (BodyRecording& br : bodies) {
-          if (br.name != bf.name() || static_cast<size_t>(bf.positions_size()) != 3 * br.particles) continue;
+          // A fluid with emitters grows (a point-cell series takes any count); others keep theirs.
+          const size_t count = static_cast<size_t>(bf.positions_size()) / 3;
+          if (br.name != bf.name() || bf.positions_size() % 3 != 0 ||
+              (count != br.particles && !(br.grows && count <= br.max_particles)))
+            continue;
           RecordingFrame body_frame;
-          fill_frame(bf.positions(), br.particles, f.sim_time(), 0.0, f.rolled_back(), br.previous, br.have_previous,
+          fill_frame(bf.positions(), count, f.sim_time(), 0.0, f.rolled_back(), br.previous, br.have_previous,
                      body_frame);
           br.recorder->write(body_frame, static_cast<long>(f.tick()));
           br.previous = std::move(body_frame);

@@ -11,7 +11,7 @@ std::unique_ptr<ParticleBody> make_particle_body(const BodyConfig& c, const Vec3
     FluidSettings s = c.fluid;
     s.gravity = gravity;
     s.max_particles = kMaxParticlesPerScene;
-    return std::make_unique<FluidBody>(s, c.blocks);
+    return std::make_unique<FluidBody>(s, c.blocks, c.emitters);
   }
   ConstraintBodySettings s = c.constraint;
   s.gravity = gravity;
@@ -41,6 +41,12 @@ std::unique_ptr<ParticleBody> make_particle_body(const BodyConfig& c, const Vec3
         }
   }
   return body;
+}
+
+size_t particle_capacity(const BodyConfig& c, size_t at_creation) {
+  size_t n = at_creation;
+  for (const FluidEmitter& e : c.emitters) n += e.max_particles;
+  return n;
 }
 
 double contact_radius(const BodyConfig& c) {

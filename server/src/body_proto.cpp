@@ -72,6 +72,55 @@ Error pins_from(const v1::ParticlePins& pins, const std::string& p, BodyConfig* 
   return {};
 }
 
+// An emitter; p names it (spec.bodies[i].fluid.emitters[k]). d: the fluid's spacing.
+Error emitter_from(const v1::FluidEmitter& m, const std::string& p, double d, BodyConfig* c) {
+  FluidEmitter e;
+  if (Error err = point(m.center(), p + ".center", &e.centre); !err.ok()) return err;
+  if (m.has_direction())
+    if (Error err = unit_axis(m.direction(), p + ".direction", &e.direction); !err.ok()) return err;
+  if (Error err = in_range(p + ".speed", m.speed(), 0.0, 100.0, true, "m/s"); !err.ok()) return err;
+  e.max_particles = m.has_max_particles() ? m.max_particles() : kDefaultEmitterParticles;
+  if (Error err = int_range(p + ".max_particles", static_cast<int64_t>(e.max_particles), 1,
+                            static_cast<int64_t>(kMaxParticlesPerScene));
+      !err.ok())
+    return err;
+  // Lattice points across the opening's bounding square: at least as many as a layer holds.
+  auto across = [d](double half) { return 2.0 * std::floor(half / d + 1e-9) + 1.0; };
+  double layer = 0;
+  switch (m.opening_case()) {
+    case v1::FluidEmitter::kRadius:
+      e.shape = FluidEmitter::Shape::Disc;
+      if (Error err = in_range(p + ".radius", m.radius(), 0.0, 10.0, true, "m"); !err.ok()) return err;
+      e.radius = m.radius();
+      layer = across(e.radius) * across(e.radius);
+      break;
+    case v1::FluidEmitter::kRectangle: {
+      const auto& r = m.rectangle();
+      e.shape = FluidEmitter::Shape::Rectangle;
+      if (Error err = in_range(p + ".rectangle.half_u", r.half_u(), 0.0, 10.0, true, "m"); !err.ok()) return err;
+      if (Error err = in_range(p + ".rectangle.half_v", r.half_v(), 0.0, 10.0, true, "m"); !err.ok()) return err;
+      e.half_u = r.half_u();
+      e.half_v = r.half_v();
+      if (r.has_u_axis()) {
+        e.u_axis = from_proto(r.u_axis());
+        if (!e.u_axis.allFinite())
+          return invalid(fmt::format("{}.rectangle.u_axis must be finite, got ({}, {}, {})", p, e.u_axis.x(),
+                                     e.u_axis.y(), e.u_axis.z()));
+      }
+      layer = across(e.half_u) * across(e.half_v);
+      break;
+    }
+    default:
+      return invalid(p + ": no opening set; set one of radius, rectangle");
+  }
+  if (layer > static_cast<double>(e.max_particles))
+    return invalid(fmt::format("{}: the opening spans up to {} lattice points per layer at spacing {} m, more than its "
+                               "max_particles {}; make it smaller or raise max_particles",
+                               p, layer, d, e.max_particles));
+  c->emitters.push_back(e);
+  return {};
+}
+
 Error fluid_from(const v1::FluidSpec& f, const std::string& p, BodyConfig* c, size_t* particles) {
   FluidSettings& s = c->fluid;
   PLIANT_OPT_DOUBLE(f, spacing, s.spacing, 1e-4, 10.0, false, "m")
@@ -109,7 +158,8 @@ Error fluid_from(const v1::FluidSpec& f, const std::string& p, BodyConfig* c, si
                                  s.particle_radius * s.spacing));
     s.container = cols[0];
   }
-  if (f.blocks_size() == 0) return invalid(p + ".blocks is empty; give at least one box of particles");
+  if (f.blocks_size() == 0 && f.emitters_size() == 0)
+    return invalid(p + ".blocks and " + p + ".emitters are empty; give at least one box of particles or an emitter");
   double total = 0;
   for (int i = 0; i < f.blocks_size(); ++i) {
     const std::string b = fmt::format("{}.blocks[{}]", p, i);
@@ -129,6 +179,12 @@ Error fluid_from(const v1::FluidSpec& f, const std::string& p, BodyConfig* c, si
     total += n;
     c->blocks.push_back(block);
   }
+  if (f.emitters_size() > static_cast<int>(kMaxEmittersPerFluid))
+    return invalid(fmt::format("{}.emitters has {} emitters, at most {}", p, f.emitters_size(), kMaxEmittersPerFluid));
+  for (int i = 0; i < f.emitters_size(); ++i)
+    if (Error e = emitter_from(f.emitters(i), fmt::format("{}.emitters[{}]", p, i), s.spacing, c); !e.ok()) return e;
+  // The capacity: what the blocks hold and what the emitters may add.
+  for (const FluidEmitter& e : c->emitters) total += static_cast<double>(e.max_particles);
   *particles = total > 1e15 ? size_t(1e15) : static_cast<size_t>(total);
   return {};
 }
@@ -306,6 +362,20 @@ void bodies_to_spec(const std::vector<BodyConfig>& bodies, v1::SceneSpec* spec) 
       f->set_particle_radius(s.particle_radius);
       f->set_container_density(s.container_density);
       f->set_sort_interval(s.sort_interval);
+      for (const FluidEmitter& e : c.emitters) {
+        auto* pe = f->add_emitters();
+        to_proto(e.centre, pe->mutable_center());
+        to_proto(e.direction, pe->mutable_direction());
+        pe->set_speed(e.speed);
+        if (e.shape == FluidEmitter::Shape::Disc) {
+          pe->set_radius(e.radius);
+        } else {
+          pe->mutable_rectangle()->set_half_u(e.half_u);
+          pe->mutable_rectangle()->set_half_v(e.half_v);
+          if (!e.u_axis.isZero()) to_proto(e.u_axis, pe->mutable_rectangle()->mutable_u_axis());
+        }
+        pe->set_max_particles(static_cast<uint32_t>(e.max_particles));
+      }
       continue;
     }
     const ConstraintBodySettings& s = c.constraint;

@@ -365,9 +365,10 @@ Error SceneRegistry::grab(const v1::GrabRequest& req, v1::GrabResponse* out) {
     if (req.point_case() != v1::GrabRequest::kVertex)
       return invalid(fmt::format("body {}: set vertex to the particle index (tet_point is for the tet body)",
                                  echo(req.body())));
-    if (req.vertex() < 0 || static_cast<size_t>(req.vertex()) >= bodies[b].particles)
-      return invalid(fmt::format("vertex {} is out of range for body {} ({} particles)", req.vertex(),
-                                 echo(req.body()), bodies[b].particles));
+    if (req.vertex() < 0 || static_cast<size_t>(req.vertex()) >= bodies[b].capacity)
+      return invalid(fmt::format("vertex {} is out of range for body {} ({} particles{})", req.vertex(),
+                                 echo(req.body()), bodies[b].capacity,
+                                 bodies[b].capacity > bodies[b].particles ? " at most" : ""));
     std::optional<Vec3> target;
     if (req.has_target()) {
       Vec3 t;

@@ -150,6 +150,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
     info.name = bc.name;
     info.kind = body->kind();
     info.particles = body->size();
+    info.capacity = particle_capacity(bc, info.particles);
     const auto tris = body->triangles();
     info.triangles.assign(tris.begin(), tris.end());
     const auto w = body->inverse_masses();
@@ -215,17 +216,21 @@ Scene::Scene(SceneSnapshot snapshot, std::string id)
   }
   ts_->body_grabs = std::move(snapshot.body_grabs);
   ts_->next_grab_id = next;
+  publish_status();  // the bodies' particle counts as restored
 }
 
 size_t Scene::particle_count() const {
   size_t n = 0;
-  for (const BodyInfo& b : bodies_info_) n += b.particles;
+  for (const BodyInfo& b : bodies_info_) n += b.capacity;
   return n;
 }
 
 void Scene::restore_bodies() {
   TickState& t = *ts_;
   for (size_t b = 0; b < t.bodies.size(); ++b) t.bodies[b]->set_state(t.bodies_last_good[b]);
+  // A fluid back before some of its emitted layers no longer has their particles: their grabs go.
+  for (auto it = t.body_grabs.begin(); it != t.body_grabs.end();)
+    it = it->second.particle >= t.bodies[it->second.body]->size() ? t.body_grabs.erase(it) : std::next(it);
 }
 
 Scene::~Scene() { stop(); }
@@ -327,6 +332,8 @@ void Scene::publish_status() {
   s.sim_time = ts_->state.time;
   s.counters = ts_->counters;
   s.pause_reason = ts_->pause_reason;
+  s.body_particles.reserve(ts_->bodies.size());
+  for (const auto& b : ts_->bodies) s.body_particles.push_back(b->size());
   std::lock_guard lk(info_mu_);
   ++generation_;
   status_ = std::move(s);
@@ -371,7 +378,7 @@ bool Scene::post(Command fn) {
   return true;
 }
 
-Error Scene::add_grab(std::function<void(uint64_t id)> attach, uint64_t* grab_id, uint64_t* first_tick,
+Error Scene::add_grab(std::function<Error(uint64_t id)> attach, uint64_t* grab_id, uint64_t* first_tick,
                       std::chrono::milliseconds timeout, size_t max_grabs) {
   struct Granted {
     uint64_t id = 0, first_tick = 0;
@@ -383,8 +390,8 @@ Error Scene::add_grab(std::function<void(uint64_t id)> attach, uint64_t* grab_id
           return Error::make(Code::ResourceExhausted,
                              "scene '" + id_ + "' already has " + std::to_string(held) + " grabs (--max-grabs-per-scene " +
                                  std::to_string(max_grabs) + "); release one first");
+        if (Error e = attach(ts_->next_grab_id); !e.ok()) return e;
         out.id = ts_->next_grab_id++;
-        attach(out.id);
         ++generation_;  // grabs are saved: a checkpoint is due
         out.first_tick = ts_->tick + 1;
         return Error{};
@@ -399,7 +406,10 @@ Error Scene::add_grab(std::function<void(uint64_t id)> attach, uint64_t* grab_id
 
 Error Scene::grab(const Attachment& attachment, uint64_t* grab_id, uint64_t* first_tick,
                   std::chrono::milliseconds timeout, size_t max_grabs) {
-  return add_grab([this, attachment](uint64_t id) { ts_->grabs[id] = attachment; }, grab_id, first_tick, timeout,
+  return add_grab([this, attachment](uint64_t id) {
+    ts_->grabs[id] = attachment;
+    return Error{};
+  }, grab_id, first_tick, timeout,
                   max_grabs);
 }
 
@@ -409,9 +419,14 @@ Error Scene::grab_particle(size_t body, size_t particle, std::optional<Vec3> tar
   return add_grab(
       [this, body, particle, target, compliance](uint64_t id) {
         ParticleBody& b = *ts_->bodies.at(body);
+        if (particle >= b.size())  // a fluid's emitters have not created it (yet)
+          return Error::make(Code::InvalidArgument, "vertex " + std::to_string(particle) + " is out of range for body '" +
+                                                        bodies_info_[body].name + "' (" + std::to_string(b.size()) +
+                                                        " particles now)");
         const ParticleGrab g{body, particle, target.value_or(b.state().x.at(particle)), compliance};
         b.grab(id, g.particle, g.target, g.compliance);
         ts_->body_grabs[id] = g;
+        return Error{};
       },
       grab_id, first_tick, timeout, max_grabs);
 }
@@ -792,9 +807,16 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
     }
     guarded(b, [&] {
       // The start positions, for the contacts that read them (none: no copy in the tick).
-      if (t.body_contact[b] || t.in_cloth_pair[b] || !inputs.tools.empty()) t.body_start[b] = t.bodies[b]->state().x;
+      const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || !inputs.tools.empty();
+      if (starts) t.body_start[b] = t.bodies[b]->state().x;
       const auto t_body = Clock::now();
       t.body_reports[b] = t.bodies[b]->step(dt, t.colliders);
+      // Particles an emitter added during the step start where they are (no path to cross).
+      if (starts) {
+        std::vector<Vec3>& start = t.body_start[b];
+        const auto& now = t.bodies[b]->state().x;
+        for (size_t i = start.size(); i < now.size(); ++i) start.push_back(now[i]);
+      }
       if (const auto& contact = t.body_contact[b]) {
         // Two-way with the soft body: the particles move out, the tet body takes their momentum.
         ParticleState ps = t.bodies[b]->state();

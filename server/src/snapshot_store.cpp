@@ -130,6 +130,11 @@ Error snapshot_to_proto(const SceneSnapshot& s, v1::Snapshot* out) {
     pb->set_steps(st.steps);
     pb->mutable_solver_order()->Add(st.order.begin(), st.order.end());
     pb->set_substeps(st.substeps);
+    for (const EmitterProgress& e : st.emitters) {
+      auto* pe = pb->add_emitters();
+      pe->set_travelled(e.travelled);
+      pe->set_emitted(e.emitted);
+    }
     for (const auto& [gid, g] : s.body_grabs) {
       if (g.body != b) continue;
       auto* pg = pb->add_grabs();
@@ -220,6 +225,11 @@ Error snapshot_from_proto(const v1::Snapshot& p, int max_threads, int64_t max_ve
       st.order.assign(pb.solver_order().begin(), pb.solver_order().end());
     }
     st.substeps = pb.substeps();
+    // The emitters' progress: checked against the rebuilt body when the scene sets it.
+    if (pb.emitters_size() != 0 && pb.emitters_size() != static_cast<int>(cfg.bodies[b].emitters.size()))
+      return invalid(fmt::format("{}.emitters has {} entries, snapshot.spec.bodies[{}] {} emitters", f,
+                                 pb.emitters_size(), b, cfg.bodies[b].emitters.size()));
+    for (const auto& pe : pb.emitters()) st.emitters.push_back({pe.travelled(), pe.emitted()});
     for (int g = 0; g < pb.grabs_size(); ++g) {
       const auto& pg = pb.grabs(g);
       const std::string gf = fmt::format("{}.grabs[{}]", f, g);

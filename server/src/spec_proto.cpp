@@ -497,11 +497,13 @@ void scene_to_proto(const Scene& scene, v1::Scene* out) {
   out->set_floored_vertices(static_cast<uint32_t>(model->floored_vertices()));
   out->set_added_inertia(model->added_inertia());
   out->set_method_choice(cfg.method_choice);
-  for (const BodyInfo& b : scene.bodies()) {
+  for (size_t i = 0; i < scene.bodies().size(); ++i) {
+    const BodyInfo& b = scene.bodies()[i];
     auto* pb = out->add_bodies();
     pb->set_name(b.name);
     pb->set_kind(b.kind);
-    pb->set_particle_count(static_cast<uint32_t>(b.particles));
+    pb->set_particle_count(static_cast<uint32_t>(i < st.body_particles.size() ? st.body_particles[i] : b.particles));
+    pb->set_max_particle_count(static_cast<uint32_t>(b.capacity));
     pb->set_triangle_count(static_cast<uint32_t>(b.triangles.size()));
     pb->set_pinned_count(static_cast<uint32_t>(b.pinned.size()));
   }

@@ -247,6 +247,7 @@ void topology_to_proto(const Scene& scene, v1::Topology* out) {
     pb->set_name(b.name);
     pb->set_kind(b.kind);
     pb->set_particle_count(static_cast<uint32_t>(b.particles));
+    pb->set_max_particle_count(static_cast<uint32_t>(b.capacity));
     pb->mutable_rest_positions()->Reserve(static_cast<int>(3 * b.rest.size()));
     for (const auto& x : b.rest)
       for (int k = 0; k < 3; ++k) pb->add_rest_positions(static_cast<float>(x[k]));

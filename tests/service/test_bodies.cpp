@@ -587,6 +587,127 @@ TEST(Bodies, RestartKeepsTheBodies) {
   fs::remove_all(dir);
 }
 
+// beam1 beside a container with no water in it and a tap above: a disc of 13 lattice points
+// (radius 2 spacings) pouring downwards at 1.5 m/s, 10 layers at most.
+v1::CreateSceneRequest tap_request(const std::string& id) {
+  v1::CreateSceneRequest r;
+  r.set_scene_id(id);
+  auto* s = r.mutable_spec();
+  s->mutable_mesh()->set_builtin("beam1");
+  client::clamp_below_x(*s, 0.01);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+  s->mutable_tick()->set_dt(1.0 / 60);
+  auto* fluid = s->add_bodies();
+  fluid->set_name("tap");
+  auto* f = fluid->mutable_fluid();
+  f->set_spacing(0.05);
+  auto* box = f->mutable_container()->mutable_box();
+  set(box->mutable_center(), -3, 0.5, 0);
+  set(box->mutable_half_extent(), 0.4, 0.5, 0.4);
+  auto* e = f->add_emitters();
+  set(e->mutable_center(), -3, 0.8, 0);
+  set(e->mutable_direction(), 0, -2, 0);  // normalised by the server
+  e->set_speed(1.5);
+  e->set_radius(0.1);
+  e->set_max_particles(130);
+  return r;
+}
+
+TEST(Bodies, AnEmitterPoursWaterThatFramesSnapshotsAndGrabsFollow) {
+  BodiesServer srv;
+  Client c = srv.client();
+  auto created = c.create_scene(tap_request("tap"));
+  ASSERT_TRUE(created.ok()) << created.status.to_string();
+  ASSERT_EQ(created->bodies_size(), 1);
+  EXPECT_EQ(created->bodies(0).particle_count(), 0u);
+  EXPECT_EQ(created->bodies(0).max_particle_count(), 130u);
+  // The spec comes back with the values in use.
+  ASSERT_EQ(created->spec().bodies(0).fluid().emitters_size(), 1);
+  const v1::FluidEmitter& echoed = created->spec().bodies(0).fluid().emitters(0);
+  EXPECT_EQ(echoed.direction().y(), -1.0);
+  EXPECT_EQ(echoed.radius(), 0.1);
+  EXPECT_EQ(echoed.max_particles(), 130u);
+  // The topology says what the body may grow to.
+  auto topo = c.topology("tap");
+  ASSERT_TRUE(topo.ok()) << topo.status.to_string();
+  ASSERT_EQ(topo->bodies_size(), 1);
+  EXPECT_EQ(topo->bodies(0).particle_count(), 0u);
+  EXPECT_EQ(topo->bodies(0).max_particle_count(), 130u);
+
+  // A layer every spacing / speed = 1/30 s: after 7 ticks (7/60 s) three layers or, at the
+  // rounding of the substeps' sums, two; never part of one.
+  ASSERT_TRUE(c.step("tap", 7).ok());
+  v1::Frame f = latest_frame(c, "tap");
+  ASSERT_EQ(f.bodies_size(), 1);
+  const int early = f.bodies(0).positions_size() / 3;
+  EXPECT_TRUE(early == 39 || early == 26) << early;
+  auto got = c.get_scene("tap");
+  ASSERT_TRUE(got.ok());
+  EXPECT_EQ(static_cast<int>(got->bodies(0).particle_count()), early);
+  // A particle the tap has not poured yet cannot be grabbed; one beyond the tap's total is
+  // refused before it reaches the scene.
+  v1::GrabRequest grab;
+  grab.set_scene_id("tap");
+  grab.set_body("tap");
+  grab.set_vertex(100);
+  auto refused = c.grab(grab);
+  EXPECT_EQ(refused.status.code, kInvalidArgument);
+  EXPECT_NE(refused.status.message.find("particles now"), std::string::npos) << refused.status.message;
+  grab.set_vertex(130);
+  refused = c.grab(grab);
+  EXPECT_EQ(refused.status.code, kInvalidArgument);
+  EXPECT_NE(refused.status.message.find("130 particles at most"), std::string::npos) << refused.status.message;
+
+  // A snapshot between two layers continues bit for bit in a copy, emissions included.
+  const v1::Snapshot mid = snapshot_of(c, "tap");
+  ASSERT_EQ(mid.bodies(0).emitters_size(), 1);
+  EXPECT_EQ(static_cast<int>(mid.bodies(0).emitters(0).emitted()), early);
+  v1::RestoreSnapshotRequest restore;
+  *restore.mutable_snapshot() = mid;
+  restore.set_scene_id("copy");
+  auto copy = c.restore_snapshot(restore);
+  ASSERT_TRUE(copy.ok()) << copy.status.to_string();
+  EXPECT_EQ(static_cast<int>(copy->bodies(0).particle_count()), early);
+  ASSERT_TRUE(c.step("tap", 20).ok());
+  ASSERT_TRUE(c.step("copy", 20).ok());
+  const v1::Snapshot a = snapshot_of(c, "tap"), b = snapshot_of(c, "copy");
+  EXPECT_GT(a.bodies(0).x_size(), 3 * early);
+  EXPECT_TRUE(bit_equal(a.bodies(0).x(), b.bodies(0).x()));
+  EXPECT_TRUE(bit_equal(a.bodies(0).v(), b.bodies(0).v()));
+  EXPECT_EQ(a.bodies(0).emitters(0).emitted(), b.bodies(0).emitters(0).emitted());
+  EXPECT_EQ(a.bodies(0).emitters(0).travelled(), b.bodies(0).emitters(0).travelled());
+  // Progress that does not fit the positions is refused, naming the body.
+  v1::Snapshot broken = mid;
+  broken.mutable_bodies(0)->mutable_emitters(0)->set_emitted(static_cast<uint64_t>(early) + 13);
+  *restore.mutable_snapshot() = broken;
+  restore.set_scene_id("broken");
+  auto not_restored = c.restore_snapshot(restore);
+  EXPECT_EQ(not_restored.status.code, kInvalidArgument);
+  EXPECT_NE(not_restored.status.message.find("snapshot.bodies[0]"), std::string::npos)
+      << not_restored.status.message;
+
+  // A particle that exists now can be grabbed; after a second the tap has poured its 130
+  // particles and stopped; all of them are in the container, below the tap.
+  grab.set_vertex(early - 1);
+  EXPECT_TRUE(c.grab(grab).ok());
+  ASSERT_TRUE(c.step("tap", 40).ok());
+  f = latest_frame(c, "tap");
+  ASSERT_EQ(f.bodies(0).positions_size(), 3 * 130);
+  for (int i = 0; i < 130; ++i) {
+    const float* p = f.bodies(0).positions().data() + 3 * i;
+    EXPECT_LT(std::abs(p[0] + 3), 0.4f) << i;
+    EXPECT_GT(p[1], -1e-3f) << i;
+    EXPECT_LT(p[1], 0.8f) << i;
+  }
+  // Reset: the fluid is as created, empty, and pours again.
+  auto reset = c.reset_scene("tap");
+  ASSERT_TRUE(reset.ok()) << reset.status.to_string();
+  EXPECT_EQ(reset->bodies(0).particle_count(), 0u);
+  ASSERT_TRUE(c.step("tap", 7).ok());
+  f = latest_frame(c, "tap");
+  EXPECT_EQ(f.bodies(0).positions_size() / 3, early);
+}
+
 TEST(Bodies, BadSpecsAreRefusedNamingTheField) {
   BodiesServer srv;
   Client c = srv.client();
@@ -616,6 +737,40 @@ TEST(Bodies, BadSpecsAreRefusedNamingTheField) {
        kInvalidArgument, "spec.bodies[2].fluid.container", "box"},
       {[](v1::SceneSpec* s) { s->mutable_bodies(2)->mutable_fluid()->set_substeps(0); }, kInvalidArgument,
        "spec.bodies[2].fluid.substeps", "got 0"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(2)->mutable_fluid()->add_emitters()->set_radius(0.1); },
+       kInvalidArgument, "spec.bodies[2].fluid.emitters[0].speed", "got 0"},
+      {[](v1::SceneSpec* s) { s->mutable_bodies(2)->mutable_fluid()->add_emitters()->set_speed(1); },
+       kInvalidArgument, "spec.bodies[2].fluid.emitters[0]", "radius, rectangle"},
+      {[](v1::SceneSpec* s) {
+         auto* e = s->mutable_bodies(2)->mutable_fluid()->add_emitters();
+         e->set_speed(1);
+         e->mutable_rectangle()->set_half_u(0.1);
+         e->mutable_rectangle()->set_half_v(-0.1);
+       },
+       kInvalidArgument, "spec.bodies[2].fluid.emitters[0].rectangle.half_v", "got -0.1"},
+      {[](v1::SceneSpec* s) {  // 161 x 161 lattice points across, 10,000 particles in all
+         auto* e = s->mutable_bodies(2)->mutable_fluid()->add_emitters();
+         e->set_speed(1);
+         e->set_radius(4);
+       },
+       kInvalidArgument, "spec.bodies[2].fluid.emitters[0]", "max_particles 10000"},
+      {[](v1::SceneSpec* s) {
+         auto* e = s->mutable_bodies(2)->mutable_fluid()->add_emitters();
+         e->set_speed(1);
+         e->set_radius(0.1);
+         set(e->mutable_direction(), 0, 0, 0);
+       },
+       kInvalidArgument, "spec.bodies[2].fluid.emitters[0].direction", "non-zero"},
+      {[](v1::SceneSpec* s) {  // the emitters' totals count toward the scene's particles
+         auto* f = s->mutable_bodies(2)->mutable_fluid();
+         for (int i = 0; i < 2; ++i) {
+           auto* e = f->add_emitters();
+           e->set_speed(1);
+           e->set_radius(0.1);
+           e->set_max_particles(100000);
+         }
+       },
+       kResourceExhausted, "spec.bodies[2]", "200000"},
       {[](v1::SceneSpec* s) { s->mutable_bodies(1)->mutable_cloth()->set_mass_per_area(0); }, kInvalidArgument,
        "spec.bodies[1].cloth.mass_per_area", "got 0"},
       {[](v1::SceneSpec* s) { s->mutable_bodies(1)->mutable_cloth()->set_model_path("../etc/passwd"); },

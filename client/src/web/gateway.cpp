@@ -361,6 +361,7 @@ void Session::subscribe(const json& m) {
   json bodies = json::array();
   for (const auto& b : surface.bodies)
     bodies.push_back(json{{"name", b.name}, {"kind", body_kind_name(b.kind)}, {"particles", b.particle_count()},
+                          {"max_particles", std::max(b.max_particles, b.particle_count())},
                           {"triangles", b.triangles.size() / 3}, {"pinned", b.pinned.size()},
                           // the float's value to 7 digits (0.005, not 0.004999999888)
                           {"size", std::stod(fmt::format("{:.7g}", b.size))}});

@@ -189,6 +189,7 @@ SurfaceTopology surface_topology(const v1::Topology& t) {
     pb.pinned.assign(b.pinned().begin(), b.pinned().end());
     std::sort(pb.pinned.begin(), pb.pinned.end());
     pb.rest_positions.assign(b.rest_positions().begin(), b.rest_positions().end());
+    pb.max_particles = std::max(b.max_particle_count(), p);
     s.bodies.push_back(std::move(pb));
   }
   if (s.bodies.size() > std::numeric_limits<uint16_t>::max())
@@ -319,11 +320,15 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
                                   std::to_string(bodies.size()));
     for (size_t i = 0; i < bodies.size(); ++i) {
       const auto& fb = f.bodies(static_cast<int>(i));
-      if (fb.name() != bodies[i].name || fb.positions_size() != 3 * static_cast<int64_t>(bodies[i].particle_count()))
+      const uint32_t count = static_cast<uint32_t>(fb.positions_size() / 3);
+      if (fb.name() != bodies[i].name || fb.positions_size() % 3 != 0 || !bodies[i].frame_count_ok(count))
         throw std::invalid_argument("frame body " + std::to_string(i) + " is '" + fb.name() + "' with " +
                                     std::to_string(fb.positions_size()) + " position values, the topology's is '" +
-                                    bodies[i].name + "' with " + std::to_string(3 * size_t(bodies[i].particle_count())));
-      counts.push_back(bodies[i].particle_count());
+                                    bodies[i].name + "' with " + std::to_string(3 * size_t(bodies[i].particle_count())) +
+                                    (bodies[i].max_particles > bodies[i].particle_count()
+                                         ? " (up to " + std::to_string(3 * size_t(bodies[i].max_particles)) + ")"
+                                         : std::string()));
+      counts.push_back(count);
     }
   }
 

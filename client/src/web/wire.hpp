@@ -41,9 +41,15 @@ struct ParticleBody {
   float size = 0;                       // m: a fluid's spacing, a cloth's or rope's thickness; 0 unknown
   std::vector<uint32_t> triangles;      // cloth: 3 particle indices per triangle
   std::vector<uint32_t> pinned;         // ascending particle indices
-  std::vector<float> rest_positions;    // 3 per particle
+  std::vector<float> rest_positions;    // 3 per particle (at creation)
+  uint32_t max_particles = 0;           // a fluid with emitters grows up to it; 0: the creation count
 
   uint32_t particle_count() const { return static_cast<uint32_t>(rest_positions.size() / 3); }
+  // How many positions a frame of this body may carry: its creation count, or for a growing
+  // fluid any count up to max_particles.
+  bool frame_count_ok(uint32_t count) const {
+    return count == particle_count() || (kind == BodyKind::Fluid && count <= max_particles);
+  }
 };
 
 // The surface of a body as the page draws it: triangles index the surface vertices, which map

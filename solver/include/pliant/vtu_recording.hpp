@@ -29,7 +29,10 @@ struct RecordingTopology {
   std::vector<uint8_t> fixed;  // one per vertex (empty: none fixed)
   std::vector<std::array<int32_t, 3>> triangles;  // VTK_TRIANGLE cells
   std::vector<std::array<int32_t, 2>> segments;   // VTK_LINE cells
-  bool point_cells = false;                       // one VTK_VERTEX cell per point
+  // One VTK_VERTEX cell per point. A topology of point cells only takes frames of any point
+  // count (a fluid whose emitters add particles): points beyond the rest positions are
+  // written with zero displacement and not fixed.
+  bool point_cells = false;
 };
 
 // One frame's data. `velocity` may be empty (written as zeros).

@@ -2,6 +2,7 @@
 // Recordings for ParaView: binary .vtu frames (appended raw data, UInt64 headers) and a .pvd.
 #include "pliant/vtu_recording.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdio>
@@ -86,16 +87,18 @@ std::vector<double> tet_volume_ratios(const std::vector<Vec3>& rest, const std::
 }
 
 void write_vtu_frame(const RecordingTopology& topo, const RecordingFrame& frame, const std::string& path) {
-  const size_t n = topo.rest_positions.size();
+  const bool points_only = topo.point_cells && topo.tets.empty() && topo.triangles.empty() && topo.segments.empty();
+  const size_t rest = topo.rest_positions.size();
+  const size_t n = points_only ? frame.positions.size() : rest;
   if (frame.positions.size() != n)
     throw std::invalid_argument("frame: " + std::to_string(frame.positions.size()) + " positions, the topology has " +
                                 std::to_string(n) + " vertices");
   if (!frame.velocity.empty() && frame.velocity.size() != n)
     throw std::invalid_argument("frame: " + std::to_string(frame.velocity.size()) + " velocities, expected " +
                                 std::to_string(n));
-  if (!topo.fixed.empty() && topo.fixed.size() != n)
+  if (!topo.fixed.empty() && topo.fixed.size() != rest)
     throw std::invalid_argument("topology: " + std::to_string(topo.fixed.size()) + " fixed flags, expected " +
-                                std::to_string(n));
+                                std::to_string(rest));
   auto check_index = [n](const char* what, int32_t v) {
     if (v < 0 || static_cast<size_t>(v) >= n)
       throw std::invalid_argument(std::string("topology: ") + what + " vertex index " + std::to_string(v) +
@@ -108,10 +111,10 @@ void write_vtu_frame(const RecordingTopology& topo, const RecordingFrame& frame,
   for (const auto& e : topo.segments)
     for (int32_t v : e) check_index("segment", v);
 
-  std::vector<Vec3> displacement(n);
-  for (size_t i = 0; i < n; ++i) displacement[i] = frame.positions[i] - topo.rest_positions[i];
+  std::vector<Vec3> displacement(n, Vec3::Zero());
+  for (size_t i = 0; i < std::min(n, rest); ++i) displacement[i] = frame.positions[i] - topo.rest_positions[i];
   std::vector<uint8_t> fixed(n, 0);
-  for (size_t i = 0; i < topo.fixed.size(); ++i) fixed[i] = topo.fixed[i] ? 1 : 0;
+  for (size_t i = 0; i < std::min(n, topo.fixed.size()); ++i) fixed[i] = topo.fixed[i] ? 1 : 0;
   std::vector<int64_t> connectivity, offsets;
   std::vector<uint8_t> types;
   auto cell = [&](const auto& vertices, uint8_t type) {

@@ -19,6 +19,8 @@ namespace pliant::server {
 // Limits per scene (docs/service.md).
 constexpr size_t kMaxBodiesPerScene = 16;
 constexpr size_t kMaxParticlesPerScene = 200'000;
+constexpr size_t kMaxEmittersPerFluid = 16;
+constexpr size_t kDefaultEmitterParticles = 10'000;  // an emitter's max_particles when unset
 
 struct BodyConfig {
   std::string name;
@@ -26,6 +28,7 @@ struct BodyConfig {
   // fluid
   FluidSettings fluid;
   std::vector<FluidBlock> blocks;
+  std::vector<FluidEmitter> emitters;
   // cloth and rope
   ConstraintBodySettings constraint;
   double mass_per_area = 0.2;      // cloth, kg/m^2
@@ -53,11 +56,16 @@ double contact_radius(const BodyConfig& config);
 // what is wrong (the solver's checks, a pin index out of range).
 std::unique_ptr<ParticleBody> make_particle_body(const BodyConfig& config, const Vec3& gravity);
 
+// The most particles a body built from the config can have: its particles at creation plus what
+// its emitters may add (`at_creation`: the built body's count).
+size_t particle_capacity(const BodyConfig& config, size_t at_creation);
+
 // What readers outside the tick thread know of a body (fixed once the scene is built).
 struct BodyInfo {
   std::string name;
   std::string kind;
-  size_t particles = 0;
+  size_t particles = 0;  // at creation
+  size_t capacity = 0;   // the most it can have (a fluid with emitters grows up to it)
   std::vector<std::array<uint32_t, 3>> triangles;
   std::vector<uint32_t> pinned;  // ascending
   std::vector<Vec3> rest;        // positions at creation

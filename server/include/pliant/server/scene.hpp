@@ -111,6 +111,7 @@ struct SceneStatus {
   double sim_time = 0;
   TickCounters counters;
   std::string pause_reason;
+  std::vector<size_t> body_particles;  // each particle body's particles now
 };
 
 struct StepResult {
@@ -268,7 +269,7 @@ class Scene {
   // effect at once.
   // Both kinds of grab: within the scene's limit, a new id handed to `attach` on the tick
   // thread, effective from the next tick.
-  Error add_grab(std::function<void(uint64_t id)> attach, uint64_t* grab_id, uint64_t* first_tick,
+  Error add_grab(std::function<Error(uint64_t id)> attach, uint64_t* grab_id, uint64_t* first_tick,
                  std::chrono::milliseconds timeout, size_t max_grabs);
   template <class T, class Fn>
   Error call(Fn fn, T* out, std::chrono::steady_clock::time_point deadline, bool interrupt = false);
