@@ -189,5 +189,28 @@ TEST(VtuRecording, ParticleBodiesAreTrianglesLinesOrVertexCellsWithoutDetF) {
   }
 }
 
+TEST(VtuRecording, APointCloudTakesFramesOfAnyCountAndOnlyIt) {
+  // A fluid whose emitters add particles: 2 at the start, 3 in this frame. The new one has no
+  // rest position (displacement 0) and is not fixed; a frame of another count in a topology
+  // with triangles or lines is still refused.
+  ScratchDir dir("vtu-recording-growing");
+  RecordingTopology t;
+  t.rest_positions = {Vec3(0, 0, 0), Vec3(1, 0, 0)};
+  t.fixed = {1, 0};
+  t.point_cells = true;
+  RecordingFrame f;
+  f.positions = {Vec3(0, -1, 0), Vec3(1, -1, 0), Vec3(2, 5, 0)};
+  const std::string path = dir.file("water.vtu");
+  write_vtu_frame(t, f, path);
+  const std::string file = read_all(path);
+  EXPECT_NE(file.find("NumberOfPoints=\"3\" NumberOfCells=\"3\""), std::string::npos);
+  const auto arrays = appended_arrays(file);
+  EXPECT_EQ(as<double>(arrays.at("displacement")), (std::vector<double>{0, -1, 0, 0, -1, 0, 0, 0, 0}));
+  EXPECT_EQ(as<uint8_t>(arrays.at("fixed")), (std::vector<uint8_t>{1, 0, 0}));
+  EXPECT_EQ(as<double>(arrays.at("Points")), (std::vector<double>{0, -1, 0, 1, -1, 0, 2, 5, 0}));
+  t.segments = {{0, 1}};
+  EXPECT_THROW(write_vtu_frame(t, f, dir.file("rope.vtu")), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace pliant::test

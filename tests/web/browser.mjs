@@ -311,7 +311,9 @@ async function checkBodies(ok) {
       pins: { indices: [0, 11] } } },
       { name: 'water', fluid: { spacing: 0.02,
         blocks: [{ min: { x: -0.2, y: -0.2, z: -0.06 }, max: { x: -0.1, y: -0.08, z: 0.06 } }],
-        container: { box: { center: { x: -0.15, y: -0.15, z: 0 }, half_extent: { x: 0.08, y: 0.08, z: 0.08 } } } } },
+        container: { box: { center: { x: -0.15, y: -0.15, z: 0 }, half_extent: { x: 0.08, y: 0.08, z: 0.08 } } },
+        // A tap just above the water: one particle per layer, 25 a second, 40 in all.
+        emitters: [{ center: { x: -0.15, y: -0.085, z: 0 }, speed: 0.5, radius: 0.01, max_particles: 40 }] } },
     ],
   };
   const specFile = join(dir, 'bodies.json');
@@ -320,6 +322,10 @@ async function checkBodies(ok) {
   await waitFor(page, 'the scene in the picker', () => [...document.querySelectorAll('#scene option')].some((o) => o.value === 'bodies'));
   await page.selectOption('#scene', 'bodies');
   await waitFor(page, 'the bodies topology', () => window.pliant.topology && window.pliant.topology.bodies.length === 3);
+  // The block's 5 x 6 x 6 particles at creation, then the tap's 40 as frames bring them.
+  const atCreation = await page.evaluate(() => window.pliant.topology.bodies[2].particles);
+  await waitFor(page, 'the tap to pour its 40 particles', () => window.pliant.bodies()[2].particles === 220);
+  ok('the fluid grows in the page as the tap pours', atCreation === 180, `${atCreation} particles at creation, then 220`);
   const f0 = await page.evaluate(() => window.pliant.framesReceived);
   await waitFor(page, 'frames of the bodies scene', (n) => window.pliant.framesReceived >= n + 20 && window.pliant.renderInfo, f0);
   const seen = await page.evaluate(() => ({ bodies: window.pliant.bodies(), info: window.pliant.renderInfo,

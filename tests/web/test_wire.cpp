@@ -230,6 +230,35 @@ TEST(WebWire, FrameBodiesThatDoNotMatchTheTopologyAreRejected) {
   EXPECT_THROW(decode_frame_header(b), std::invalid_argument);
 }
 
+TEST(WebWire, AFluidWithEmittersMayGrowUpToItsMostAndOthersMayNot) {
+  // The water may reach 4 particles (BodyTopology.max_particle_count); the cloth keeps its 4.
+  v1::Topology t = sample_topology_with_bodies();
+  t.mutable_bodies(2)->set_max_particle_count(4);
+  t.mutable_bodies(1)->set_max_particle_count(9);  // ignored: a cloth's count is fixed
+  SurfaceTopology s = surface_topology(t);
+  set_body_sizes(s, sample_body_spec());
+  EXPECT_EQ(s.bodies[2].max_particles, 4u);
+  v1::Frame f = sample_frame_with_bodies();
+  for (float v : {0.54f, -0.02f, 0.0f}) f.mutable_bodies(2)->add_positions(v);  // 3 particles now
+  const std::string b = encode_frame(f, 1, Encoding::Float32, 3, s.bodies);
+  const auto bodies = decode_frame_bodies(b);
+  ASSERT_EQ(bodies.size(), 3u);
+  ASSERT_EQ(bodies[2].size(), 9u);
+  EXPECT_EQ(bodies[2][6], 0.54f);
+  const std::vector<uint32_t> counts{3, 4, 3};
+  EXPECT_EQ(b.size(), frame_bytes(3, static_cast<uint32_t>(f.residuals_size()), Encoding::Float32, counts));
+  for (float v : {0.56f, -0.02f, 0.0f, 0.58f, -0.02f, 0.0f}) f.mutable_bodies(2)->add_positions(v);  // 5
+  try {
+    encode_frame(f, 1, Encoding::Float32, 3, s.bodies);
+    FAIL() << "accepted a fluid beyond its most particles";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("'water' with 6 (up to 12)"), std::string::npos) << e.what();
+  }
+  f = sample_frame_with_bodies();
+  for (float v : {0.0f, 0.2f, 0.0f}) f.mutable_bodies(1)->add_positions(v);  // a fifth cloth particle
+  EXPECT_THROW(encode_frame(f, 1, Encoding::Float32, 3, s.bodies), std::invalid_argument);
+}
+
 TEST(WebWire, FrameFloat32MatchesGoldenBytes) {
   const std::string bytes = encode_frame(sample_frame(), 9, Encoding::Float32, 3);
   ASSERT_EQ(bytes.size(), frame_bytes(3, 2, Encoding::Float32));
