@@ -337,6 +337,7 @@ void print_scene(const v1::Scene& s, bool json) {
     const v1::BodySummary& b = s.bodies(i);
     std::printf("%s %s: %s, %u particles", i == 0 ? "bodies    " : "          ", b.name().c_str(), b.kind().c_str(),
                 b.particle_count());
+    if (b.max_particle_count() > b.particle_count()) std::printf(" (up to %u)", b.max_particle_count());
     if (b.triangle_count()) std::printf(", %u triangles", b.triangle_count());
     if (b.pinned_count()) std::printf(", %u pinned", b.pinned_count());
     std::printf("\n");
