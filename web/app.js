@@ -26,6 +26,7 @@ const state = {
   lastFrameBytes: 0,
   skippedFrames: 0,
   header: null,
+  bodyStats: [],            // each particle body's step in the last frame's tick (wire.js decodeFrame)
   latenciesMs: [],          // end of tick (server publish) -> frame handled here, the last 2000 or more
   latenessMs: [],           // the server's lateness of each frame's tick (header), as latenciesMs
   animationFrames: 0,       // requestAnimationFrame callbacks
@@ -265,7 +266,7 @@ function buildBodies(topo) {
     }
     bodies.push(b);
     bodyScratch.push(new Float32Array(3 * t.particles));
-  }
+  }  buildBodyPanel();
 }
 
 // A fluid's new particle count: a new geometry of that size (the old one's GPU buffers are
@@ -313,7 +314,7 @@ function speedColors(b, dt) {
 // header into the table and plots.
 function applyFrame(buffer) {
   const t0 = performance.now();
-  const { header, residuals, positions, bodies: bodyPositions } = decodeFrame(buffer, dequantized, bodyScratch);
+  const { header, residuals, positions, bodies: bodyPositions, bodyStats } = decodeFrame(buffer, dequantized, bodyScratch);
   if (header.subscription !== state.subscription || !mesh) return;  // from an older subscription
   if (positions.length === positionAttr.array.length) {
     positionAttr.array = positions;  // a view over the message (float32) or the scratch array
@@ -337,6 +338,8 @@ function applyFrame(buffer) {
   state.skippedFrames += header.skippedFrames;
   state.header = header;
   residualPlot.set(residuals);
+  state.bodyStats = bodyStats;
+  for (let i = 0; i < bodies.length && i < bodyStats.length; ++i) bodies[i].chart.push(100 * bodyStats[i].error);
   charts.error.push(header.residual);
   charts.tps.push(header.ticksPerSecond);
   charts.late.push(header.latenessMs);
@@ -368,7 +371,11 @@ const charts = {
 state.plotPoints = () => ({
   residual: residualPlot.points,
   error: charts.error.points, tps: charts.tps.points, late: charts.late.points, step: charts.step.points,
+  bodies: bodies.map((b) => b.chart.points),
 });
+// The bodies' table as shown: one row of cell texts per body.
+state.bodyTable = () => [...$('body-stats').querySelectorAll('tbody tr')].map((tr) =>
+  [...tr.children].map((td) => td.textContent));
 
 function showText() {
   const h = state.header;
@@ -384,6 +391,15 @@ function showText() {
     const l = state.latenciesMs;
     if (l.length) setText('s-latency', `${l[l.length - 1].toFixed(2)} ms`);
   }
+  for (let i = 0; i < bodies.length; ++i) {
+    const b = bodies[i], s = state.bodyStats[i];
+    const pct = (v) => `${(100 * v).toFixed(v < 0.001 ? 3 : 2)}%`;
+    setCell(b.cells.particles, b.particles);
+    if (!s) continue;
+    setCell(b.cells.error, `${pct(s.error)} / ${pct(s.maxError)}`);
+    setCell(b.cells.contacts, s.contacts + s.toolContacts + s.bodyContacts);
+    setCell(b.cells.ms, s.stepMs.toFixed(2));
+  }
   const g = state.grab;
   setText('s-grab', g ? (g.force ? `${vlen(g.force).toFixed(3)} N` : 'grabbing') : '-');
 }
@@ -394,6 +410,39 @@ function setText(id, text) {
   if (shownText.get(id) === t) return;
   shownText.set(id, t);
   $(id).textContent = t;
+}
+
+function setCell(td, text) {
+  const t = String(text);
+  if (td.textContent !== t) td.textContent = t;
+}
+
+// The bodies' table (what each body's step did in the last frame's tick) and a plot of each
+// one's constraint error: a fluid's density error, a cloth's or rope's stretch.
+function buildBodyPanel() {
+  const tbody = $('body-stats').querySelector('tbody');
+  tbody.replaceChildren();
+  $('body-plots').replaceChildren();
+  $('body-stats').hidden = bodies.length === 0;
+  for (const b of bodies) {
+    const tr = document.createElement('tr');
+    const cell = (text) => {
+      const td = document.createElement('td');
+      td.textContent = text;
+      tr.appendChild(td);
+      return td;
+    };
+    cell(b.name).title = b.kind;
+    b.cells = { particles: cell(b.particles), error: cell('-'), contacts: cell('-'), ms: cell('-') };
+    tbody.appendChild(tr);
+    const canvas = document.createElement('canvas');
+    canvas.className = 'plot';
+    canvas.width = 300;
+    canvas.height = 60;
+    $('body-plots').appendChild(canvas);
+    b.chart = new StripChart(canvas, { name: `${b.name}: ${b.kind === 'fluid' ? 'density error' : 'stretch'} mean`,
+      unit: '%', color: '#ce93d8' });
+  }
 }
 
 function setBanner(text) {
@@ -707,6 +756,7 @@ function drawPlots() {
   const t0 = performance.now();
   residualPlot.draw();
   for (const c of Object.values(charts)) c.draw();
+  for (const b of bodies) b.chart.draw();
   state.perf.plotsMs += performance.now() - t0;
   state.perf.plotDraws += 1;
 }

@@ -14,6 +14,8 @@ export const BODY_KINDS = ['other', 'fluid', 'cloth', 'rope'];
 export const BODY_RECORD_BYTES = 20;
 export const FLAG_ROLLED_BACK = 1;
 export const FLAG_BODIES = 2;
+export const FLAG_BODY_STATS = 4;
+export const BODY_STATS_BYTES = 32;
 
 function check(view, kind) {
   if (view.byteLength < 8) throw new Error(`message of ${view.byteLength} bytes is too short`);
@@ -74,10 +76,12 @@ export function decodeTopology(buffer) {
 
 const positionBytes = (n, encoding) => (encoding === ENCODING_FLOAT32 ? 12 * n : Math.ceil((6 * n) / 4) * 4);
 
-// Bytes of a frame; bodyParticles: the particle count of each body it carries (none: []).
-export function frameBytes(vertices, residuals, encoding, bodyParticles = []) {
+// Bytes of a frame; bodyParticles: the particle count of each body it carries (none: []);
+// bodyStats: whether their statistics follow.
+export function frameBytes(vertices, residuals, encoding, bodyParticles = [], bodyStats = false) {
   let n = FRAME_HEADER_BYTES + 4 * residuals + positionBytes(vertices, encoding);
   if (bodyParticles.length) n += 4 + bodyParticles.reduce((a, p) => a + 4 + positionBytes(p, encoding), 0);
+  if (bodyParticles.length && bodyStats) n += 4 + BODY_STATS_BYTES * bodyParticles.length;
   return n;
 }
 
@@ -129,7 +133,8 @@ export function decodeFrameHeader(buffer) {
   if (h.encoding !== ENCODING_FLOAT32 && h.encoding !== ENCODING_UINT16)
     throw new Error(`frame encoding ${h.encoding} unknown`);
   const bodies = frameBodies(v, h);
-  const expected = bodies ? frameBytes(h.vertexCount, h.residualCount, h.encoding, bodies.map((b) => b.particles)) : -1;
+  const expected = bodies ? frameBytes(h.vertexCount, h.residualCount, h.encoding, bodies.map((b) => b.particles),
+    (h.flags & FLAG_BODY_STATS) !== 0) : -1;
   if (buffer.byteLength !== expected)
     throw new Error(`frame of ${buffer.byteLength} bytes, its header says ${bodies ? expected : 'more'}`);
   h.bodyCount = bodies.length;
@@ -150,8 +155,33 @@ function readPositions(buffer, off, values, header, scratch) {
   return positions;
 }
 
-// A frame: its header, residuals (Float32Array view), the surface positions and each particle
-// body's positions (`bodies`, in the topology's order; [] without bodies). Float32 positions
+// Each body's step statistics, in the topology's order ([] when the frame has none).
+function readBodyStats(view, h, bodies) {
+  if (!(h.flags & FLAG_BODY_STATS) || !bodies.length) return [];
+  const last = bodies[bodies.length - 1];
+  let off = last.offset + positionBytes(last.particles, h.encoding);
+  const b = view.getUint32(off, true);
+  off += 4;
+  const out = [];
+  for (let i = 0; i < b; ++i, off += BODY_STATS_BYTES) {
+    out.push({
+      error: view.getFloat32(off, true),
+      maxError: view.getFloat32(off + 4, true),
+      stepMs: view.getFloat32(off + 8, true),
+      substeps: view.getUint32(off + 12, true),
+      iterations: view.getUint32(off + 16, true),
+      contacts: view.getUint32(off + 20, true),
+      toolContacts: view.getUint32(off + 24, true),
+      bodyContacts: view.getUint32(off + 28, true),
+    });
+  }
+  return out;
+}
+
+// A frame: its header, residuals (Float32Array view), the surface positions, each particle
+// body's positions (`bodies`, in the topology's order; [] without bodies) and their step
+// statistics (`bodyStats`: { error, maxError, stepMs, substeps, iterations, contacts,
+// toolContacts, bodyContacts } each; [] without). Float32 positions
 // are views over the buffer (no copy); 16-bit ones are dequantised into `scratch` (a
 // Float32Array of 3 x vertices) and `bodyScratch[i]` (one per body), reused between frames,
 // when given, else into new arrays.
@@ -160,7 +190,8 @@ export function decodeFrame(buffer, scratch = null, bodyScratch = []) {
   const residuals = new Float32Array(buffer, FRAME_HEADER_BYTES, header.residualCount);
   const off = FRAME_HEADER_BYTES + 4 * header.residualCount;
   const positions = readPositions(buffer, off, 3 * header.vertexCount, header, scratch);
-  const bodies = frameBodies(new DataView(buffer), header)
-    .map((b, i) => readPositions(buffer, b.offset, 3 * b.particles, header, bodyScratch[i]));
-  return { header, residuals, positions, bodies };
+  const view = new DataView(buffer);
+  const layout = frameBodies(view, header);
+  const bodies = layout.map((b, i) => readPositions(buffer, b.offset, 3 * b.particles, header, bodyScratch[i]));
+  return { header, residuals, positions, bodies, bodyStats: readBodyStats(view, header, layout) };
 }

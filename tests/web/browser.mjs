@@ -338,6 +338,17 @@ async function checkBodies(ok) {
   // Points: the rope's beads, the fluid's particles and the pinned markers; triangles: the
   // beam's front faces at most plus both sides of the cloth (one draw call, double-sided).
   const minPoints = particles.rope + particles.water;
+  // Each body's step in the side bar: a row with its particles, its error (a fluid's density
+  // error, the others' stretch, mean / max as percentages), contacts and time, and a plot of
+  // its error over time.
+  const table = await page.evaluate(() => ({ rows: window.pliant.bodyTable(), plots: window.pliant.plotPoints().bodies,
+    stats: window.pliant.bodyStats }));
+  const percent = /^\d+\.\d+% \/ \d+\.\d+%$/;
+  ok('the bodies table and plots show each body\'s step',
+    table.rows.map((r) => r[0]).join(',') === 'rope,sheet,water' && table.rows.every((r) => r.length === 5 && percent.test(r[2]) && Number(r[4]) >= 0) &&
+    table.rows[2][1] === '220' && table.stats.length === 3 && table.stats[2].iterations > 0 &&
+    table.plots.length === 3 && table.plots.every((n) => n > 10),
+    `${JSON.stringify(table.rows)}; plot points ${JSON.stringify(table.plots)}`);
   ok('the renderer draws every particle and the cloth', seen.info.points >= minPoints && seen.info.lines >= 1 &&
     seen.info.triangles >= seen.cloth, `${JSON.stringify(seen.info)}; at least ${minPoints} points, ${seen.cloth} cloth triangles; ${seen.bytes} bytes per frame`);
 

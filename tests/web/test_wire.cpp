@@ -230,6 +230,65 @@ TEST(WebWire, FrameBodiesThatDoNotMatchTheTopologyAreRejected) {
   EXPECT_THROW(decode_frame_header(b), std::invalid_argument);
 }
 
+// The sample frame with bodies plus each body's step statistics (the frame's solver stats).
+v1::Frame sample_frame_with_body_stats() {
+  v1::Frame f = sample_frame_with_bodies();
+  const struct {
+    const char* name;
+    double error, max_error, ms;
+    int substeps, iterations;
+    uint32_t contacts, tools, bodies;
+  } stats[] = {{"rope", 0.0125, 0.05, 0.25, 16, 1, 2, 0, 1},
+               {"sheet", 0.003, 0.0078125, 0.5, 16, 1, 0, 1, 0},
+               {"water", 0.015625, 0.125, 1.75, 2, 4, 7, 0, 3}};
+  for (const auto& st : stats) {
+    auto* b = f.mutable_solver()->add_bodies();
+    b->set_name(st.name);
+    b->set_constraint_error(st.error);
+    b->set_max_constraint_error(st.max_error);
+    b->set_step_wall_ms(st.ms);
+    b->set_substeps(st.substeps);
+    b->set_iterations(st.iterations);
+    b->set_contacts(st.contacts);
+    b->set_tool_contacts(st.tools);
+    b->set_body_contacts(st.bodies);
+  }
+  return f;
+}
+
+TEST(WebWire, BodyStatisticsFollowTheBodiesAndMatchGoldenBytes) {
+  const SurfaceTopology s = sample_surface_with_bodies();
+  const v1::Frame f = sample_frame_with_body_stats();
+  const std::vector<uint32_t> counts{3, 4, 2};
+  const std::string bytes = encode_frame(f, 9, Encoding::Float32, 3, s.bodies);
+  ASSERT_EQ(bytes.size(), frame_bytes(3, 2, Encoding::Float32, counts, true));
+  EXPECT_EQ(bytes.size(), frame_bytes(3, 2, Encoding::Float32, counts) + 4 + 3 * kBodyStatsBytes);
+  EXPECT_EQ(hex(bytes), golden("frame_body_stats_float32.hex", hex(bytes)));
+  const FrameHeader h = decode_frame_header(bytes);
+  EXPECT_EQ(h.flags, kFlagRolledBack | kFlagBodies | kFlagBodyStats);
+  // The positions read as without the statistics.
+  EXPECT_EQ(decode_frame_bodies(bytes), decode_frame_bodies(encode_frame(sample_frame_with_bodies(), 9,
+                                                                         Encoding::Float32, 3, s.bodies)));
+  const auto st = decode_frame_body_stats(bytes);
+  ASSERT_EQ(st.size(), 3u);
+  EXPECT_EQ(st[0].constraint_error, 0.0125f);
+  EXPECT_EQ(st[1].max_constraint_error, 0.0078125f);
+  EXPECT_EQ(st[2].step_ms, 1.75f);
+  EXPECT_EQ(st[2].substeps, 2u);
+  EXPECT_EQ(st[2].iterations, 4u);
+  EXPECT_EQ(st[2].contacts, 7u);
+  EXPECT_EQ(st[1].tool_contacts, 1u);
+  EXPECT_EQ(st[2].body_contacts, 3u);
+  // Statistics that do not list the topology's bodies (another order) are left out.
+  v1::Frame other = f;
+  other.mutable_solver()->mutable_bodies(0)->set_name("sheet");
+  const std::string without = encode_frame(other, 9, Encoding::Float32, 3, s.bodies);
+  EXPECT_EQ(decode_frame_header(without).flags & kFlagBodyStats, 0u);
+  EXPECT_TRUE(decode_frame_body_stats(without).empty());
+  // Cut short, the frame is refused.
+  EXPECT_THROW(decode_frame_header(bytes.substr(0, bytes.size() - 4)), std::invalid_argument);
+}
+
 TEST(WebWire, AFluidWithEmittersMayGrowUpToItsMostAndOthersMayNot) {
   // The water may reach 4 particles (BodyTopology.max_particle_count); the cloth keeps its 4.
   v1::Topology t = sample_topology_with_bodies();

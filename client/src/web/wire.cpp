@@ -293,11 +293,13 @@ size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding) {
   return kFrameHeaderBytes + 4 * size_t(residuals) + position_bytes(vertices, encoding);
 }
 
-size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding, std::span<const uint32_t> body_particles) {
+size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding, std::span<const uint32_t> body_particles,
+                   bool body_stats) {
   size_t n = frame_bytes(vertices, residuals, encoding);
   if (body_particles.empty()) return n;
   n += 4;
   for (uint32_t p : body_particles) n += 4 + position_bytes(p, encoding);
+  if (body_stats) n += 4 + kBodyStatsBytes * body_particles.size();
   return n;
 }
 
@@ -331,6 +333,10 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
       counts.push_back(count);
     }
   }
+  // The bodies' statistics travel with them when the frame's solver stats list the same bodies.
+  bool with_stats = with_bodies && f.solver().bodies_size() == static_cast<int>(bodies.size());
+  for (int i = 0; with_stats && i < f.solver().bodies_size(); ++i)
+    with_stats = f.solver().bodies(i).name() == bodies[size_t(i)].name;
 
   // The bounding box of everything the frame carries (the 16-bit encoding's range).
   std::array<float, 3> lo{0, 0, 0}, hi{0, 0, 0};
@@ -352,7 +358,7 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
   if (with_bodies)
     for (const auto& fb : f.bodies()) extend(fb.positions().data(), fb.positions_size());
 
-  Writer w(frame_bytes(n, r, encoding, counts));
+  Writer w(frame_bytes(n, r, encoding, counts, with_stats));
   w.put<uint8_t>(kKindFrame);
   w.put<uint8_t>(kWireVersion);
   w.put<uint8_t>(static_cast<uint8_t>(encoding));
@@ -372,7 +378,8 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
   w.put<double>(f.lateness_ms());                   // 80
   w.put<int64_t>(f.published_unix_ns());            // 88
   w.put<uint32_t>(saturate_u32(f.rollbacks()));     // 96
-  w.put<uint32_t>((f.rolled_back() ? kFlagRolledBack : 0u) | (with_bodies ? kFlagBodies : 0u));  // 100
+  w.put<uint32_t>((f.rolled_back() ? kFlagRolledBack : 0u) | (with_bodies ? kFlagBodies : 0u) |
+                  (with_stats ? kFlagBodyStats : 0u));  // 100
   w.put_array(lo.data(), 3);                        // 104
   w.put_array(hi.data(), 3);                        // 116
   for (double res : f.residuals()) w.put<float>(static_cast<float>(res));  // 128
@@ -383,6 +390,19 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
       w.put<uint32_t>(counts[i]);
       const auto& fb = f.bodies(static_cast<int>(i));
       put_positions(w, fb.positions().data(), fb.positions_size(), encoding, lo, hi);
+    }
+  }
+  if (with_stats) {
+    w.put<uint32_t>(static_cast<uint32_t>(counts.size()));
+    for (const auto& s : f.solver().bodies()) {
+      w.put<float>(static_cast<float>(s.constraint_error()));
+      w.put<float>(static_cast<float>(s.max_constraint_error()));
+      w.put<float>(static_cast<float>(s.step_wall_ms()));
+      w.put<uint32_t>(static_cast<uint32_t>(std::max(0, s.substeps())));
+      w.put<uint32_t>(static_cast<uint32_t>(std::max(0, s.iterations())));
+      w.put<uint32_t>(s.contacts());
+      w.put<uint32_t>(s.tool_contacts());
+      w.put<uint32_t>(s.body_contacts());
     }
   }
   return std::move(w.bytes());
@@ -416,7 +436,8 @@ FrameHeader decode_frame_header(const std::string& bytes) {
     h.bbox_min[k] = r.at<float>(104 + 4 * k);
     h.bbox_max[k] = r.at<float>(116 + 4 * k);
   }
-  const size_t expected = frame_bytes(h.vertex_count, h.residual_count, h.encoding, frame_body_counts(r, h));
+  const size_t expected =
+      frame_bytes(h.vertex_count, h.residual_count, h.encoding, frame_body_counts(r, h), (h.flags & kFlagBodyStats) != 0);
   if (bytes.size() != expected)
     throw std::invalid_argument("frame of " + std::to_string(bytes.size()) + " bytes, its header says " +
                                 std::to_string(expected));
@@ -441,6 +462,31 @@ std::vector<std::vector<float>> decode_frame_bodies(const std::string& bytes) {
   for (uint32_t p : frame_body_counts(r, h)) {
     out.push_back(read_positions(r, off + 4, p, h));
     off += 4 + position_bytes(p, h.encoding);
+  }
+  return out;
+}
+
+std::vector<BodyStats> decode_frame_body_stats(const std::string& bytes) {
+  const FrameHeader h = decode_frame_header(bytes);
+  std::vector<BodyStats> out;
+  if (!(h.flags & kFlagBodyStats)) return out;
+  const Reader r(bytes);
+  const auto counts = frame_body_counts(r, h);
+  size_t off = body_section_offset(h) + 4;
+  for (uint32_t p : counts) off += 4 + position_bytes(p, h.encoding);
+  const uint32_t b = r.at<uint32_t>(off);
+  off += 4;
+  for (uint32_t i = 0; i < b; ++i, off += kBodyStatsBytes) {
+    BodyStats s;
+    s.constraint_error = r.at<float>(off);
+    s.max_constraint_error = r.at<float>(off + 4);
+    s.step_ms = r.at<float>(off + 8);
+    s.substeps = r.at<uint32_t>(off + 12);
+    s.iterations = r.at<uint32_t>(off + 16);
+    s.contacts = r.at<uint32_t>(off + 20);
+    s.tool_contacts = r.at<uint32_t>(off + 24);
+    s.body_contacts = r.at<uint32_t>(off + 28);
+    out.push_back(s);
   }
   return out;
 }

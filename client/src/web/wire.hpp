@@ -25,6 +25,8 @@ inline constexpr size_t kFrameSkippedOffset = 48;
 // Frame header flags (offset 100).
 inline constexpr uint32_t kFlagRolledBack = 1u << 0;
 inline constexpr uint32_t kFlagBodies = 1u << 1;  // particle bodies follow the surface positions
+inline constexpr uint32_t kFlagBodyStats = 1u << 2;  // each body's step statistics follow the bodies
+inline constexpr size_t kBodyStatsBytes = 32;         // one body's statistics record
 // A particle body's record in the topology: 20 fixed bytes, then its name padded to 4.
 inline constexpr size_t kBodyRecordBytes = 20;
 
@@ -95,13 +97,14 @@ struct FrameHeader {
   double lateness_ms = 0;
   int64_t published_unix_ns = 0;
   uint32_t rollbacks = 0;
-  uint32_t flags = 0;  // bit 0: this tick was rolled back; bit 1: particle bodies follow
+  uint32_t flags = 0;  // bit 0: this tick was rolled back; bit 1: particle bodies follow; bit 2: their stats
   std::array<float, 3> bbox_min{};
   std::array<float, 3> bbox_max{};
 };
 
 // Encodes a surface-only frame (positions in surface_vertices order), then the particle
-// bodies' positions when `bodies` (the topology's) is not empty. Throws std::invalid_argument
+// bodies' positions when `bodies` (the topology's) is not empty, and their statistics when the
+// frame's solver stats list the same bodies. Throws std::invalid_argument
 // when positions is not 3 x expected_vertices floats (0 allowed: a frame without positions),
 // or the frame's bodies differ from `bodies` in order, names or particle counts.
 std::string encode_frame(const v1::Frame& frame, uint32_t subscription, Encoding encoding,
@@ -114,9 +117,24 @@ std::vector<float> decode_frame_positions(const std::string& bytes);
 // Each particle body's positions (dequantised), in the topology's order; empty without bodies.
 std::vector<std::vector<float>> decode_frame_bodies(const std::string& bytes);
 
-// Bytes of one frame with n surface vertices and r residuals (and these particle bodies).
+// One particle body's step in the frame's tick (v1::BodyStepStats), as the page reads it.
+struct BodyStats {
+  float constraint_error = 0;      // a fluid's mean relative density error, a cloth's or rope's RMS stretch
+  float max_constraint_error = 0;
+  float step_ms = 0;               // its step and contacts, wall time
+  uint32_t substeps = 0;
+  uint32_t iterations = 0;         // per substep
+  uint32_t contacts = 0;           // particle-collider contacts in the last substep
+  uint32_t tool_contacts = 0;      // particles the tools pushed
+  uint32_t body_contacts = 0;      // particles the cloths pushed
+};
+// Each body's statistics, in the topology's order; empty when the frame has none.
+std::vector<BodyStats> decode_frame_body_stats(const std::string& bytes);
+
+// Bytes of one frame with n surface vertices and r residuals (and these particle bodies, with
+// their statistics when body_stats).
 size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding);
 size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding,
-                   std::span<const uint32_t> body_particles);
+                   std::span<const uint32_t> body_particles, bool body_stats = false);
 
 }  // namespace pliant::web
