@@ -77,10 +77,11 @@ struct Scene::TickState {
   // Each body's two-way contact with the tet body (nullopt: none).
   std::vector<std::optional<CouplingSettings>> body_contact;
   // Contacts between particle bodies: the particles of `particles` against the triangles of
-  // `cloth`, both with body_contact on.
+  // `cloth` or the segments of a rope (`rope`), both with body_contact on.
   struct ClothPair {
     size_t particles, cloth;
     CouplingSettings settings;
+    bool rope = false;
   };
   std::vector<ClothPair> cloth_pairs;
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
@@ -171,13 +172,15 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
   }
   ts_->bodies_last_good = ts_->bodies_initial;
   for (size_t c = 0; c < ts_->bodies.size(); ++c) {
-    if (ts_->bodies[c]->triangles().empty() || !config.bodies[c].body_contact) continue;
+    // Obstacles to the other bodies' particles: a cloth's triangles, a rope's segments.
+    const bool rope = ts_->bodies[c]->kind() == "rope";
+    if ((ts_->bodies[c]->triangles().empty() && !rope) || !config.bodies[c].body_contact) continue;
     for (size_t a = 0; a < ts_->bodies.size(); ++a) {
       if (a == c || !config.bodies[a].body_contact) continue;
       CouplingSettings cs;
       cs.radius = ts_->bodies[a]->contact_radius() + ts_->bodies[c]->contact_radius();
       cs.friction = std::max(config.bodies[a].body_friction, config.bodies[c].body_friction);
-      ts_->cloth_pairs.push_back({a, c, cs});
+      ts_->cloth_pairs.push_back({a, c, cs, rope});
     }
   }
   ts_->in_cloth_pair.assign(ts_->bodies.size(), 0);
@@ -832,9 +835,12 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       ParticleBody& a = *t.bodies[pair.particles];
       ParticleBody& c = *t.bodies[pair.cloth];
       ParticleState ps = a.state(), cs = c.state();
-      const CouplingReport r = couple_particles_to_cloth(ps, a.inverse_masses(), t.body_start[pair.particles], cs,
-                                                         c.inverse_masses(), c.triangles(), t.body_start[pair.cloth],
-                                                         pair.settings, dt);
+      const CouplingReport r =
+          pair.rope ? couple_particles_to_rope(ps, a.inverse_masses(), t.body_start[pair.particles], cs,
+                                               c.inverse_masses(), t.body_start[pair.cloth], pair.settings, dt)
+                    : couple_particles_to_cloth(ps, a.inverse_masses(), t.body_start[pair.particles], cs,
+                                                c.inverse_masses(), c.triangles(), t.body_start[pair.cloth],
+                                                pair.settings, dt);
       if (r.contacts > 0) {
         a.set_state(ps);
         c.set_state(cs);

@@ -866,3 +866,88 @@ TEST(Bodies, ARopeLaidOnTheBeamRestsOnItAndBendsIt) {
   EXPECT_EQ(y_off, y_alone);
   EXPECT_LT(y_on, y_alone - 1e-4) << "tip " << y_on << " with the rope, " << y_alone << " without";
 }
+
+// A rope stretched between two pins and a little block of water just above its middle, in a
+// container far from the beam.
+v1::CreateSceneRequest line_request(const std::string& id, bool rope_contact) {
+  v1::CreateSceneRequest r;
+  r.set_scene_id(id);
+  auto* s = r.mutable_spec();
+  s->mutable_mesh()->set_builtin("beam1");
+  client::clamp_below_x(*s, 0.01);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+  s->mutable_tick()->set_dt(1.0 / 60);
+  auto* line = s->add_bodies();
+  line->set_name("line");
+  line->set_body_contact(rope_contact);
+  auto* rs = line->mutable_rope();
+  set(rs->add_points(), -3.3, 0.5, 0);
+  set(rs->add_points(), -2.7, 0.5, 0);
+  rs->set_segments(30);
+  rs->set_substeps(32);
+  rs->set_iterations(4);
+  rs->set_damping(20);  // settles before the water arrives
+  rs->mutable_pins()->add_indices(0);
+  rs->mutable_pins()->add_indices(30);
+  auto* water = s->add_bodies();
+  water->set_name("drop");
+  auto* f = water->mutable_fluid();
+  f->set_spacing(0.02);
+  auto* blk = f->add_blocks();
+  set(blk->mutable_min(), -3.04, 0.9, -0.02);
+  set(blk->mutable_max(), -2.96, 0.94, 0.02);
+  auto* box = f->mutable_container()->mutable_box();
+  set(box->mutable_center(), -3, 0.5, 0);
+  set(box->mutable_half_extent(), 0.4, 0.5, 0.4);
+  return r;
+}
+
+TEST(Bodies, ARopeIsAnObstacleToWaterFallingOnIt) {
+  // 16 particles of water, 2 cm apart, fall 40 cm onto the rope's middle, 1 cm either side of
+  // its axis. With the contact they hit it, push it down and slide off around it: after every
+  // tick no particle is within the contact radius (particle radius 1 cm + thickness 5 mm) of a
+  // segment, and they leave wider apart. Without it (the control) they fall straight through.
+  BodiesServer srv;
+  Client c = srv.client();
+  const double radius = 0.015;
+  struct Run {
+    double rope_lowest = INFINITY;  // the middle bead's lowest y
+    double closest = INFINITY;      // the closest any particle came to the rope after a tick
+    double spread = 0;              // the largest |z| of a particle at the end
+    uint64_t contacts = 0;
+  };
+  auto run = [&](const std::string& id, bool contact) {
+    Run out;
+    EXPECT_TRUE(c.create_scene(line_request(id, contact)).ok());
+    for (int k = 0; k < 30; ++k) {
+      EXPECT_TRUE(c.step(id, 1).ok());
+      const v1::Frame f = latest_frame(c, id);
+      if (f.bodies_size() != 2 || f.solver().bodies_size() != 2) {
+        ADD_FAILURE() << "frame without the bodies";
+        return out;
+      }
+      const auto& rope = f.bodies(0).positions();
+      const auto& water = f.bodies(1).positions();
+      out.rope_lowest = std::min(out.rope_lowest, double(rope[3 * 15 + 1]));
+      out.contacts += f.solver().bodies(1).body_contacts();
+      for (int i = 0; i < water.size() / 3; ++i) {
+        const Vec3 p(water[3 * i], water[3 * i + 1], water[3 * i + 2]);
+        for (int j = 0; j + 1 < rope.size() / 3; ++j) {
+          const Vec3 a(rope[3 * j], rope[3 * j + 1], rope[3 * j + 2]);
+          const Vec3 b(rope[3 * j + 3], rope[3 * j + 4], rope[3 * j + 5]);
+          const double t = std::clamp((p - a).dot(b - a) / (b - a).squaredNorm(), 0.0, 1.0);
+          out.closest = std::min(out.closest, (p - (a + t * (b - a))).norm());
+        }
+        if (k == 29) out.spread = std::max(out.spread, std::abs(p.z()));
+      }
+    }
+    return out;
+  };
+  const Run held = run("held", true), through = run("through", false);
+  EXPECT_GT(held.contacts, 0u);
+  EXPECT_EQ(through.contacts, 0u);
+  EXPECT_GT(held.closest, radius - 1e-4) << "m; the control came to " << through.closest;
+  EXPECT_LT(through.closest, radius) << "the control's water passes the rope";
+  EXPECT_LT(held.rope_lowest, through.rope_lowest - 1e-3) << "the water pushes the rope down";
+  EXPECT_GT(held.spread, through.spread + 0.005) << "the water slides off around the rope";
+}

@@ -63,6 +63,23 @@ CouplingReport couple_particles_to_cloth(ParticleState& particles, std::span<con
                                          std::span<const Vec3> cloth_start, const CouplingSettings& settings,
                                          double dt);
 
+// Two-way contact between a particle body (a fluid, a cloth's particles, another rope) and a
+// rope, after both stepped: each particle stays at least `settings.radius` (the two bodies'
+// contact radii summed) from the rope's segments, the rope being a chain of capsules. A
+// particle that passed through a segment during the step (its offset from the segment turned
+// around while the two came within the radius, both moving linearly) goes back to the side it
+// started on. Positions: only the particle moves (a pinned one stays). Velocities: a perfectly
+// inelastic contact between the particle and the segment's point (inverse masses w_p and
+// (1-s)^2 w_a + s^2 w_b), with Coulomb friction up to `settings.friction` x the normal impulse,
+// shared by the segment's ends: momentum is exact. `force_on_body`: the particles' push on the
+// rope over dt (its pinned particles' share included). `*_start`: the positions at the start of
+// the step. Throws std::invalid_argument naming the field when sizes disagree or settings are
+// out of range.
+CouplingReport couple_particles_to_rope(ParticleState& particles, std::span<const double> particle_inv_mass,
+                                        std::span<const Vec3> particle_start, ParticleState& rope,
+                                        std::span<const double> rope_inv_mass, std::span<const Vec3> rope_start,
+                                        const CouplingSettings& settings, double dt);
+
 // A rigid tool (the haptic bridge's sphere or capsule, at its end-of-step pose) against a particle
 // body after the body's step: every particle whose centre is inside the tool grown by `radius`
 // (the body's contact_radius) is put back on that surface, with Coulomb friction on its motion

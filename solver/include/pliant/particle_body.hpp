@@ -54,7 +54,7 @@ struct ParticleStepReport {
   double max_constraint_error = 0.0;
   size_t contacts = 0;            // particle-collider contacts in the last substep
   size_t tool_contacts = 0;       // particles the rigid tools pushed after the step (the scene's)
-  size_t body_contacts = 0;       // particles the scene's cloths pushed after the step (the scene's)
+  size_t body_contacts = 0;       // particles the scene's cloths and ropes pushed after the step (the scene's)
   double wall_ms = 0.0;
 };
 

@@ -394,6 +394,134 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
   return rep;
 }
 
+namespace {
+
+// The closest point of segment a-b to p, at parameter s in [0, 1].
+Vec3 closest_on_segment(const Vec3& p, const Vec3& a, const Vec3& b, double& s) {
+  const Vec3 d = b - a;
+  const double l2 = d.squaredNorm();
+  s = l2 > 0 ? std::clamp((p - a).dot(d) / l2, 0.0, 1.0) : 0.0;
+  return a + s * d;
+}
+
+}  // namespace
+
+CouplingReport couple_particles_to_rope(ParticleState& ps, std::span<const double> wp,
+                                        std::span<const Vec3> particle_start, ParticleState& rs,
+                                        std::span<const double> wr, std::span<const Vec3> rope_start,
+                                        const CouplingSettings& s, double dt) {
+  if (!(s.radius > 0) || !std::isfinite(s.radius))
+    throw std::invalid_argument(fmt::format("contact radius must be > 0, got {}", s.radius));
+  if (!(s.friction >= 0) || !std::isfinite(s.friction))
+    throw std::invalid_argument(fmt::format("contact friction must be >= 0, got {}", s.friction));
+  if (!(dt > 0) || !std::isfinite(dt)) throw std::invalid_argument(fmt::format("contact dt must be > 0, got {}", dt));
+  check_particle_counts(ps, wp.size(), "particles");
+  check_particle_counts(rs, wr.size(), "rope");
+  if (particle_start.size() != ps.x.size())
+    throw std::invalid_argument(fmt::format("particle_start has {} positions for {} particles", particle_start.size(),
+                                            ps.x.size()));
+  if (rope_start.size() != rs.x.size())
+    throw std::invalid_argument(fmt::format("rope_start has {} positions for {} particles", rope_start.size(),
+                                            rs.x.size()));
+  CouplingReport rep;
+  if (rs.x.size() < 2 || ps.x.empty()) return rep;
+  for (size_t i = 0; i < rs.x.size(); ++i)
+    if (!rs.x[i].allFinite() || !rope_start[i].allFinite()) return rep;  // a blown-up rope: the caller rolls it back
+  // The segments as degenerate triangles (k, k+1, k+1), binned by their swept boxes.
+  std::vector<std::array<uint32_t, 3>> segments(rs.x.size() - 1);
+  for (size_t k = 0; k + 1 < rs.x.size(); ++k) segments[k] = {uint32_t(k), uint32_t(k + 1), uint32_t(k + 1)};
+  const TriangleGrid grid(segments, std::span<const Vec3>(rs.x), s.radius, rope_start);
+  std::vector<int32_t> near;
+  const double inv_dt = 1.0 / dt;
+  for (size_t p = 0; p < ps.x.size(); ++p) {
+    Vec3& xp = ps.x[p];
+    const Vec3& start = particle_start[p];
+    if (!xp.allFinite() || !start.allFinite()) continue;
+    grid.near_segment(start, xp, 4096, near);
+    if (near.empty()) {
+      const auto cell = grid.near(xp);
+      near.assign(cell.begin(), cell.end());
+    }
+    double deepest = 0;  // C = distance along the contact normal - radius; a contact has C < 0
+    int32_t best = -1;
+    double best_s = 0;
+    Vec3 best_n = Vec3::Zero(), best_q = Vec3::Zero();
+    for (int32_t k : near) {
+      const Vec3 &a = rs.x[size_t(k)], &b = rs.x[size_t(k) + 1];
+      const Vec3 &sa = rope_start[size_t(k)], &sb = rope_start[size_t(k) + 1];
+      double s1;
+      const Vec3 q1 = closest_on_segment(xp, a, b, s1);
+      // The particle's offset from the segment's point s1 at the start and at the end; both
+      // moving linearly, the offset goes from r0 to r1.
+      const Vec3 r1 = xp - q1, r0 = start - (sa + s1 * (sb - sa));
+      Vec3 n;
+      if (r0.norm() >= s.radius) {
+        // Started clear: a contact if the offset came within the radius during the step; the
+        // normal is the offset's direction when it first did (from the side it came from, so a
+        // fast particle does not pass through, nor is it pushed out on the far side).
+        const Vec3 dr = r1 - r0;
+        const double A = dr.squaredNorm(), B = r0.dot(dr), Cq = r0.squaredNorm() - s.radius * s.radius;
+        const double disc = B * B - A * Cq;
+        if (!(A > 0) || disc < 0) continue;
+        const double tau = (-B - std::sqrt(disc)) / A;
+        if (tau < 0 || tau > 1) continue;
+        n = (r0 + tau * dr).normalized();
+      } else {
+        // Started within it (resting on the rope): apart along the end offset, or along the
+        // start's when the offset turned around.
+        const Vec3 base = r1.dot(r0) >= 0 && r1.norm() > 1e-12 * s.radius ? r1 : r0;
+        if (!(base.squaredNorm() > 0)) continue;
+        n = base.normalized();
+      }
+      // Along the side of the capsule the normal is across the segment (its point is the closest
+      // one); only at an end cap may it lean along it.
+      if (s1 > 0 && s1 < 1) {
+        const Vec3 axis = (b - a).normalized();
+        const Vec3 across = n - n.dot(axis) * axis;
+        if (!(across.squaredNorm() > 1e-24)) continue;
+        n = across.normalized();
+      }
+      const double C = r1.dot(n) - s.radius;
+      if (C < deepest) {
+        deepest = C;
+        best = k;
+        best_s = s1;
+        best_n = n;
+        best_q = q1;
+      }
+    }
+    if (best < 0) continue;
+    const size_t ia = size_t(best), ib = ia + 1;
+    const double ba = 1 - best_s, bb = best_s;
+    const double wsum = wp[p] + ba * ba * wr[ia] + bb * bb * wr[ib];
+    if (!(wsum > 0)) continue;  // a pinned particle on a pinned segment
+    rep.max_depth = std::max(rep.max_depth, -deepest);
+    ++rep.contacts;
+    // The particle goes to the radius where it first touched (the rope stays where its step put
+    // it); an inelastic contact with friction shares the impulse, so a particle that hit the rope
+    // off its top slides around it in the next steps.
+    if (wp[p] > 0) xp = best_q + s.radius * best_n;
+    auto relative = [&] { return Vec3(ps.v[p] - (ba * rs.v[ia] + bb * rs.v[ib])); };
+    auto apply = [&](const Vec3& impulse) {
+      ps.v[p] += wp[p] * impulse;
+      rs.v[ia] -= wr[ia] * ba * impulse;
+      rs.v[ib] -= wr[ib] * bb * impulse;
+      rep.force_on_body -= impulse * inv_dt;
+    };
+    const double vn = relative().dot(best_n);
+    if (vn >= 0) continue;
+    const double jn = -vn / wsum;
+    apply(jn * best_n);
+    if (s.friction > 0) {
+      const Vec3 vr = relative();
+      const Vec3 vt = vr - vr.dot(best_n) * best_n;
+      const double speed = vt.norm();
+      if (speed > 0) apply(-std::min(speed / wsum, s.friction * jn) * (vt / speed));
+    }
+  }
+  return rep;
+}
+
 size_t couple_particles_to_tool(ParticleState& ps, std::span<const double> wp, const RigidTool& tool, double radius,
                                 double dt, std::span<const Vec3> particle_start, ToolReaction& reaction) {
   if (wp.size() != ps.x.size() || ps.v.size() != ps.x.size())
