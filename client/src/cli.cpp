@@ -121,6 +121,8 @@ Scene flags (create and update):
   --rope NAME:from=X,Y,Z:to=X,Y,Z[:segments=N][:density=KG_M][:pin=I,J]
   --cloth NAME:origin=X,Y,Z:size=SX,SY[:resolution=NX,NY][:pin=I,J]
   --fluid NAME:min=X,Y,Z:max=X,Y,Z[:spacing=D][:container=CX,CY,CZ,HX,HY,HZ]
+        [:tap=X,Y,Z[:tap-radius=R][:tap-speed=V][:tap-direction=X,Y,Z][:tap-max=N]]
+                        (a tap pours particles in as the scene runs; with it min/max may go)
                         particle bodies beside the tet body, repeatable (create only); the
                         other fields take the server's defaults (docs/service.md)
   --gravity GX,GY,GZ    m/s^2 (default 0,-9.81,0)
@@ -438,9 +440,26 @@ v1::BodySpec parse_body(const std::string& kind, const std::string& text) {
     pins(b.mutable_cloth()->mutable_pins());
   } else {
     auto* f = b.mutable_fluid();
-    auto* blk = f->add_blocks();
-    set_vec(blk->mutable_min(), need("min", 3));
-    set_vec(blk->mutable_max(), need("max", 3));
+    // A block, a tap (an emitter) or both.
+    auto tap = take("tap", 3);
+    auto lo = take("min", 3), hi = take("max", 3);
+    if (lo || hi || !tap) {
+      if (!lo || !hi) throw Usage(flag + ": a fluid needs min= and max= (a block) or tap= (an emitter)");
+      auto* blk = f->add_blocks();
+      set_vec(blk->mutable_min(), *lo);
+      set_vec(blk->mutable_max(), *hi);
+    }
+    if (tap) {
+      auto* e = f->add_emitters();
+      set_vec(e->mutable_center(), *tap);
+      e->set_radius(take("tap-radius", 1).value_or(std::vector<double>{0.03})[0]);
+      e->set_speed(take("tap-speed", 1).value_or(std::vector<double>{1.0})[0]);
+      if (auto d = take("tap-direction", 3)) set_vec(e->mutable_direction(), *d);
+      if (auto m = take("tap-max", 1)) {
+        if ((*m)[0] < 1 || (*m)[0] != std::floor((*m)[0])) throw Usage(flag + ": tap-max needs a whole number >= 1");
+        e->set_max_particles(static_cast<uint32_t>((*m)[0]));
+      }
+    }
     if (auto v = take("spacing", 1)) f->set_spacing((*v)[0]);
     if (auto v = take("container", 6)) {
       auto* box = f->mutable_container()->mutable_box();
@@ -1317,7 +1336,9 @@ std::vector<Opt> create_flags() {
                         ":resolution=NX,NY (16,16), :pin=I,J,..",
        Kind::Repeated},
       {"fluid", "SPEC", "a fluid block, repeatable: NAME:min=X,Y,Z:max=X,Y,Z with optional :spacing=D (0.02), "
-                        ":container=CX,CY,CZ,HX,HY,HZ (a box the fluid stays in)",
+                        ":container=CX,CY,CZ,HX,HY,HZ (a box the fluid stays in), :tap=X,Y,Z (an emitter pouring "
+                        "down; with it min/max may go) with :tap-radius=R (0.03), :tap-speed=V (1 m/s), "
+                        ":tap-direction=X,Y,Z, :tap-max=N (10000)",
        Kind::Repeated},
       {"paused", "", "create the scene paused", Kind::Flag},
   };

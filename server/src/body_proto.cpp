@@ -79,6 +79,7 @@ Error emitter_from(const v1::FluidEmitter& m, const std::string& p, double d, Bo
   if (m.has_direction())
     if (Error err = unit_axis(m.direction(), p + ".direction", &e.direction); !err.ok()) return err;
   if (Error err = in_range(p + ".speed", m.speed(), 0.0, 100.0, true, "m/s"); !err.ok()) return err;
+  e.speed = m.speed();
   e.max_particles = m.has_max_particles() ? m.max_particles() : kDefaultEmitterParticles;
   if (Error err = int_range(p + ".max_particles", static_cast<int64_t>(e.max_particles), 1,
                             static_cast<int64_t>(kMaxParticlesPerScene));

@@ -344,6 +344,20 @@ def mode_examples(args):
             check(got["bodies"][0].get("pinned_count") == 1, f"--rope pin: {got['bodies'][0]}")
             r = cli(args, server, "scenes", "get", "bodies")
             check("r: rope, 11 particles" in r.stdout, f"scenes get shows the bodies: {r.stdout!r}")
+            # A fluid that starts empty and fills from a tap.
+            r = cli(args, server, "--json", "scenes", "create", "tapped", "--mode", "lockstep",
+                    "--fluid", "t:tap=2,0.5,0:tap-radius=0.05:tap-speed=2:tap-max=500:spacing=0.025:"
+                    "container=2,0.25,0,0.25,0.25,0.25")
+            got = json.loads(r.stdout)
+            emitters = got["spec"]["bodies"][0]["fluid"].get("emitters", [])
+            check(len(emitters) == 1 and emitters[0]["speed"] == 2 and emitters[0]["max_particles"] == 500 and
+                  got["bodies"][0].get("particle_count", 0) == 0 and got["bodies"][0]["max_particle_count"] == 500,
+                  f"--fluid tap: {got['spec']['bodies']} {got['bodies']}")
+            cli(args, server, "step", "tapped", "30")
+            r = cli(args, server, "scenes", "get", "tapped")
+            check("(up to 500)" in r.stdout and "t: fluid, 0 particles" not in r.stdout, f"the tap poured: {r.stdout!r}")
+            r = cli(args, server, "scenes", "create", "--fluid", "w:spacing=0.02", ok=False)
+            check(r.returncode == 2 and "tap=" in r.stderr, f"--fluid without a block or a tap: {r.stderr!r}")
             r = cli(args, server, "scenes", "create", "--rope", "r:from=0,0,0", ok=False)
             check(r.returncode == 2 and "to=" in r.stderr, f"--rope without to: rc {r.returncode}, {r.stderr!r}")
             r = cli(args, server, "scenes", "create", "--rope", "r:from=0,0,0:to=1,0,0:segments=0", ok=False)

@@ -634,13 +634,14 @@ TEST(Bodies, AnEmitterPoursWaterThatFramesSnapshotsAndGrabsFollow) {
   EXPECT_EQ(topo->bodies(0).particle_count(), 0u);
   EXPECT_EQ(topo->bodies(0).max_particle_count(), 130u);
 
-  // A layer every spacing / speed = 1/30 s: after 7 ticks (7/60 s) three layers or, at the
-  // rounding of the substeps' sums, two; never part of one.
+  // A layer every spacing / speed = 1/30 s, that is every 4 substeps of 1/120 s (2 a tick; a
+  // fifth when the sum rounds below): after 7 ticks, 14 substeps, three layers of 13.
   ASSERT_TRUE(c.step("tap", 7).ok());
   v1::Frame f = latest_frame(c, "tap");
   ASSERT_EQ(f.bodies_size(), 1);
   const int early = f.bodies(0).positions_size() / 3;
-  EXPECT_TRUE(early == 39 || early == 26) << early;
+  EXPECT_EQ(early, 39);
+  EXPECT_EQ(echoed.speed(), 1.5);
   auto got = c.get_scene("tap");
   ASSERT_TRUE(got.ok());
   EXPECT_EQ(static_cast<int>(got->bodies(0).particle_count()), early);
