@@ -85,6 +85,8 @@ struct Scene::TickState {
   };
   std::vector<ClothPair> cloth_pairs;
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
+  // The cloths with soft_body_contact: obstacles to the tet body's vertices in its step.
+  std::vector<size_t> obstacle_bodies;
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
   std::vector<ParticleStepReport> body_reports;  // each body's step in the tick in progress
   // Realtime schedule: tick k is due at anchor + k * period.
@@ -183,6 +185,11 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
       ts_->cloth_pairs.push_back({a, c, cs, rope});
     }
   }
+  for (size_t b = 0; b < ts_->bodies.size(); ++b)
+    if (ts_->body_contact[b] && !ts_->bodies[b]->triangles().empty()) ts_->obstacle_bodies.push_back(b);
+  if (!ts_->obstacle_bodies.empty() && family_of(config.settings.method) == SolverFamilyKind::Newton)
+    spdlog::warn("scene '{}': method newton keeps the cloths' particles outside the body but not the body's "
+                 "vertices off the cloths' triangles (methods xpbd and vbd do both; docs/cloth.md)", id_);
   ts_->in_cloth_pair.assign(ts_->bodies.size(), 0);
   for (const TickState::ClothPair& p : ts_->cloth_pairs) ts_->in_cloth_pair[p.particles] = ts_->in_cloth_pair[p.cloth] = 1;
   config_ = std::move(config);
@@ -803,6 +810,23 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       failure = "body '" + bodies_info_[b].name + "': " + e.what();
     }
   };
+  // The soft body's push on the cloths it touched during its step, before they step.
+  for (size_t k = 0; k < t.obstacle_bodies.size() && k < report.obstacle_impulses.size(); ++k) {
+    const size_t b = t.obstacle_bodies[k];
+    guarded(b, [&] {
+      ParticleBody& cloth = *t.bodies[b];
+      const auto& impulse = report.obstacle_impulses[k];
+      const auto w = cloth.inverse_masses();
+      ParticleState st = cloth.state();
+      bool any = false;
+      for (size_t i = 0; i < impulse.size() && i < st.v.size(); ++i)
+        if (w[i] > 0 && !impulse[i].isZero()) {
+          st.v[i] += w[i] * impulse[i];
+          any = true;
+        }
+      if (any) cloth.set_state(st);
+    });
+  }
   for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
     if (cancel_tick_.load()) {
       report.cancelled = true;
@@ -891,6 +915,18 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     pt.used_position = tool.position;
     pt.used = true;
     inputs.tools.push_back(tool);
+  }
+  // The cloths in contact with the soft body, where they start the tick: obstacles to its
+  // surface vertices inside its step (their reactions go to the cloths before they step).
+  for (size_t b : t.obstacle_bodies) {
+    const ParticleBody& cloth = *t.bodies[b];
+    TriangleObstacle ob;
+    ob.x = cloth.state().x;
+    const auto tris = cloth.triangles();
+    ob.triangles.assign(tris.begin(), tris.end());
+    ob.radius = t.body_contact[b]->radius;
+    ob.friction = t.body_contact[b]->friction;
+    inputs.obstacles.push_back(std::move(ob));
   }
 
   t.last_good = t.state;  // copy-assign reuses the buffers

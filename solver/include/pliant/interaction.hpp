@@ -35,6 +35,18 @@ struct Attachment {
   Eigen::Vector3d point(const std::vector<Eigen::Vector3d>& x) const;
 };
 
+// Triangles the body must stay clear of during a step (a cloth's, at the start of the tick):
+// every free surface vertex stays `radius` from them on the side it started the step on, pushed
+// out inside the iterations like the static colliders, with Coulomb friction `friction` (static
+// and dynamic) against its motion; the step reports the impulse it put on each corner
+// (StepReport::obstacle_impulses), which the obstacle's owner applies to it.
+struct TriangleObstacle {
+  std::vector<Eigen::Vector3d> x;                  // corners, m
+  std::vector<std::array<uint32_t, 3>> triangles;  // indices into x
+  double radius = 0.0;                             // m, > 0
+  double friction = 0.0;                           // >= 0
+};
+
 // A rigid tool driven by a pose. Sphere: centre = position. Capsule: the segment
 // position +- half_length * (orientation * z) swept by radius.
 struct RigidTool {

@@ -50,6 +50,9 @@ struct StepReport {
   // One per StepInputs::attachments: the force the attachment puts ON THE BODY (lambda / h^2,
   // averaged over the substeps); the force on whatever holds the target is minus this.
   std::vector<Vec3> attachment_forces;
+  // One per StepInputs::obstacles (methods xpbd and its accelerators, and vbd): per corner, the
+  // impulse the body put on it during the step, N s (the body took minus their sum).
+  std::vector<std::vector<Vec3>> obstacle_impulses;
   PhaseTimes times;
   double wall_ms = 0;
 };
@@ -63,6 +66,7 @@ struct StepInputs {
   std::vector<Collider> colliders;
   std::vector<Attachment> attachments;
   std::vector<RigidTool> tools;
+  std::vector<TriangleObstacle> obstacles;
   // When set, checked between sweeps (iterations) and substeps: once it reads true the step
   // stops where it is (positions stay valid, velocities are those of the work done) and the
   // report says cancelled. Lets a scene's delete, update, reset or shutdown take effect within

@@ -2,6 +2,7 @@
 #include "pliant/coupling.hpp"
 
 #include "pliant/interaction.hpp"
+#include "particles/triangle_grid.hpp"
 
 #include <fmt/format.h>
 
@@ -11,88 +12,8 @@
 #include <unordered_map>
 
 namespace pliant {
+using detail::TriangleGrid;
 namespace {
-
-// Surface triangles binned into a uniform grid by their boxes grown by the search reach: a
-// particle looks in its own cell only. With `swept_from`, a triangle's box also covers where
-// its corners were there (a cloth that moved during the step is found where it passed).
-class TriangleGrid {
- public:
-  // `triangles`: 3-index arrays (the tet body's surface, a cloth's triangles) into x.
-  template <class Triangles>
-  TriangleGrid(const Triangles& triangles, std::span<const Vec3> x, double reach,
-               std::span<const Vec3> swept_from = {}) {
-    double edge = 0;
-    for (const auto& t : triangles) edge += (x[t[1]] - x[t[0]]).norm();
-    edge = triangles.empty() ? reach : edge / double(triangles.size());
-    cell_ = std::max(2 * reach, edge);
-    std::vector<std::pair<uint64_t, int32_t>> entries;
-    for (size_t k = 0; k < triangles.size(); ++k) {
-      const auto& t = triangles[k];
-      if (!x[t[0]].allFinite() || !x[t[1]].allFinite() || !x[t[2]].allFinite()) continue;
-      Vec3 lo = x[t[0]].cwiseMin(x[t[1]]).cwiseMin(x[t[2]]);
-      Vec3 hi = x[t[0]].cwiseMax(x[t[1]]).cwiseMax(x[t[2]]);
-      if (!swept_from.empty())
-        for (int c = 0; c < 3; ++c)
-          if (swept_from[t[c]].allFinite()) {
-            lo = lo.cwiseMin(swept_from[t[c]]);
-            hi = hi.cwiseMax(swept_from[t[c]]);
-          }
-      lo.array() -= reach;
-      hi.array() += reach;
-      const auto a = cell_of(lo), b = cell_of(hi);
-      for (int64_t i = a[0]; i <= b[0]; ++i)
-        for (int64_t j = a[1]; j <= b[1]; ++j)
-          for (int64_t l = a[2]; l <= b[2]; ++l) entries.emplace_back(key({i, j, l}), int32_t(k));
-    }
-    std::sort(entries.begin(), entries.end());
-    triangles_.reserve(entries.size());
-    for (size_t e = 0; e < entries.size(); ++e) {
-      if (e == 0 || entries[e].first != entries[e - 1].first)
-        ranges_[entries[e].first] = {uint32_t(e), uint32_t(e)};
-      ranges_[entries[e].first].second = uint32_t(e + 1);
-      triangles_.push_back(entries[e].second);
-    }
-  }
-
-  std::span<const int32_t> near(const Vec3& p) const {
-    const auto it = ranges_.find(key(cell_of(p)));
-    if (it == ranges_.end()) return {};
-    return {triangles_.data() + it->second.first, it->second.second - it->second.first};
-  }
-
-  // The triangles near a segment: those of every cell its box touches (with repeats), or
-  // nothing when that box spans more than max_cells cells.
-  void near_segment(const Vec3& a, const Vec3& b, size_t max_cells, std::vector<int32_t>& out) const {
-    out.clear();
-    const auto lo = cell_of(a.cwiseMin(b)), hi = cell_of(a.cwiseMax(b));
-    const double cells = double(hi[0] - lo[0] + 1) * double(hi[1] - lo[1] + 1) * double(hi[2] - lo[2] + 1);
-    if (cells > double(max_cells)) return;
-    for (int64_t i = lo[0]; i <= hi[0]; ++i)
-      for (int64_t j = lo[1]; j <= hi[1]; ++j)
-        for (int64_t l = lo[2]; l <= hi[2]; ++l) {
-          const auto it = ranges_.find(key({i, j, l}));
-          if (it != ranges_.end())
-            out.insert(out.end(), triangles_.begin() + it->second.first, triangles_.begin() + it->second.second);
-        }
-  }
-
- private:
-  // Finite points only; far-away ones are clamped (their cells are never near a triangle's).
-  std::array<int64_t, 3> cell_of(const Vec3& p) const {
-    auto axis = [&](double v) { return int64_t(std::clamp(std::floor(v / cell_), -1e15, 1e15)); };
-    return {axis(p.x()), axis(p.y()), axis(p.z())};
-  }
-  static uint64_t key(const std::array<int64_t, 3>& c) {
-    // 21 bits per axis (cells far outside +-2^20 wrap: only a slower search, never a missed one,
-    // since every candidate is measured exactly).
-    return (uint64_t(c[0]) & 0x1FFFFF) | ((uint64_t(c[1]) & 0x1FFFFF) << 21) | ((uint64_t(c[2]) & 0x1FFFFF) << 42);
-  }
-
-  double cell_ = 1;
-  std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> ranges_;
-  std::vector<int32_t> triangles_;
-};
 
 struct Contact {
   uint32_t particle;

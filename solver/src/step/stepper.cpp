@@ -5,6 +5,7 @@
 #include "kernels/projection.hpp"
 #include "kernels/strain_kernel.hpp"
 #include "step/family.hpp"
+#include "step/obstacles.hpp"
 #include "step/sequential_sweep.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
@@ -44,6 +45,7 @@ struct Stepper::Impl {
   int pool_threads = 0;
   IterationHook hook;
   std::unique_ptr<detail::SolverFamily> vbd, newton;  // made on first use
+  detail::ObstacleContacts obstacles;                  // a step's triangle obstacles
 
   // The last sweep's multiplier increments, in the model's solve order (the accelerators'
   // input); padding slots stay zero.
@@ -447,6 +449,12 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       if (inputs.colliders.empty()) rep.contacts = n;
       else rep.contacts += n;
     }
+    if (I.obstacles.active()) {
+      PhaseTimer t{rep.times.other_ms};
+      const int n = I.obstacles.resolve(m, x, x_prev, h);
+      if (inputs.colliders.empty() && !interacting) rep.contacts = n;
+      else rep.contacts += n;
+    }
     double r = 0;
     // Position-space accelerators move x after the sweep: their residual is taken after that.
     if (s.record_residuals && (proposes || !accel->needs_previous())) {
@@ -567,6 +575,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     total.tools.assign(inputs.tools.size(), ToolReaction{});
     total.attachment_forces.assign(inputs.attachments.size(), Vec3::Zero());
   }
+  I.obstacles.begin_step(m, state.x, inputs.obstacles);
   for (int sub = 0; sub < n; ++sub) {
     const auto t_other = Clock::now();
     detail::predict(m, state, s, inputs, h, I.v_prev);
@@ -607,6 +616,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     }
   }
   I.tool_time_offset = 0;  // solve_substep on its own: tools at their pose
+  I.obstacles.finish(total);
   if (interacting) {
     // Averages over the substeps: the impulse delivered during the step divided by dt.
     for (size_t t = 0; t < total.tools.size(); ++t) {

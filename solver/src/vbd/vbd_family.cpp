@@ -9,6 +9,7 @@
 #include "pliant/strain_constraint.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
+#include "step/obstacles.hpp"
 #include "step/volume_floor.hpp"
 
 #include <Eigen/Dense>
@@ -112,6 +113,7 @@ class VbdFamily final : public SolverFamily {
   VbdOptions opt_;
   std::unique_ptr<ThreadPool> pool_;
   VolumeFloor volume_floor_;
+  ObstacleContacts obstacles_;
   int pool_threads_ = 0;
   uint64_t model_id_ = 0;               // the model rest_stiffness_ and packs_ belong to
   std::vector<double> rest_stiffness_;  // sum over the vertex's tets of V0 (lambda + 2 mu) |b|^2
@@ -407,6 +409,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
   sub_.inputs = &inputs;
   sub_.line_search = s.line_search;
   prepare_grabs(m, inputs, h);
+  obstacles_.begin_step(m, state.x, inputs.obstacles);
 
   for (int substep = 0; substep < n; ++substep) {
     const bool last = substep + 1 == n;
@@ -442,7 +445,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
     }
     const bool accelerate = s.chebyshev.delay < s.iterations;
     double omega = 1;
-    int collider_contacts = 0;
+    int collider_contacts = 0, obstacle_contacts = 0;
     for (int it = 0; it < s.iterations; ++it) {
       {
         const auto t = Clock::now();
@@ -465,6 +468,11 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
       if (!inputs.colliders.empty()) {
         const auto t = Clock::now();
         collider_contacts = resolve_colliders(m, state.x, x_start_, inputs.colliders);
+        total.times.other_ms += ms_since(t);
+      }
+      if (obstacles_.active()) {
+        const auto t = Clock::now();
+        obstacle_contacts = obstacles_.resolve(m, state.x, x_start_, h);
         total.times.other_ms += ms_since(t);
       }
       total.iterations++;
@@ -499,7 +507,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
     const auto t_end = Clock::now();
     if (s.inversion_floor > 0)
       total.volume_corrections = volume_floor_.enforce(m, state.x, s.inversion_floor, kVolumePasses, tp);
-    total.contacts = collider_contacts;
+    total.contacts = collider_contacts + obstacle_contacts;
     accumulate_reactions(m, state.x, inputs, total);
     finish_substep(m, state, x_start_, s, h);
     total.times.other_ms += ms_since(t_end);
@@ -508,6 +516,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
       break;
     }
   }
+  obstacles_.finish(total);
   // Averages over the substeps: the impulse delivered during the step divided by dt.
   for (size_t t = 0; t < total.tools.size(); ++t) {
     ToolReaction& r = total.tools[t];

@@ -1,0 +1,41 @@
+// SPDX-License-Identifier: Apache-2.0
+// The body's surface vertices against the step's triangle obstacles (StepInputs::obstacles, a
+// cloth's triangles): a stage of the iterations, like the static colliders, shared by the
+// solver families that project contacts at position level (xpbd and vbd).
+#pragma once
+
+#include "pliant/model.hpp"
+#include "pliant/stepper.hpp"
+#include "particles/triangle_grid.hpp"
+
+#include <memory>
+#include <vector>
+
+namespace pliant::detail {
+
+class ObstacleContacts {
+ public:
+  // Before the step's first substep: the surface vertices, where they start the step (their
+  // side of each triangle), and a grid over each obstacle. No obstacles: the stage does nothing.
+  void begin_step(const BodyModel& model, const std::vector<Vec3>& x_step_start,
+                  const std::vector<TriangleObstacle>& obstacles);
+  // In an iteration: every free surface vertex too close to a triangle (or behind it, having
+  // crossed it during the step) goes out to the radius on its side, with friction against its
+  // motion since x_substep_start; the momentum that gives the body over the substep (h) is
+  // taken from the triangle's corners. Returns the vertices in contact.
+  int resolve(const BodyModel& model, std::vector<Vec3>& x, const std::vector<Vec3>& x_substep_start, double h);
+  // After the step: the impulse on each corner of each obstacle, N s; the stage is then idle
+  // until the next begin_step.
+  void finish(StepReport& report);
+  bool active() const { return !obstacles_.empty(); }
+
+ private:
+  uint64_t model_id_ = 0;
+  std::vector<const TriangleObstacle*> obstacles_;
+  std::vector<std::unique_ptr<TriangleGrid>> grids_;
+  std::vector<int32_t> surface_;    // surface vertices
+  std::vector<Vec3> step_start_;    // their positions at the start of the step
+  std::vector<std::vector<Vec3>> impulses_;
+};
+
+}  // namespace pliant::detail
