@@ -13,6 +13,7 @@ void ObstacleContacts::begin_step(const BodyModel& m, const std::vector<Vec3>& x
                                   const std::vector<TriangleObstacle>& obstacles) {
   obstacles_.clear();
   grids_.clear();
+  boxes_.clear();
   impulses_.assign(obstacles.size(), {});
   if (obstacles.empty()) return;
   for (size_t o = 0; o < obstacles.size(); ++o) {
@@ -44,6 +45,12 @@ void ObstacleContacts::begin_step(const BodyModel& m, const std::vector<Vec3>& x
   for (size_t o = 0; o < obstacles.size(); ++o) {
     impulses_[o].assign(obstacles[o].x.size(), Vec3::Zero());
     obstacles_.push_back(&obstacles[o]);
+    Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+    for (const Vec3& p : obstacles[o].x) {
+      lo = lo.cwiseMin(p);
+      hi = hi.cwiseMax(p);
+    }
+    boxes_.emplace_back(lo - Vec3::Constant(obstacles[o].radius), hi + Vec3::Constant(obstacles[o].radius));
     grids_.push_back(std::make_unique<TriangleGrid>(obstacles[o].triangles, std::span<const Vec3>(obstacles[o].x),
                                                     obstacles[o].radius));
   }
@@ -63,6 +70,10 @@ int ObstacleContacts::resolve(const BodyModel& m, std::vector<Vec3>& x, const st
       Vec3& xv = x[v];
       const Vec3& start = step_start_[k];
       if (!xv.allFinite()) continue;
+      // Most vertices of a large body are nowhere near the cloth: its box first.
+      if ((start.cwiseMax(xv).array() < boxes_[o].first.array()).any() ||
+          (start.cwiseMin(xv).array() > boxes_[o].second.array()).any())
+        continue;
       grid.near_segment(start, xv, 4096, near);
       if (near.empty()) {
         const auto cell = grid.near(xv);
@@ -137,6 +148,7 @@ void ObstacleContacts::finish(StepReport& report) {
   impulses_.clear();
   obstacles_.clear();
   grids_.clear();
+  boxes_.clear();
 }
 
 }  // namespace pliant::detail

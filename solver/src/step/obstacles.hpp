@@ -33,6 +33,7 @@ class ObstacleContacts {
   uint64_t model_id_ = 0;
   std::vector<const TriangleObstacle*> obstacles_;
   std::vector<std::unique_ptr<TriangleGrid>> grids_;
+  std::vector<std::pair<Vec3, Vec3>> boxes_;  // each obstacle's box grown by its radius
   std::vector<int32_t> surface_;    // surface vertices
   std::vector<Vec3> step_start_;    // their positions at the start of the step
   std::vector<std::vector<Vec3>> impulses_;
