@@ -266,7 +266,9 @@ function buildBodies(topo) {
     }
     bodies.push(b);
     bodyScratch.push(new Float32Array(3 * t.particles));
-  }  buildBodyPanel();
+  }
+  state.bodyStats = [];
+  buildBodyPanel();
 }
 
 // A fluid's new particle count: a new geometry of that size (the old one's GPU buffers are
