@@ -9,10 +9,12 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <string>
 #include <unordered_map>
 
 namespace pliant {
 using detail::TriangleGrid;
+using detail::triangle_contact;
 namespace {
 
 struct Contact {
@@ -167,24 +169,78 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   return rep;
 }
 
-CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const double> wp,
-                                         std::span<const Vec3> particle_start, ParticleState& cs,
-                                         std::span<const double> wc,
-                                         std::span<const std::array<uint32_t, 3>> triangles,
-                                         std::span<const Vec3> cloth_start, const CouplingSettings& s, double dt) {
+namespace {
+
+// The checks the contacts between two particle bodies share: settings, counts and start positions
+// (`body`: the other body's name in the messages).
+void check_pair(const ParticleState& ps, std::span<const double> wp, std::span<const Vec3> particle_start,
+                const ParticleState& other, std::span<const double> wo, std::span<const Vec3> other_start,
+                const std::string& body, const CouplingSettings& s, double dt) {
   if (!(s.radius > 0) || !std::isfinite(s.radius))
     throw std::invalid_argument(fmt::format("contact radius must be > 0, got {}", s.radius));
   if (!(s.friction >= 0) || !std::isfinite(s.friction))
     throw std::invalid_argument(fmt::format("contact friction must be >= 0, got {}", s.friction));
   if (!(dt > 0) || !std::isfinite(dt)) throw std::invalid_argument(fmt::format("contact dt must be > 0, got {}", dt));
   check_particle_counts(ps, wp.size(), "particles");
-  check_particle_counts(cs, wc.size(), "cloth");
+  check_particle_counts(other, wo.size(), body);
   if (particle_start.size() != ps.x.size())
     throw std::invalid_argument(fmt::format("particle_start has {} positions for {} particles", particle_start.size(),
                                             ps.x.size()));
-  if (cloth_start.size() != cs.x.size())
-    throw std::invalid_argument(fmt::format("cloth_start has {} positions for {} particles", cloth_start.size(),
-                                            cs.x.size()));
+  if (other_start.size() != other.x.size())
+    throw std::invalid_argument(fmt::format("{}_start has {} positions for {} particles", body, other_start.size(),
+                                            other.x.size()));
+}
+
+// Particle p's contact with the point sum_k b_k x_k of `other` (corners idx, inverse masses wo),
+// normal n towards the particle, depth -C. Positions: only the particle moves, to the radius on
+// its side (a pinned one stays); the other body stays where its step put it (moving a light
+// cloth's corners by a heavy particle's correction made it spring back through the particles
+// within its next step). Velocities: a perfectly inelastic contact between the particle (inverse
+// mass w_p) and the point (inverse mass sum_k b_k^2 w_k), an impulse along the normal that leaves
+// them no approaching speed, shared by the corners' weights, and Coulomb friction on their
+// tangential speed up to friction x that impulse: momentum is exact, and neither side gets more
+// than their relative speed (a heavy particle carries a light cloth along, a light one stops on a
+// heavy cloth). Counts the contact in rep; nothing when both sides are pinned.
+template <size_t N>
+void exchange(ParticleState& ps, size_t p, std::span<const double> wp, ParticleState& other,
+              const std::array<size_t, N>& idx, const std::array<double, N>& b, std::span<const double> wo,
+              const Vec3& new_x, const Vec3& n, double C, double friction, double inv_dt, CouplingReport& rep) {
+  double wsum = wp[p];
+  for (size_t k = 0; k < N; ++k) wsum += b[k] * b[k] * wo[idx[k]];
+  if (!(wsum > 0)) return;  // a pinned particle on pinned corners
+  rep.max_depth = std::max(rep.max_depth, -C);
+  ++rep.contacts;
+  if (wp[p] > 0) ps.x[p] = new_x;
+  auto relative = [&] {
+    Vec3 vq = Vec3::Zero();
+    for (size_t k = 0; k < N; ++k) vq += b[k] * other.v[idx[k]];
+    return Vec3(ps.v[p] - vq);
+  };
+  auto apply = [&](const Vec3& impulse) {  // on the particle, momentum
+    ps.v[p] += wp[p] * impulse;
+    for (size_t k = 0; k < N; ++k) other.v[idx[k]] -= wo[idx[k]] * b[k] * impulse;
+    rep.force_on_body -= impulse * inv_dt;  // on the other body, its pins included
+  };
+  const double vn = relative().dot(n);
+  if (vn >= 0) return;  // already separating
+  const double jn = -vn / wsum;
+  apply(jn * n);
+  if (friction > 0) {
+    const Vec3 vr = relative();
+    const Vec3 vt = vr - vr.dot(n) * n;
+    const double speed = vt.norm();
+    if (speed > 0) apply(-std::min(speed / wsum, friction * jn) * (vt / speed));
+  }
+}
+
+}  // namespace
+
+CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const double> wp,
+                                         std::span<const Vec3> particle_start, ParticleState& cs,
+                                         std::span<const double> wc,
+                                         std::span<const std::array<uint32_t, 3>> triangles,
+                                         std::span<const Vec3> cloth_start, const CouplingSettings& s, double dt) {
+  check_pair(ps, wp, particle_start, cs, wc, cloth_start, "cloth", s, dt);
   for (const auto& t : triangles)
     if (t[0] >= cs.x.size() || t[1] >= cs.x.size() || t[2] >= cs.x.size())
       throw std::invalid_argument(fmt::format("cloth triangle ({}, {}, {}) is out of range ({} particles)", t[0], t[1],
@@ -216,101 +272,29 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
     Vec3& xp = ps.x[p];
     const Vec3& start = particle_start[p];
     if (!xp.allFinite() || !start.allFinite()) continue;
-    grid.near_segment(start, xp, 4096, near);
-    if (near.empty()) {
-      const auto cell = grid.near(xp);
-      near.assign(cell.begin(), cell.end());
-    }
+    grid.candidates(start, xp, near);
     double deepest = 0;  // C = distance along the contact normal - radius; a contact has C < 0
     int32_t best = -1;
     std::array<double, 3> best_b{};
     Vec3 best_n = Vec3::Zero();
     for (int32_t k : near) {
       const auto& t = triangles[size_t(k)];
-      const Vec3 &a = cs.x[t[0]], &b = cs.x[t[1]], &c = cs.x[t[2]];
-      const Vec3 face = (b - a).cross(c - a);
-      if (!(face.squaredNorm() > 0)) continue;
-      // The particle's side: where it started, against the triangle where it started.
-      const Vec3 &sa = cloth_start[t[0]], &sb = cloth_start[t[1]], &sc = cloth_start[t[2]];
-      std::array<double, 3> bs;
-      const Vec3 qs = closest_point_on_triangle(start, sa, sb, sc, bs);
-      const double side = (start - qs).dot((sb - sa).cross(sc - sa));
-      const Vec3 n_face = face.normalized();
-      const Vec3 n_side = side < 0 ? Vec3(-n_face) : n_face;
-      std::array<double, 3> bw;
-      const Vec3 q = closest_point_on_triangle(xp, a, b, c, bw);
-      const Vec3 d = xp - q;
-      const double along = d.dot(n_side);
-      Vec3 n = n_side;
       double C;
-      if (along >= 0) {
-        // On its side: apart along the line to the closest point (the face normal when on it).
-        const double len = d.norm();
-        if (len >= s.radius) continue;
-        if (len > 1e-12 * s.radius) n = d / len;
-        C = len - s.radius;
-      } else {
-        // Behind the triangle: a contact only if one went through the other during the step.
-        // With the particle and the corners moving linearly over it, the particle's distance to
-        // the triangle's plane goes from s0 to s1; where it changes sign the particle must be
-        // inside the triangle of that moment (within the radius) -- that catches a particle
-        // crossing the cloth and a cloth springing back past a particle, which neither the
-        // particle's path nor the triangle at its start or end alone shows; otherwise the
-        // particle is behind another part of the cloth (around this triangle's edge).
-        const Vec3 ns = (sb - sa).cross(sc - sa).normalized();
-        const double s0 = (start - sa).dot(ns), s1 = (xp - a).dot(n_face);
-        if (!((s0 > 0) != (s1 > 0)) || s0 == s1) continue;
-        const double tc = s0 / (s0 - s1);
-        const Vec3 pc = start + tc * (xp - start);
-        std::array<double, 3> bc;
-        const Vec3 qc = closest_point_on_triangle(pc, sa + tc * (a - sa), sb + tc * (b - sb), sc + tc * (c - sc), bc);
-        if ((pc - qc).norm() > s.radius) continue;
-        C = along - s.radius;
-      }
-      if (C < deepest) {
-        deepest = C;
-        best = k;
-        best_b = bw;
-        best_n = n;
-      }
+      Vec3 n;
+      std::array<double, 3> bw;
+      if (!triangle_contact(start, xp, {cloth_start[t[0]], cloth_start[t[1]], cloth_start[t[2]]},
+                            {cs.x[t[0]], cs.x[t[1]], cs.x[t[2]]}, s.radius, C, n, bw) ||
+          !(C < deepest))
+        continue;
+      deepest = C;
+      best = k;
+      best_b = bw;
+      best_n = n;
     }
     if (best < 0) continue;
     const auto& t = triangles[size_t(best)];
-    const double w[3] = {wc[t[0]], wc[t[1]], wc[t[2]]};
-    const double wsum =
-        wp[p] + best_b[0] * best_b[0] * w[0] + best_b[1] * best_b[1] * w[1] + best_b[2] * best_b[2] * w[2];
-    if (!(wsum > 0)) continue;  // a pinned particle on pinned corners
-    rep.max_depth = std::max(rep.max_depth, -deepest);
-    ++rep.contacts;
-    // Positions: the particle goes back to its side at the radius, the cloth stays where its
-    // step put it (moving a light cloth's corners by a heavy particle's correction made it spring
-    // back through the particles within its next step). Velocities: a perfectly inelastic
-    // contact between the particle (inverse mass w_p) and the triangle's point (inverse mass
-    // sum_k b_k^2 w_k), an impulse along the normal that leaves them no approaching speed, shared
-    // by the corners' weights, and Coulomb friction on their tangential speed up to friction x
-    // that impulse: momentum is exact, and neither side gets more than their relative speed (a
-    // heavy particle carries a light cloth along, a light one stops on a heavy cloth).
-    if (wp[p] > 0) xp -= deepest * best_n;  // a pinned particle stays: the cloth only is pushed
-    auto relative = [&] {
-      Vec3 vq = Vec3::Zero();
-      for (int a = 0; a < 3; ++a) vq += best_b[a] * cs.v[t[a]];
-      return Vec3(ps.v[p] - vq);
-    };
-    auto apply = [&](const Vec3& impulse) {  // on the particle, momentum
-      ps.v[p] += wp[p] * impulse;
-      for (int a = 0; a < 3; ++a) cs.v[t[a]] -= w[a] * best_b[a] * impulse;
-      rep.force_on_body -= impulse * inv_dt;  // on the cloth, its pins included
-    };
-    const double vn = relative().dot(best_n);
-    if (vn >= 0) continue;  // already separating
-    const double jn = -vn / wsum;
-    apply(jn * best_n);
-    if (s.friction > 0) {
-      const Vec3 vr = relative();
-      const Vec3 vt = vr - vr.dot(best_n) * best_n;
-      const double speed = vt.norm();
-      if (speed > 0) apply(-std::min(speed / wsum, s.friction * jn) * (vt / speed));
-    }
+    exchange<3>(ps, p, wp, cs, {t[0], t[1], t[2]}, best_b, wc, Vec3(xp - deepest * best_n), best_n, deepest,
+                s.friction, inv_dt, rep);
   }
   return rep;
 }
@@ -331,19 +315,7 @@ CouplingReport couple_particles_to_rope(ParticleState& ps, std::span<const doubl
                                         std::span<const Vec3> particle_start, ParticleState& rs,
                                         std::span<const double> wr, std::span<const Vec3> rope_start,
                                         const CouplingSettings& s, double dt) {
-  if (!(s.radius > 0) || !std::isfinite(s.radius))
-    throw std::invalid_argument(fmt::format("contact radius must be > 0, got {}", s.radius));
-  if (!(s.friction >= 0) || !std::isfinite(s.friction))
-    throw std::invalid_argument(fmt::format("contact friction must be >= 0, got {}", s.friction));
-  if (!(dt > 0) || !std::isfinite(dt)) throw std::invalid_argument(fmt::format("contact dt must be > 0, got {}", dt));
-  check_particle_counts(ps, wp.size(), "particles");
-  check_particle_counts(rs, wr.size(), "rope");
-  if (particle_start.size() != ps.x.size())
-    throw std::invalid_argument(fmt::format("particle_start has {} positions for {} particles", particle_start.size(),
-                                            ps.x.size()));
-  if (rope_start.size() != rs.x.size())
-    throw std::invalid_argument(fmt::format("rope_start has {} positions for {} particles", rope_start.size(),
-                                            rs.x.size()));
+  check_pair(ps, wp, particle_start, rs, wr, rope_start, "rope", s, dt);
   CouplingReport rep;
   if (rs.x.size() < 2 || ps.x.empty()) return rep;
   for (size_t i = 0; i < rs.x.size(); ++i)
@@ -358,11 +330,7 @@ CouplingReport couple_particles_to_rope(ParticleState& ps, std::span<const doubl
     Vec3& xp = ps.x[p];
     const Vec3& start = particle_start[p];
     if (!xp.allFinite() || !start.allFinite()) continue;
-    grid.near_segment(start, xp, 4096, near);
-    if (near.empty()) {
-      const auto cell = grid.near(xp);
-      near.assign(cell.begin(), cell.end());
-    }
+    grid.candidates(start, xp, near);
     double deepest = 0;  // C = distance along the contact normal - radius; a contact has C < 0
     int32_t best = -1;
     double best_s = 0;
@@ -412,33 +380,11 @@ CouplingReport couple_particles_to_rope(ParticleState& ps, std::span<const doubl
       }
     }
     if (best < 0) continue;
-    const size_t ia = size_t(best), ib = ia + 1;
-    const double ba = 1 - best_s, bb = best_s;
-    const double wsum = wp[p] + ba * ba * wr[ia] + bb * bb * wr[ib];
-    if (!(wsum > 0)) continue;  // a pinned particle on a pinned segment
-    rep.max_depth = std::max(rep.max_depth, -deepest);
-    ++rep.contacts;
-    // The particle goes to the radius where it first touched (the rope stays where its step put
-    // it); an inelastic contact with friction shares the impulse, so a particle that hit the rope
-    // off its top slides around it in the next steps.
-    if (wp[p] > 0) xp = best_q + s.radius * best_n;
-    auto relative = [&] { return Vec3(ps.v[p] - (ba * rs.v[ia] + bb * rs.v[ib])); };
-    auto apply = [&](const Vec3& impulse) {
-      ps.v[p] += wp[p] * impulse;
-      rs.v[ia] -= wr[ia] * ba * impulse;
-      rs.v[ib] -= wr[ib] * bb * impulse;
-      rep.force_on_body -= impulse * inv_dt;
-    };
-    const double vn = relative().dot(best_n);
-    if (vn >= 0) continue;
-    const double jn = -vn / wsum;
-    apply(jn * best_n);
-    if (s.friction > 0) {
-      const Vec3 vr = relative();
-      const Vec3 vt = vr - vr.dot(best_n) * best_n;
-      const double speed = vt.norm();
-      if (speed > 0) apply(-std::min(speed / wsum, s.friction * jn) * (vt / speed));
-    }
+    // As against a cloth, at the radius where it first touched: a particle that hit the rope off
+    // its top keeps its tangential speed and slides around it in the next steps.
+    const size_t ia = size_t(best);
+    exchange<2>(ps, p, wp, rs, {ia, ia + 1}, {1 - best_s, best_s}, wr, Vec3(best_q + s.radius * best_n), best_n,
+                deepest, s.friction, inv_dt, rep);
   }
   return rep;
 }

@@ -2,9 +2,11 @@
 // A uniform grid over triangles (or segments given as triangles (a, b, b)) for the contacts
 // between bodies and the body's contact with a cloth: each triangle is binned by its box grown
 // by the search reach (and, with `swept_from`, by where its corners were), so a point looks in
-// its own cell only and a path in the cells its box touches.
+// its own cell only and a path in the cells its box touches. And the contact of a moving point
+// with a moving triangle that those contacts share.
 #pragma once
 
+#include "pliant/interaction.hpp"
 #include "pliant/mesh.hpp"
 
 #include <algorithm>
@@ -79,6 +81,16 @@ class TriangleGrid {
         }
   }
 
+  // The candidates for a point that moved from `start` to `x`: the triangles near its path, or
+  // (a path too long to search) those of the cell it ended in.
+  void candidates(const Vec3& start, const Vec3& x, std::vector<int32_t>& out) const {
+    near_segment(start, x, 4096, out);
+    if (out.empty()) {
+      const auto cell = near(x);
+      out.assign(cell.begin(), cell.end());
+    }
+  }
+
  private:
   // Finite points only; far-away ones are clamped (their cells are never near a triangle's).
   std::array<int64_t, 3> cell_of(const Vec3& p) const {
@@ -95,5 +107,50 @@ class TriangleGrid {
   std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> ranges_;
   std::vector<int32_t> triangles_;
 };
+
+// A point's contact with a triangle, both moving linearly over the step: the point from `start`
+// to `x`, the corners from `from` to `to` (the same for a triangle that does not move). The point
+// belongs on the side of the triangle it started on (against the triangle where it started).
+// A contact when it ends within `radius` of the triangle on that side, or behind its plane having
+// gone through the triangle during the step: its distance to the plane goes from s0 to s1, and
+// where it changes sign the point must be inside the triangle of that moment (within the
+// radius) -- that catches a point crossing and a triangle springing back past a point, which
+// neither the path nor the triangle at its start or end alone shows; otherwise the point is
+// behind another part of the surface (around this triangle's edge). Returns whether there is a
+// contact, with C (< 0: the distance along n less the radius), n (towards where the point
+// belongs) and b (the barycentric weights of the closest point at the end).
+inline bool triangle_contact(const Vec3& start, const Vec3& x, const std::array<Vec3, 3>& from,
+                             const std::array<Vec3, 3>& to, double radius, double& C, Vec3& n,
+                             std::array<double, 3>& b) {
+  const Vec3 face = (to[1] - to[0]).cross(to[2] - to[0]);
+  if (!(face.squaredNorm() > 0)) return false;
+  std::array<double, 3> bs;
+  const Vec3 qs = closest_point_on_triangle(start, from[0], from[1], from[2], bs);
+  const Vec3 n_start = (from[1] - from[0]).cross(from[2] - from[0]);
+  const Vec3 n_face = face.normalized();
+  const Vec3 n_side = (start - qs).dot(n_start) < 0 ? Vec3(-n_face) : n_face;
+  const Vec3 d = x - closest_point_on_triangle(x, to[0], to[1], to[2], b);
+  const double along = d.dot(n_side);
+  n = n_side;
+  if (along >= 0) {
+    // On its side: apart along the line to the closest point (the face normal when on it).
+    const double len = d.norm();
+    if (len >= radius) return false;
+    if (len > 1e-12 * radius) n = d / len;
+    C = len - radius;
+    return true;
+  }
+  if (!(n_start.squaredNorm() > 0)) return false;
+  const double s0 = (start - from[0]).dot(n_start.normalized()), s1 = (x - to[0]).dot(n_face);
+  if (!((s0 > 0) != (s1 > 0)) || s0 == s1) return false;
+  const double tc = s0 / (s0 - s1);
+  const Vec3 pc = start + tc * (x - start);
+  std::array<double, 3> bc;
+  const Vec3 qc = closest_point_on_triangle(pc, from[0] + tc * (to[0] - from[0]), from[1] + tc * (to[1] - from[1]),
+                                            from[2] + tc * (to[2] - from[2]), bc);
+  if ((pc - qc).norm() > radius) return false;
+  C = along - radius;
+  return true;
+}
 
 }  // namespace pliant::detail

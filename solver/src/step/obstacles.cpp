@@ -51,18 +51,16 @@ void ObstacleContacts::begin_step(const BodyModel& m, const std::vector<Vec3>& x
       hi = hi.cwiseMax(p);
     }
     boxes_.emplace_back(lo - Vec3::Constant(obstacles[o].radius), hi + Vec3::Constant(obstacles[o].radius));
-    grids_.push_back(std::make_unique<TriangleGrid>(obstacles[o].triangles, std::span<const Vec3>(obstacles[o].x),
-                                                    obstacles[o].radius));
+    grids_.emplace_back(obstacles[o].triangles, std::span<const Vec3>(obstacles[o].x), obstacles[o].radius);
   }
 }
 
 int ObstacleContacts::resolve(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec3>& x_substep_start,
                               double h) {
   int contacts = 0;
-  std::vector<int32_t> near;
   for (size_t o = 0; o < obstacles_.size(); ++o) {
     const TriangleObstacle& ob = *obstacles_[o];
-    const TriangleGrid& grid = *grids_[o];
+    const TriangleGrid& grid = grids_[o];
     const double r = ob.radius;
     for (size_t k = 0; k < surface_.size(); ++k) {
       const size_t v = size_t(surface_[k]);
@@ -74,52 +72,23 @@ int ObstacleContacts::resolve(const BodyModel& m, std::vector<Vec3>& x, const st
       if ((start.cwiseMax(xv).array() < boxes_[o].first.array()).any() ||
           (start.cwiseMin(xv).array() > boxes_[o].second.array()).any())
         continue;
-      grid.near_segment(start, xv, 4096, near);
-      if (near.empty()) {
-        const auto cell = grid.near(xv);
-        near.assign(cell.begin(), cell.end());
-      }
+      grid.candidates(start, xv, near_);
       double deepest = 0;
       int32_t best = -1;
       std::array<double, 3> best_b{};
       Vec3 best_n = Vec3::Zero();
-      for (int32_t t : near) {
+      for (int32_t t : near_) {
         const auto& tri = ob.triangles[size_t(t)];
-        const Vec3 &a = ob.x[tri[0]], &b = ob.x[tri[1]], &c = ob.x[tri[2]];
-        const Vec3 face = (b - a).cross(c - a);
-        if (!(face.squaredNorm() > 0)) continue;
-        const Vec3 nf = face.normalized();
-        // The vertex's side: where it started the step (the triangles do not move during it).
-        std::array<double, 3> bs;
-        const Vec3 qs = closest_point_on_triangle(start, a, b, c, bs);
-        const Vec3 n_side = (start - qs).dot(nf) < 0 ? Vec3(-nf) : nf;
-        std::array<double, 3> bw;
-        const Vec3 q = closest_point_on_triangle(xv, a, b, c, bw);
-        const Vec3 d = xv - q;
-        const double along = d.dot(n_side);
-        Vec3 n = n_side;
+        const std::array<Vec3, 3> corners{ob.x[tri[0]], ob.x[tri[1]], ob.x[tri[2]]};
         double C;
-        if (along >= 0) {
-          const double len = d.norm();
-          if (len >= r) continue;
-          if (len > 1e-12 * r) n = d / len;
-          C = len - r;
-        } else {
-          // Behind the plane: a contact only if the vertex's path since the step's start went
-          // through this triangle (within the radius), else it is behind another part of it.
-          const double s0 = (start - a).dot(n_side), s1 = along;
-          if (!(s0 > 0) || s0 == s1) continue;
-          const Vec3 pc = start + (s0 / (s0 - s1)) * (xv - start);
-          std::array<double, 3> bc;
-          if ((pc - closest_point_on_triangle(pc, a, b, c, bc)).norm() > r) continue;
-          C = along - r;
-        }
-        if (C < deepest) {
-          deepest = C;
-          best = t;
-          best_b = bw;
-          best_n = n;
-        }
+        Vec3 n;
+        std::array<double, 3> bw;
+        // The triangles do not move during the body's step: the same corners at both ends.
+        if (!triangle_contact(start, xv, corners, corners, r, C, n, bw) || !(C < deepest)) continue;
+        deepest = C;
+        best = t;
+        best_b = bw;
+        best_n = n;
       }
       if (best < 0) continue;
       ++contacts;

@@ -8,7 +8,6 @@
 #include "pliant/stepper.hpp"
 #include "particles/triangle_grid.hpp"
 
-#include <memory>
 #include <vector>
 
 namespace pliant::detail {
@@ -32,11 +31,12 @@ class ObstacleContacts {
  private:
   uint64_t model_id_ = 0;
   std::vector<const TriangleObstacle*> obstacles_;
-  std::vector<std::unique_ptr<TriangleGrid>> grids_;
+  std::vector<TriangleGrid> grids_;
   std::vector<std::pair<Vec3, Vec3>> boxes_;  // each obstacle's box grown by its radius
   std::vector<int32_t> surface_;    // surface vertices
   std::vector<Vec3> step_start_;    // their positions at the start of the step
   std::vector<std::vector<Vec3>> impulses_;
+  std::vector<int32_t> near_;       // scratch: a vertex's candidate triangles
 };
 
 }  // namespace pliant::detail
