@@ -40,19 +40,33 @@ void set(v1::Vec3* v, double x, double y, double z) {
   v->set_z(z);
 }
 
-// beam1 clamped at x <= 0.01 beside a rope pinned at one end (21 particles), a cloth pinned at
-// two corners (8 x 8) and a fluid block in a container (4 x 4 x 4), lockstep.
-v1::CreateSceneRequest bodies_request(const std::string& id) {
+// beam1 clamped at x <= 0.01, lockstep at 60 Hz: the scene every test here adds its bodies to.
+v1::CreateSceneRequest beam_scene(const std::string& id) {
   v1::CreateSceneRequest r;
   r.set_scene_id(id);
   auto* s = r.mutable_spec();
   s->mutable_mesh()->set_builtin("beam1");
   client::clamp_below_x(*s, 0.01);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+  s->mutable_tick()->set_dt(1.0 / 60);
+  return r;
+}
+
+// A box container at `center` with half sizes `half`, m.
+void set_container(v1::FluidSpec* f, double cx, double cy, double cz, double hx, double hy, double hz) {
+  auto* box = f->mutable_container()->mutable_box();
+  set(box->mutable_center(), cx, cy, cz);
+  set(box->mutable_half_extent(), hx, hy, hz);
+}
+
+// beam1 clamped at x <= 0.01 beside a rope pinned at one end (21 particles), a cloth pinned at
+// two corners (8 x 8) and a fluid block in a container (4 x 4 x 4), lockstep.
+v1::CreateSceneRequest bodies_request(const std::string& id) {
+  v1::CreateSceneRequest r = beam_scene(id);
+  auto* s = r.mutable_spec();
   s->mutable_solver()->set_method(v1::METHOD_XPBD);
   s->mutable_solver()->set_substeps(2);
   s->mutable_solver()->set_iterations(2);
-  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
-  s->mutable_tick()->set_dt(1.0 / 60);
 
   auto* rope = s->add_bodies();
   rope->set_name("rope");
@@ -84,9 +98,7 @@ v1::CreateSceneRequest bodies_request(const std::string& id) {
   auto* blk = fs_->add_blocks();
   set(blk->mutable_min(), -3.1, 0.0, -0.1);
   set(blk->mutable_max(), -2.9, 0.2, 0.1);
-  auto* box = fs_->mutable_container()->mutable_box();
-  set(box->mutable_center(), -3, 0.2, 0);
-  set(box->mutable_half_extent(), 0.3, 0.3, 0.3);
+  set_container(fs_, -3, 0.2, 0, 0.3, 0.3, 0.3);
   return r;
 }
 
@@ -272,13 +284,8 @@ namespace {
 // A 0.6 m cloth of 1 kg/m^2 pinned at its corners (y = 2, centred on x = 5) and 27 particles of
 // water (2 cm apart) 15 cm above its middle, away from the clamped beam1; lockstep.
 v1::CreateSceneRequest hammock_request(const std::string& id, bool water_contact) {
-  v1::CreateSceneRequest r;
-  r.set_scene_id(id);
+  v1::CreateSceneRequest r = beam_scene(id);
   auto* s = r.mutable_spec();
-  s->mutable_mesh()->set_builtin("beam1");
-  client::clamp_below_x(*s, 0.01);
-  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
-  s->mutable_tick()->set_dt(1.0 / 60);
   auto* cloth = s->add_bodies();
   cloth->set_name("hammock");
   auto* cs = cloth->mutable_cloth();
@@ -590,20 +597,13 @@ TEST(Bodies, RestartKeepsTheBodies) {
 // beam1 beside a container with no water in it and a tap above: a disc of 13 lattice points
 // (radius 2 spacings) pouring downwards at 1.5 m/s, 10 layers at most.
 v1::CreateSceneRequest tap_request(const std::string& id) {
-  v1::CreateSceneRequest r;
-  r.set_scene_id(id);
+  v1::CreateSceneRequest r = beam_scene(id);
   auto* s = r.mutable_spec();
-  s->mutable_mesh()->set_builtin("beam1");
-  client::clamp_below_x(*s, 0.01);
-  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
-  s->mutable_tick()->set_dt(1.0 / 60);
   auto* fluid = s->add_bodies();
   fluid->set_name("tap");
   auto* f = fluid->mutable_fluid();
   f->set_spacing(0.05);
-  auto* box = f->mutable_container()->mutable_box();
-  set(box->mutable_center(), -3, 0.5, 0);
-  set(box->mutable_half_extent(), 0.4, 0.5, 0.4);
+  set_container(f, -3, 0.5, 0, 0.4, 0.5, 0.4);
   auto* e = f->add_emitters();
   set(e->mutable_center(), -3, 0.8, 0);
   set(e->mutable_direction(), 0, -2, 0);  // normalised by the server
@@ -871,13 +871,8 @@ TEST(Bodies, ARopeLaidOnTheBeamRestsOnItAndBendsIt) {
 // A rope stretched between two pins and a little block of water just above its middle, in a
 // container far from the beam.
 v1::CreateSceneRequest line_request(const std::string& id, bool rope_contact) {
-  v1::CreateSceneRequest r;
-  r.set_scene_id(id);
+  v1::CreateSceneRequest r = beam_scene(id);
   auto* s = r.mutable_spec();
-  s->mutable_mesh()->set_builtin("beam1");
-  client::clamp_below_x(*s, 0.01);
-  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
-  s->mutable_tick()->set_dt(1.0 / 60);
   auto* line = s->add_bodies();
   line->set_name("line");
   line->set_body_contact(rope_contact);
@@ -897,9 +892,7 @@ v1::CreateSceneRequest line_request(const std::string& id, bool rope_contact) {
   auto* blk = f->add_blocks();
   set(blk->mutable_min(), -3.04, 0.9, -0.02);
   set(blk->mutable_max(), -2.96, 0.94, 0.02);
-  auto* box = f->mutable_container()->mutable_box();
-  set(box->mutable_center(), -3, 0.5, 0);
-  set(box->mutable_half_extent(), 0.4, 0.5, 0.4);
+  set_container(f, -3, 0.5, 0, 0.4, 0.5, 0.4);
   return r;
 }
 
@@ -956,15 +949,10 @@ TEST(Bodies, ARopeIsAnObstacleToWaterFallingOnIt) {
 // beam1 clamped at x <= 0.01, soft (100 kPa) so it sags far, over a drape of two triangles
 // pinned at its four corners 2 cm below it: no cloth particle is anywhere near the beam.
 v1::CreateSceneRequest drape_request(const std::string& id, bool soft_body_contact, v1::Method method) {
-  v1::CreateSceneRequest r;
-  r.set_scene_id(id);
+  v1::CreateSceneRequest r = beam_scene(id);
   auto* s = r.mutable_spec();
-  s->mutable_mesh()->set_builtin("beam1");
-  client::clamp_below_x(*s, 0.01);
   s->mutable_material()->set_young_modulus(1e5);
   s->mutable_solver()->set_method(method);
-  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
-  s->mutable_tick()->set_dt(1.0 / 60);
   auto* body = s->add_bodies();
   body->set_name("drape");
   body->set_soft_body_contact(soft_body_contact);
