@@ -11,11 +11,16 @@
 #include "pliant/model.hpp"
 #include "pliant/state.hpp"
 #include "pliant/stepper.hpp"
+#include "step/thread_pool.hpp"
 
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <cmath>
 #include <ostream>
+#include <random>
 #include <string>
+#include <vector>
 
 using namespace pliant;
 
@@ -85,5 +90,44 @@ INSTANTIATE_TEST_SUITE_P(
                       Case{"newton_direct", Method::Newton, Sweep::GaussSeidel, NewtonLinearSolver::Direct, 1, 2},
                       Case{"newton_cg", Method::Newton, Sweep::GaussSeidel, NewtonLinearSolver::Cg, 1, 2}),
     [](const ::testing::TestParamInfo<Case>& info) { return info.param.name; });
+
+// The pool's contract, which the bit-for-bit results above rest on: a job of n items is cut into
+// size() chunks [n c / size, n (c + 1) / size), each run exactly once whichever thread claims
+// it, and a job's chunks all end before parallel_for returns. With more threads than cores (8
+// on a 2-core machine) workers wake up late, after the caller has run their chunks itself: a
+// late worker must then run nothing, neither that job's chunks again nor a finished job's.
+TEST(ThreadCountPool, RunsEveryChunkOnceWhicheverThreadClaimsIt) {
+  std::mt19937 rng(7);
+  for (int threads : {1, 2, 3, 8}) {
+    ThreadPool pool(threads);
+    ASSERT_EQ(pool.size(), threads);
+    std::vector<std::atomic<int>> runs(static_cast<size_t>(threads));
+    std::vector<size_t> begin(static_cast<size_t>(threads)), end(static_cast<size_t>(threads));
+    for (int job = 0; job < 3000; ++job) {
+      const size_t n = std::uniform_int_distribution<size_t>(0, 5000)(rng);
+      for (auto& r : runs) r.store(0);
+      std::atomic<size_t> items{0};
+      pool.parallel_for(n, [&](int chunk, size_t b, size_t e) {
+        runs[size_t(chunk)].fetch_add(1);
+        begin[size_t(chunk)] = b;
+        end[size_t(chunk)] = e;
+        double sum = 0;  // a few microseconds of work, so that workers wake up in time for some
+        for (size_t i = b; i < e; ++i) sum += std::sqrt(double(i));
+        items.fetch_add(e - b + (sum < 0 ? 1 : 0));
+      }, 1);
+      ASSERT_EQ(items.load(), n) << threads << " threads, job " << job;
+      const int chunks = n < 1 || threads == 1 ? 1 : threads;  // below min_parallel: one inline call
+      for (int c = 0; c < chunks; ++c) {
+        ASSERT_EQ(runs[size_t(c)].load(), 1) << threads << " threads, job " << job << ", chunk " << c;
+        if (chunks == 1) continue;
+        EXPECT_EQ(begin[size_t(c)], n * size_t(c) / size_t(threads));
+        EXPECT_EQ(end[size_t(c)], n * size_t(c + 1) / size_t(threads));
+      }
+      for (int c = chunks; c < threads; ++c) ASSERT_EQ(runs[size_t(c)].load(), 0);
+    }
+    // How much the workers took (the rest ran on the caller): a property of the run, not checked.
+    RecordProperty("worker_chunks_" + std::to_string(threads), std::to_string(pool.chunks_run_by_workers()));
+  }
+}
 
 }  // namespace

@@ -189,7 +189,7 @@ struct Stepper::Impl {
           hits += correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
         }
         floor_hits_per_chunk[chunk] += hits;
-      }, all ? 32 : SIZE_MAX);
+      }, 32);
     }
     floor_moved.clear();
     for (const auto& v : floor_moved_chunks) floor_moved.insert(floor_moved.end(), v.begin(), v.end());
