@@ -156,16 +156,13 @@ struct Stepper::Impl {
   }
 
   // One pass of the inversion floor in colour order, four tets at a time. The first pass of a
-  // substep (all = true) visits every pack, each colour in parallel (no two tets of a colour
-  // share a vertex, so the result does not depend on the thread count). A later one visits only
-  // the packs with a corner that a floor correction moved in the previous pass or earlier in
-  // this one (a tet's det F changes only when a corner moves), on this thread: a tangled body
-  // runs up to 40 of them, split between threads each would need a barrier per colour (66 on
-  // the armadillo), and on a loaded machine each barrier waits for a worker to be scheduled
-  // (docs/solver.md, "The floor pass"). It finds
-  // them by checking every pack's corners or, when few vertices moved, from the moved
-  // vertices' tets: the same packs either way (the order within a colour does not matter).
-  // Returns the corrections made.
+  // substep (all = true) visits every pack; a later one only the packs with a corner that a
+  // floor correction moved in the previous pass or earlier in this one (a tet's det F changes
+  // only when a corner moves). When few vertices moved it queues their packs by colour on this
+  // thread (volume_pass_from_moved); otherwise it checks every pack's corners. Each colour of a
+  // scan is split between the threads (no two tets of a colour share a vertex, so the result
+  // does not depend on the thread count); the same packs either way (docs/solver.md, "The
+  // floor pass"). Returns the corrections made.
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp, bool all = true) {
     const detail::PackedModel& packed = detail::packed(m);
     if (floor_stamp.size() != m.vertex_count() || floor_pack_mark.size() != packed.packs.size() ||
