@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "step/thread_pool.hpp"
 
+#include <algorithm>
+
 #if defined(__x86_64__) || defined(__i386__)
 #include <immintrin.h>
 #define PLIANT_PAUSE() _mm_pause()
@@ -12,13 +14,10 @@ namespace pliant {
 
 namespace {
 constexpr int kSpinRounds = 20000;  // about 0.1 ms of pausing before a worker sleeps
-
-uint32_t generation_of(uint64_t claim) { return uint32_t(claim >> 32); }
-uint32_t next_chunk_of(uint64_t claim) { return uint32_t(claim); }
 }  // namespace
 
-ThreadPool::ThreadPool(int threads) {
-  for (int i = 1; i < threads; ++i) workers_.emplace_back([this] { worker_loop(); });
+ThreadPool::ThreadPool(int threads) : claimed_(size_t(std::max(threads, 1))) {
+  for (int i = 1; i < threads; ++i) workers_.emplace_back([this, i] { worker_loop(i); });
 }
 
 ThreadPool::~ThreadPool() {
@@ -30,19 +29,23 @@ ThreadPool::~ThreadPool() {
   for (auto& t : workers_) t.join();
 }
 
-int ThreadPool::claim(uint32_t generation) {
-  uint64_t cur = claim_.load(std::memory_order_acquire);
-  for (;;) {
-    if (generation_of(cur) != generation || next_chunk_of(cur) >= uint32_t(size())) return -1;
-    if (claim_.compare_exchange_weak(cur, cur + 1, std::memory_order_acq_rel, std::memory_order_acquire))
-      return int(next_chunk_of(cur));
+void ThreadPool::run_claimed(int index, uint64_t generation) {
+  const int chunks = size();
+  for (int k = 0; k < chunks; ++k) {
+    const int c = (index + k) % chunks;
+    uint64_t last = claimed_[size_t(c)].load(std::memory_order_acquire);
+    bool mine = false;
+    while (last < generation && !(mine = claimed_[size_t(c)].compare_exchange_weak(last, generation, std::memory_order_acq_rel,
+                                                                                   std::memory_order_acquire))) {
+    }
+    if (!mine) continue;
+    // Claimed for this job, so the job is still running (its caller waits for every chunk).
+    const size_t n = job_n_;
+    (*job_)(c, n * size_t(c) / size_t(chunks), n * size_t(c + 1) / size_t(chunks));
+    chunks_done_.fetch_add(1, std::memory_order_acq_rel);
+    if (index != 0) worker_chunks_.fetch_add(1, std::memory_order_relaxed);
+    if (c != index) taken_over_.fetch_add(1, std::memory_order_relaxed);
   }
-}
-
-void ThreadPool::run_chunk(int chunk) {
-  const size_t n = job_n_, chunks = size_t(size());
-  (*job_)(chunk, n * size_t(chunk) / chunks, n * size_t(chunk + 1) / chunks);
-  chunks_done_.fetch_add(1, std::memory_order_acq_rel);
 }
 
 void ThreadPool::parallel_for(size_t n, const std::function<void(int, size_t, size_t)>& fn,
@@ -51,17 +54,17 @@ void ThreadPool::parallel_for(size_t n, const std::function<void(int, size_t, si
     fn(0, 0, n);
     return;
   }
-  uint32_t generation;
+  uint64_t generation;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     job_ = &fn;
     job_n_ = n;
     chunks_done_.store(0, std::memory_order_relaxed);
-    generation = generation_of(claim_.load(std::memory_order_relaxed)) + 1;
-    claim_.store(uint64_t(generation) << 32, std::memory_order_release);
+    generation = generation_.load(std::memory_order_relaxed) + 1;
+    generation_.store(generation, std::memory_order_release);
   }
   start_cv_.notify_all();
-  for (int c; (c = claim(generation)) >= 0;) run_chunk(c);
+  run_claimed(0, generation);
   // Only chunks a worker has claimed and not finished are left: spin briefly (they finish
   // within microseconds when the worker has a core), then yield so that an oversubscribed
   // machine does not burn the waiting thread's whole time slice.
@@ -71,26 +74,23 @@ void ThreadPool::parallel_for(size_t n, const std::function<void(int, size_t, si
   }
 }
 
-void ThreadPool::worker_loop() {
-  uint32_t seen = 0;
+void ThreadPool::worker_loop(int index) {
+  uint64_t seen = 0;
   for (;;) {
     int spins = 0;
-    while (generation_of(claim_.load(std::memory_order_acquire)) == seen && !stop_.load()) {
+    while (generation_.load(std::memory_order_acquire) == seen && !stop_.load()) {
       if (++spins < kSpinRounds) {
         if (spins < kSpinRounds / 10) PLIANT_PAUSE();
         else std::this_thread::yield();
         continue;
       }
       std::unique_lock<std::mutex> lock(mutex_);
-      start_cv_.wait(lock, [&] { return stop_.load() || generation_of(claim_.load()) != seen; });
+      start_cv_.wait(lock, [&] { return stop_.load() || generation_.load() != seen; });
     }
     if (stop_.load()) return;
-    // The newest job; a job that ended before this worker woke up has no chunk left to claim.
-    seen = generation_of(claim_.load(std::memory_order_acquire));
-    for (int c; (c = claim(seen)) >= 0;) {
-      run_chunk(c);
-      worker_chunks_.fetch_add(1, std::memory_order_relaxed);
-    }
+    // The newest job; one that ended before this worker woke up has no chunk left to claim.
+    seen = generation_.load(std::memory_order_acquire);
+    run_claimed(index, seen);
   }
 }
 

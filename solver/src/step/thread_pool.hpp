@@ -36,22 +36,25 @@ class ThreadPool {
 
   // Chunks of the jobs so far that a worker ran (the rest ran on the calling thread).
   uint64_t chunks_run_by_workers() const { return worker_chunks_.load(std::memory_order_relaxed); }
+  // Chunks that a thread other than their own ran (a late worker's, taken by another thread).
+  uint64_t chunks_taken_over() const { return taken_over_.load(std::memory_order_relaxed); }
 
  private:
-  void worker_loop();
-  // Claims the next chunk of job `generation`; -1 when that job has none left (or is over).
-  int claim(uint32_t generation);
-  void run_chunk(int chunk);
+  void worker_loop(int index);
+  // Runs the chunks of job `generation` that thread `index` can claim, its own first.
+  void run_claimed(int index, uint64_t generation);
 
   std::vector<std::thread> workers_;
   std::mutex mutex_;
   std::condition_variable start_cv_;
   const std::function<void(int, size_t, size_t)>* job_ = nullptr;
   size_t job_n_ = 0;
-  // The job's generation (high 32 bits) and its next unclaimed chunk (low 32 bits).
-  std::atomic<uint64_t> claim_{0};
+  std::atomic<uint64_t> generation_{0};  // of the newest job
+  // Per chunk, the generation of the last job that claimed it: a chunk is claimed for job g by
+  // raising it from below g to g, so a worker that wakes up for a job already over claims nothing.
+  std::vector<std::atomic<uint64_t>> claimed_;
   std::atomic<int> chunks_done_{0};
-  std::atomic<uint64_t> worker_chunks_{0};
+  std::atomic<uint64_t> worker_chunks_{0}, taken_over_{0};
   std::atomic<bool> stop_{false};
 };
 
