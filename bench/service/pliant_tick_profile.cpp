@@ -7,10 +7,11 @@
 // "other": prediction, tool contacts, inversion-floor passes, velocity update, damping), for
 // solver variants that isolate each part (residuals off, inversion floor off, 2 threads), plus
 // the server's own per-tick work outside the solver (the rollback copy of the state, the
-// finiteness check, the frame's float positions).
+// finiteness check, the frame's float positions). --time-budget gives every variant the
+// solver's time budget per tick (iterations and the floor's later passes stop when it is spent).
 //
 // Usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity] [--mu MU]
-//                            [--json]   (one JSON line per variant and one for the server's work)
+//                            [--time-budget MS] [--json]   (one JSON line per variant and one for the server's work)
 // (--young 1e6 --gravity --iterations 4: the 50k scene of pliant_service_bench, which sags under
 // its weight.)
 #include "pliant/builtin_meshes.hpp"
@@ -53,6 +54,7 @@ int main(int argc, char** argv) {
   int ticks = 60, substeps = 1, iterations = 1;
   double young = 5e7;
   bool gravity = false;
+  double budget_ms = 0;  // --time-budget: SolverSettings::time_budget_ms of every variant
   double mu = -1;  // --mu: the sphere's static and dynamic friction (default: RigidTool's)
   bool json = false;
   CLI::App app{"pliant_tick_profile: where the time of one server tick goes on the 50k-tet beam", "pliant_tick_profile"};
@@ -63,6 +65,8 @@ int main(int argc, char** argv) {
   app.add_option("--young", young, "Young's modulus, Pa (default 5e7)")->check(CLI::Range(1.0, 1e12));
   app.add_flag("--gravity", gravity, "-9.81 m/s^2 and the server's default damping (0.5/s), no tool");
   app.add_option("--mu", mu, "the sphere's static and dynamic friction (default: RigidTool's)")->check(CLI::Range(0.0, 10.0));
+  app.add_option("--time-budget", budget_ms, "each variant's solver time budget per tick, ms (default 0: none)")
+      ->check(CLI::Range(0.0, 1e6));
   app.add_flag("--json", json, "one JSON line per variant and one for the server's work, instead of the table");
   if (auto rc = pliant::cli::parse_or_exit(app, argc, argv, "pliant_tick_profile")) return *rc;
   const TetMesh mesh = make_beam(51, 21, 11, 0.005);
@@ -77,9 +81,9 @@ int main(int argc, char** argv) {
                 "per variant after 30\n",
                 model->vertex_count(), model->tet_count(), model->colours.size(), young, scene, substeps, iterations,
                 ticks);
-    std::printf("| variant | tick ms | projection | residual | other | update | volume corrections / tick | "
-                "tets with det F < 0.2 / <= 0 / min det F at the end |\n");
-    std::printf("|---|---|---|---|---|---|---|---|\n");
+    std::printf("| variant | tick ms | projection | residual | other | update | iterations / tick | volume corrections / tick | "
+                "ticks with the floor cut by the budget | tets with det F < 0.2 / <= 0 / min det F at the end |\n");
+    std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
   }
   const Variant variants[] = {
       {"server default (residuals on, floor 0.2, 1 thread)", true, 0.2, 1},
@@ -103,6 +107,7 @@ int main(int argc, char** argv) {
     s.record_residuals = var.residuals;
     s.inversion_floor = var.floor;
     s.threads = var.threads;
+    s.time_budget_ms = budget_ms;
     BodyState st = rest_state(*model);
     Stepper stepper;
     StepInputs in;
@@ -111,7 +116,8 @@ int main(int argc, char** argv) {
     RigidTool sphere = RigidTool::sphere(Eigen::Vector3d(0.2, 0.11, 0.025), 0.01);
     if (mu >= 0) sphere.static_friction = sphere.dynamic_friction = mu;
     PhaseTimes sum;
-    double wall = 0, corrections = 0;
+    double wall = 0, corrections = 0, iterations = 0;
+    int floor_cut = 0;  // ticks whose later floor passes the budget cut
     const int warmup = 30;  // the press reaches its depth
     for (int k = 0; k < warmup + ticks; ++k) {
       in.tools.clear();
@@ -132,6 +138,8 @@ int main(int argc, char** argv) {
       sum.other_ms += r.times.other_ms;
       sum.update_ms += r.times.update_ms + r.times.anderson_ms;
       corrections += r.volume_corrections;
+      iterations += r.iterations;
+      floor_cut += r.floor_stopped_by_budget;
     }
     // Volume ratios det F after the last tick: how many tets sit under the floor.
     int under_floor = 0, inverted = 0;
@@ -159,14 +167,17 @@ int main(int argc, char** argv) {
                                                    {"other_ms", sum.other_ms / ticks},
                                                    {"update_ms", sum.update_ms / ticks},
                                                    {"volume_corrections_per_tick", corrections / ticks},
+                                                   {"time_budget_ms", budget_ms},
+                                                   {"iterations_per_tick", iterations / ticks},
+                                                   {"ticks_floor_cut_by_budget", floor_cut},
                                                    {"tets_below_floor", under_floor},
                                                    {"tets_inverted", inverted},
                                                    {"min_det_f", min_det}})
                                  .c_str());
     } else {
-      std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.0f | %d / %d / %.3f |\n", var.name, wall / ticks,
+      std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.1f | %.0f | %d | %d / %d / %.3f |\n", var.name, wall / ticks,
                   sum.projection_ms / ticks, sum.residual_ms / ticks, sum.other_ms / ticks, sum.update_ms / ticks,
-                  corrections / ticks, under_floor, inverted, min_det);
+                  iterations / ticks, corrections / ticks, floor_cut, under_floor, inverted, min_det);
     }
     std::fflush(stdout);
   }

@@ -53,6 +53,7 @@ void solver_stats_to_proto(const StepReport& r, bool all, v1::SolverStats* out) 
   out->set_step_wall_ms(r.wall_ms);
   out->set_stopped_by_tolerance(r.stopped_by_tolerance);
   out->set_stopped_by_budget(r.stopped_by_budget);
+  out->set_floor_stopped_by_budget(r.floor_stopped_by_budget);
   out->set_volume_corrections(r.volume_corrections);
 }
 

@@ -59,6 +59,7 @@ void add_substep(StepReport& total, StepReport&& r) {
   total.diverged |= r.diverged;
   total.stopped_by_tolerance |= r.stopped_by_tolerance;
   total.stopped_by_budget |= r.stopped_by_budget;
+  total.floor_stopped_by_budget |= r.floor_stopped_by_budget;
   total.cancelled |= r.cancelled;
   total.contacts = r.contacts;
   total.volume_corrections = r.volume_corrections;

@@ -527,12 +527,22 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
   }
   if (s.inversion_floor > 0) {
     // Neighbours projected later in a pass can push an earlier tet back under the floor:
-    // repeat (kVolumePasses at most) until a pass finds nothing to do.
+    // repeat (kVolumePasses at most) until a pass finds nothing to do. The later passes belong
+    // to the step's time: they stop when the budget is spent or the step is cancelled (on a
+    // tangled mesh they do not converge, and 40 of them can cost more than the sweeps).
     PhaseTimer t{rep.times.other_ms};
     int hits = I.volume_pass(m, x, s.inversion_floor, tp);
     rep.volume_corrections += hits;
     int pass = 1;
     for (; pass < kVolumePasses && hits > 0; ++pass) {
+      if (inputs.cancel && inputs.cancel->load(std::memory_order_relaxed)) {
+        rep.cancelled = true;
+        break;
+      }
+      if (budget_ms > 0 && ms_since(t_start) - hook_ms >= budget_ms) {
+        rep.floor_stopped_by_budget = true;
+        break;
+      }
       hits = I.volume_pass(m, x, s.inversion_floor, tp, false);
       rep.volume_corrections += hits;
     }
