@@ -39,8 +39,8 @@ struct StepReport {
   bool diverged = false;               // residual exploded or state went non-finite
   bool stopped_by_tolerance = false;
   bool stopped_by_budget = false;
-  // Method xpbd and its accelerators: the inversion floor's later passes were cut short by the
-  // time budget in some substep (the first pass always runs; the next step's floor goes on).
+  // The inversion floor's later passes were cut short by the time budget in some substep (the
+  // first pass always runs; the next step's floor goes on).
   bool floor_stopped_by_budget = false;
   bool cancelled = false;              // StepInputs::cancel was set: the step stopped between sweeps
   int contacts = 0;                    // active contacts at the end of the step

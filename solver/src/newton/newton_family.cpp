@@ -1020,8 +1020,13 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       // Inversion safety as in the projection family: tets pushed under the floor are pushed back
       // by the unilateral volume constraint (repeated while a pass still acts, at most 20).
       if (moved && s.inversion_floor > 0) {
-        const int hits = volume_floor_.enforce(m, x, s.inversion_floor, kVolumePasses, tp);
+        const int hits = volume_floor_.enforce(m, x, s.inversion_floor, kVolumePasses, tp, [&] {
+          return (in.cancel && in.cancel->load(std::memory_order_relaxed)) || (budget > 0 && ms_since(t_sub) >= budget);
+        });
         rep.volume_corrections += hits;
+        // A cut floor is reported; the iteration's own checks below then stop the substep.
+        if (volume_floor_.stopped() && !(in.cancel && in.cancel->load(std::memory_order_relaxed)))
+          rep.floor_stopped_by_budget = true;
         if (hits > 0) full_step = false;
       }
       rep.times.other_ms += ms_since(t_ls);

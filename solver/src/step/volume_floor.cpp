@@ -28,7 +28,8 @@ bool VolumeFloor::flag(const BodyModel& m, const std::vector<Vec3>& x, double fl
 }
 
 int VolumeFloor::enforce(const BodyModel& m, std::vector<Vec3>& x, double floor, int max_passes,
-                         ThreadPool& pool) {
+                         ThreadPool& pool, const std::function<bool()>& stop) {
+  stopped_ = false;
   if (max_passes <= 0 || !flag(m, x, floor, pool)) return 0;
   // A tet's det F changes only when one of its corners moves: after the first pass, the tets to
   // visit are those with a corner the previous pass or this one moved (mark 2: moved in this
@@ -36,6 +37,10 @@ int VolumeFloor::enforce(const BodyModel& m, std::vector<Vec3>& x, double floor,
   moved_.assign(x.size(), 0);
   int total = 0;
   for (int pass = 0; pass < max_passes; ++pass) {
+    if (pass > 0 && stop && stop()) {
+      stopped_ = true;
+      break;
+    }
     int hits = 0;
     for (size_t t = 0; t < m.tets.size(); ++t) {
       const TetRest& tet = m.tets[t];

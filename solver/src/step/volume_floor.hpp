@@ -11,6 +11,7 @@
 #include "pliant/model.hpp"
 #include "step/thread_pool.hpp"
 
+#include <functional>
 #include <vector>
 
 namespace pliant::detail {
@@ -18,8 +19,11 @@ namespace pliant::detail {
 class VolumeFloor {
  public:
   // At most max_passes passes; returns the number of corrections (0: every tet was above the
-  // floor, and x is untouched).
-  int enforce(const BodyModel& model, std::vector<Vec3>& x, double floor, int max_passes, ThreadPool& pool);
+  // floor, and x is untouched). When given, stop is asked before each pass after the first (a
+  // spent time budget, a cancelled step): true ends the passes there, and stopped() says so.
+  int enforce(const BodyModel& model, std::vector<Vec3>& x, double floor, int max_passes, ThreadPool& pool,
+              const std::function<bool()>& stop = nullptr);
+  bool stopped() const { return stopped_; }
 
  private:
   // Flags the tets with det F below the floor (plus a margin for the order of the arithmetic);
@@ -30,6 +34,7 @@ class VolumeFloor {
   std::vector<char> moved_;    // per vertex, in the current pass
   std::vector<int32_t> moved_list_;
   std::vector<char> chunk_found_;
+  bool stopped_ = false;
 };
 
 }  // namespace pliant::detail
