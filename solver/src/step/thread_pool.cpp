@@ -43,8 +43,6 @@ void ThreadPool::run_claimed(int index, uint64_t generation) {
     const size_t n = job_n_;
     (*job_)(c, n * size_t(c) / size_t(chunks), n * size_t(c + 1) / size_t(chunks));
     chunks_done_.fetch_add(1, std::memory_order_acq_rel);
-    if (index != 0) worker_chunks_.fetch_add(1, std::memory_order_relaxed);
-    if (c != index) taken_over_.fetch_add(1, std::memory_order_relaxed);
   }
 }
 

@@ -34,10 +34,6 @@ class ThreadPool {
   void parallel_for(size_t n, const std::function<void(int, size_t, size_t)>& fn,
                     size_t min_parallel = 128);
 
-  // Chunks of the jobs so far that a worker ran (the rest ran on the calling thread).
-  uint64_t chunks_run_by_workers() const { return worker_chunks_.load(std::memory_order_relaxed); }
-  // Chunks that a thread other than their own ran (a late worker's, taken by another thread).
-  uint64_t chunks_taken_over() const { return taken_over_.load(std::memory_order_relaxed); }
 
  private:
   void worker_loop(int index);
@@ -54,7 +50,6 @@ class ThreadPool {
   // raising it from below g to g, so a worker that wakes up for a job already over claims nothing.
   std::vector<std::atomic<uint64_t>> claimed_;
   std::atomic<int> chunks_done_{0};
-  std::atomic<uint64_t> worker_chunks_{0}, taken_over_{0};
   std::atomic<bool> stop_{false};
 };
 

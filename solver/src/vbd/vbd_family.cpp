@@ -507,14 +507,12 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
     const auto t_end = Clock::now();
     if (s.inversion_floor > 0) {
       // The later passes belong to the substep's time, as the iterations do.
+      const auto cancelled = [&] { return inputs.cancel && inputs.cancel->load(std::memory_order_relaxed); };
       total.volume_corrections = volume_floor_.enforce(m, state.x, s.inversion_floor, kVolumePasses, tp, [&] {
-        return (inputs.cancel && inputs.cancel->load(std::memory_order_relaxed)) ||
-               (budget > 0 && ms_since(t_sub) - hook_ms >= budget);
+        return cancelled() || (budget > 0 && ms_since(t_sub) - hook_ms >= budget);
       });
-      if (volume_floor_.stopped()) {
-        if (inputs.cancel && inputs.cancel->load(std::memory_order_relaxed)) total.cancelled = true;
-        else total.floor_stopped_by_budget = true;
-      }
+      if (volume_floor_.stopped() && cancelled()) total.cancelled = true;
+      else if (volume_floor_.stopped()) total.floor_stopped_by_budget = true;
     }
     total.contacts = collider_contacts + obstacle_contacts;
     accumulate_reactions(m, state.x, inputs, total);
