@@ -1,8 +1,9 @@
 // SPDX-License-Identifier: Apache-2.0
 // The step does not depend on how many threads run it: every family splits its loops over
-// work that shares no vertex (a colour's tets or vertices) and reduces in a fixed order, so
-// one thread, two and four reach the same state bit for bit. Short steps on beam3 (3,120 tets:
-// colours large enough to be split), with a tool and a grab in play.
+// work that shares no vertex (a slab's or a colour's tets, a colour's vertices) and reduces in
+// a fixed order, so one thread, two and four reach the same state bit for bit. Short steps on
+// beam3 (3,120 tets: four slabs in the sweeps' block order, colours large enough to be split
+// in the other loops), with a tool and a grab in play.
 // CI also runs these under ThreadSanitizer (scripts/sanitize.sh, SANITIZER=thread): they
 // drive the thread pool through every family's parallel loops without gRPC in the process.
 #include "pliant/builtin_meshes.hpp"

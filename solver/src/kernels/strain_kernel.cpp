@@ -6,8 +6,11 @@
 
 #include "pliant/strain_constraint.hpp"
 
+#include <spdlog/spdlog.h>
+
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 namespace pliant::detail {
 
@@ -66,34 +69,202 @@ TetOne tet_lanes(const TetRest& tet, const double w[4]) {
   return t;
 }
 
+namespace {
+
+// Greedy colouring of a subset of the tets (each takes the lowest colour none of its vertices has
+// used in this subset), then each colour sorted by lowest vertex index so that neighbouring packs
+// touch nearby memory (the thesis armadillo's numbering is otherwise scattered).
+std::vector<std::vector<int32_t>> colour_subset(const BodyModel& m, const std::vector<int32_t>& subset,
+                                                std::vector<std::vector<uint64_t>>& used) {
+  std::vector<std::vector<int32_t>> colours;
+  for (int32_t t : subset) {
+    const Tet& v = m.tets[t].v;
+    int c = 0;
+    for (;; ++c) {
+      const size_t w = size_t(c) / 64;
+      const uint64_t bit = uint64_t(1) << (c % 64);
+      bool taken = false;
+      for (int k = 0; k < 4 && !taken; ++k) taken = w < used[v[k]].size() && (used[v[k]][w] & bit);
+      if (!taken) break;
+    }
+    const size_t w = size_t(c) / 64;
+    const uint64_t bit = uint64_t(1) << (c % 64);
+    for (int k = 0; k < 4; ++k) {
+      if (used[v[k]].size() <= w) used[v[k]].resize(w + 1, 0);
+      used[v[k]][w] |= bit;
+    }
+    if (colours.size() <= size_t(c)) colours.resize(c + 1);
+    colours[c].push_back(t);
+  }
+  for (int32_t t : subset)
+    for (int k = 0; k < 4; ++k) used[m.tets[t].v[k]].clear();  // ready for the next subset
+  auto lowest = [&](int32_t t) { return *std::min_element(m.tets[t].v.begin(), m.tets[t].v.end()); };
+  for (auto& colour : colours)
+    std::sort(colour.begin(), colour.end(), [&](int32_t a, int32_t b) { return lowest(a) < lowest(b); });
+  return colours;
+}
+
+// Appends one pack of n (1..4) tets that share no vertex; a short pack repeats its last tet in
+// the padding lanes, which are never written back.
+void append_pack(BodyModel& m, PackedModel& pm, const int32_t* tets, int n) {
+  TetPack p{};
+  p.lanes = n;
+  p.slot = int32_t(4 * pm.packs.size());
+  for (int l = 0; l < 4; ++l) {
+    const int32_t t = tets[std::min(l, n - 1)];
+    const TetRest& tr = m.tets[t];
+    if (l < n) m.tet_slot[t] = p.slot + l;
+    const double w[4] = {m.inv_mass[tr.v[0]], m.inv_mass[tr.v[1]], m.inv_mass[tr.v[2]], m.inv_mass[tr.v[3]]};
+    fill_lane(p, l, t, tr, w);
+  }
+  pm.packs.push_back(p);
+}
+
+// One colour as packs of 4 (the last one short).
+void append_colour(BodyModel& m, PackedModel& pm, const std::vector<int32_t>& colour) {
+  for (size_t start = 0; start < colour.size(); start += 4)
+    append_pack(m, pm, &colour[start], int(std::min<size_t>(4, colour.size() - start)));
+}
+
+// A block's colours as packs run in order on one thread. A colour's last few tets need not wait
+// for padding: they share a pack with tets of the next colour that touch none of their vertices
+// (looked for among that colour's first kFillWindow tets), so a block has about one short pack
+// instead of one per colour.
+constexpr size_t kFillWindow = 64;
+void append_block(BodyModel& m, PackedModel& pm, std::vector<std::vector<int32_t>> colours) {
+  auto shares_vertex = [&](int32_t a, int32_t b) {
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j)
+        if (m.tets[a].v[i] == m.tets[b].v[j]) return true;
+    return false;
+  };
+  std::vector<int32_t> carry;  // the previous colour's remainder (0..3 tets)
+  for (auto& colour : colours) {
+    if (!carry.empty()) {
+      for (size_t i = 0; i < colour.size() && i < kFillWindow && carry.size() < 4;) {
+        bool free = true;
+        for (int32_t c : carry) free = free && !shares_vertex(c, colour[i]);
+        if (free) {
+          carry.push_back(colour[i]);
+          colour.erase(colour.begin() + std::ptrdiff_t(i));
+        } else {
+          ++i;
+        }
+      }
+      append_pack(m, pm, carry.data(), int(carry.size()));
+      carry.clear();
+    }
+    const size_t full = colour.size() / 4 * 4;
+    for (size_t start = 0; start < full; start += 4) append_pack(m, pm, &colour[start], 4);
+    carry.assign(colour.begin() + std::ptrdiff_t(full), colour.end());
+  }
+  if (!carry.empty()) append_pack(m, pm, carry.data(), int(carry.size()));
+}
+
+// The rest shape's extent along its longest axis (axis: which one).
+double longest_extent(const BodyModel& m, int& axis) {
+  Vec3 low = m.rest_positions[0], high = low;
+  for (const Vec3& p : m.rest_positions) {
+    low = low.cwiseMin(p);
+    high = high.cwiseMax(p);
+  }
+  return (high - low).maxCoeff(&axis);
+}
+
+constexpr int kMaxBlocks = 8;
+constexpr double kMinSlabLayers = 6;   // a slab at least this many mean edges thick
+constexpr size_t kMinBlockTets = 512;  // and holding this many tets on average
+
+}  // namespace
+
+int solve_order_blocks(const BodyModel& m) {
+  if (m.tets.empty() || !(m.mean_edge > 0)) return 1;
+  int axis = 0;
+  const double layers = longest_extent(m, axis) / m.mean_edge;
+  const int k = int(std::min<double>({double(kMaxBlocks), std::floor(layers / kMinSlabLayers),
+                                      std::floor(double(m.tets.size()) / double(kMinBlockTets))}));
+  return k >= 2 ? k / 2 * 2 : 1;  // even: two threads take as many slabs each
+}
+
 void compile_solve_order(BodyModel& m) {
   auto pm = std::make_shared<PackedModel>();
-  pm->colour_begin.assign(1, 0);
   m.tet_slot.assign(m.tets.size(), 0);
-  m.tet_colour.assign(m.tets.size(), 0);
-  for (size_t c = 0; c < m.colours.size(); ++c) {
-    // Within a colour the order is free: sort by lowest vertex index so that neighbouring packs
-    // touch nearby memory (the thesis armadillo's numbering is otherwise scattered).
-    std::vector<int32_t> colour = m.colours[c];
-    auto lowest = [&](int32_t t) { return *std::min_element(m.tets[t].v.begin(), m.tets[t].v.end()); };
-    std::sort(colour.begin(), colour.end(), [&](int32_t a, int32_t b) { return lowest(a) < lowest(b); });
-    for (size_t start = 0; start < colour.size(); start += 4) {
-      TetPack p{};
-      p.lanes = int(std::min<size_t>(4, colour.size() - start));
-      p.slot = int32_t(4 * pm->packs.size());
-      for (int l = 0; l < 4; ++l) {
-        const int32_t t = colour[start + std::min(l, p.lanes - 1)];
-        const TetRest& tr = m.tets[t];
-        if (l < p.lanes) {
-          m.tet_slot[t] = p.slot + l;
-          m.tet_colour[t] = int32_t(c);
-        }
-        const double w[4] = {m.inv_mass[tr.v[0]], m.inv_mass[tr.v[1]], m.inv_mass[tr.v[2]], m.inv_mass[tr.v[3]]};
-        fill_lane(p, l, t, tr, w);
-      }
-      pm->packs.push_back(p);
+  const int K = solve_order_blocks(m);
+  pm->blocks = K;
+  std::vector<std::vector<uint64_t>> used(m.vertex_count());
+  // A colour of the whole mesh or of the leftover tets: one split phase each.
+  auto colour_phases = [&](const std::vector<int32_t>& tets) {
+    for (const auto& colour : colour_subset(m, tets, used)) {
+      SolvePhase phase;
+      phase.split = true;
+      phase.group_begin = {pm->packs.size()};
+      append_colour(m, *pm, colour);
+      phase.group_begin.push_back(pm->packs.size());
+      pm->phases.push_back(std::move(phase));
     }
-    pm->colour_begin.push_back(pm->packs.size());
+  };
+  if (K == 1) {
+    // Colour by colour: the mesh's own colouring (the same greedy in tet order).
+    std::vector<int32_t> all(m.tets.size());
+    for (size_t t = 0; t < all.size(); ++t) all[t] = int32_t(t);
+    colour_phases(all);
+  } else {
+    // Slabs of equal vertex count along the longest axis (ties by index: grid planes split
+    // the same way every time).
+    const size_t nv = m.vertex_count();
+    int axis = 0;
+    longest_extent(m, axis);
+    std::vector<int32_t> order(nv);
+    for (size_t i = 0; i < nv; ++i) order[i] = int32_t(i);
+    std::sort(order.begin(), order.end(), [&](int32_t a, int32_t b) {
+      const double ca = m.rest_positions[a][axis], cb = m.rest_positions[b][axis];
+      return ca < cb || (ca == cb && a < b);
+    });
+    std::vector<int> slab(nv);
+    for (size_t r = 0; r < nv; ++r) slab[order[r]] = int(r * size_t(K) / nv);
+    // Block of each tet: inside slab s (block s), across cut j between slabs j - 1 and j
+    // (block K - 1 + j), or across more than one cut (leftover).
+    std::vector<std::vector<int32_t>> block(2 * size_t(K) - 1);
+    std::vector<int32_t> leftover;
+    for (size_t t = 0; t < m.tets.size(); ++t) {
+      int a = K, b = -1;
+      for (int k = 0; k < 4; ++k) {
+        a = std::min(a, slab[m.tets[t].v[k]]);
+        b = std::max(b, slab[m.tets[t].v[k]]);
+      }
+      if (a == b) block[size_t(a)].push_back(int32_t(t));
+      else if (b == a + 1) block[size_t(K - 1 + b)].push_back(int32_t(t));
+      else leftover.push_back(int32_t(t));
+    }
+    // Slabs share no vertex; nor do cuts j and j + 2 (slabs j - 1, j against j + 1, j + 2).
+    auto block_phase = [&](const std::vector<size_t>& blocks) {
+      SolvePhase phase;
+      phase.group_begin = {pm->packs.size()};
+      for (size_t bi : blocks) {
+        append_block(m, *pm, colour_subset(m, block[bi], used));
+        phase.group_begin.push_back(pm->packs.size());
+      }
+      pm->phases.push_back(std::move(phase));
+    };
+    std::vector<size_t> slabs, odd, even;
+    for (int s = 0; s < K; ++s) slabs.push_back(size_t(s));
+    for (int j = 1; j < K; ++j) (j % 2 ? odd : even).push_back(size_t(K - 1 + j));
+    block_phase(slabs);
+    block_phase(odd);
+    if (!even.empty()) block_phase(even);
+    colour_phases(leftover);
+  }
+  if (spdlog::should_log(spdlog::level::debug)) {
+    std::string sizes;
+    for (const SolvePhase& ph : pm->phases)
+      if (!ph.split) {
+        sizes += " [";
+        for (size_t g = 0; g + 1 < ph.group_begin.size(); ++g)
+          sizes += fmt::format("{}{}", g ? " " : "", ph.group_begin[g + 1] - ph.group_begin[g]);
+        sizes += "]";
+      }
+    spdlog::debug("solve order: {} tets in {} packs ({} lanes of padding), {} blocks, {} phases, packs per block{}",
+                  m.tets.size(), pm->packs.size(), 4 * pm->packs.size() - m.tets.size(), K, pm->phases.size(), sizes);
   }
   pm->vertex_slot_entry.resize(m.vertex_tet_entry.size());
   for (size_t a = 0; a < m.vertex_tet_entry.size(); ++a)

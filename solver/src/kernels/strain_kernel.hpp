@@ -9,9 +9,9 @@
 // with P the symmetric 3x3 of the increment. Symmetric 3x3 matrices are stored in the strain
 // vector's Voigt order: 00 11 22 12 02 01.
 //
-// Tets of one colour share no vertex, so a colour is cut into packs of 4 whose rest data is
-// stored lane by lane (structure of arrays); padding lanes of a colour's last pack repeat a real
-// tet and are never written back. The multipliers (lambda, dlambda) the kernels read and write
+// The four tets of a pack share no vertex (a colour, or a block's colours, is cut into packs),
+// and their rest data is stored lane by lane (structure of arrays); padding lanes of a short
+// pack repeat a real tet and are never written back. The multipliers (lambda, dlambda) the kernels read and write
 // are in SLOT order: pack i owns slots 4i..4i+3, one per lane, so a sweep walks them
 // contiguously; BodyState keeps them so and the model maps them per tet for I/O (tet_slot).
 #pragma once
@@ -68,17 +68,36 @@ TetOne lane_of(const TetPack& pack, int lane);
 // One tet's rest data with the given corner inverse masses; slot 0.
 TetOne tet_lanes(const TetRest& tet, const double w[4]);
 
-// The model's packs, compiled with it (compile_solve_order).
+// A step of the sweep's schedule: its groups share no vertex and run in parallel, each group's
+// packs in order on one thread; a split phase is one colour, whose packs may be cut anywhere.
+struct SolvePhase {
+  std::vector<size_t> group_begin;  // packs of group g: [group_begin[g], group_begin[g + 1])
+  bool split = false;
+};
+
+// The model's packs, compiled with it (compile_solve_order). Running the phases in order gives
+// the same result as projecting every pack in storage order on one thread.
 struct PackedModel {
-  std::vector<TetPack> packs;
-  std::vector<size_t> colour_begin;  // packs of colour c: [colour_begin[c], colour_begin[c+1])
+  std::vector<TetPack> packs;  // the four lanes of a pack share no vertex
+  std::vector<SolvePhase> phases;
+  int blocks = 1;  // slabs of the block order (1: colour by colour)
   // BodyModel::vertex_tet_entry addressed by slot (4 x slot + corner): the Jacobi gather.
   std::vector<int32_t> vertex_slot_entry;
   size_t slot_count() const { return 4 * packs.size(); }  // padding lanes' slots stay zero
 };
 
 // Compiles the solve order of a model whose tets, colours, adjacency and inverse masses are
-// set: BodyModel::tet_slot, tet_colour and packed (build_model and its variants call this).
+// set: BodyModel::tet_slot and packed (build_model and its variants call this).
+// Small meshes go colour by colour (one split phase per colour, as many thread hand-offs per
+// sweep as colours). Meshes long enough for several slabs go by blocks: the vertices are cut
+// into K slabs of equal count along the rest shape's longest axis; the tets inside a slab form
+// one block per slab (phase 1), the tets across the cut between slabs j - 1 and j form cut
+// blocks, odd cuts (phase 2) then even cuts (phase 3), and the few tets across more than one
+// cut go colour by colour at the end. Each block is coloured on its own into packs. Three
+// hand-offs per sweep, and each thread works on its own part of the mesh. K is even (two
+// threads take as many slabs each), at most 8, with slabs at least 6 mean edges thick and 512
+// tets on average; otherwise 1.
+int solve_order_blocks(const BodyModel& model);
 void compile_solve_order(BodyModel& model);
 
 // The model's packs (compiled with it).

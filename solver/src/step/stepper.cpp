@@ -38,6 +38,22 @@ struct PhaseTimer {
   ~PhaseTimer() { sink += ms_since(t0); }
 };
 
+// Calls fn(chunk, first, end) for every pack of the model's solve order (PackedModel::phases),
+// phase after phase: a phase's groups run in parallel, each group's packs in order on one
+// thread; a split phase (one colour) is cut between the threads, at least `grain` packs a
+// chunk. The result is that of every pack in storage order on one thread, for any thread count.
+template <class Fn>
+void for_each_pack(const detail::PackedModel& pm, ThreadPool& tp, const Fn& fn, size_t grain = 32) {
+  for (const detail::SolvePhase& phase : pm.phases) {
+    const std::vector<size_t>& g = phase.group_begin;
+    if (phase.split)
+      tp.parallel_for(g.back() - g.front(), [&](int chunk, size_t b, size_t e) { fn(chunk, g.front() + b, g.front() + e); },
+                      grain);
+    else  // a chunk of groups is one run of packs: the groups are stored one after the other
+      tp.parallel_for(g.size() - 1, [&](int chunk, size_t b, size_t e) { fn(chunk, g[b], g[e]); }, 2);
+  }
+}
+
 }  // namespace
 
 struct Stepper::Impl {
@@ -62,7 +78,8 @@ struct Stepper::Impl {
   std::vector<uint32_t> floor_pack_mark;  // per pack: the floor pass that queued it
   uint32_t floor_serial = 0;              // floor passes made (with this vertex count)
   std::vector<int32_t> floor_moved;       // vertices the last floor pass moved
-  std::vector<std::vector<int32_t>> floor_moved_chunks, floor_queue;  // per thread; per colour
+  std::vector<std::vector<int32_t>> floor_moved_chunks;  // per thread
+  std::vector<int32_t> floor_queue;                    // packs to correct (a min-heap)
 
   ThreadPool& threads(int n) {
     if (!pool || pool_threads != n) {
@@ -86,23 +103,19 @@ struct Stepper::Impl {
     return std::sqrt(sum);
   }
 
-  // One Gauss-Seidel sweep in colour order, four tets of a colour at a time; colours run in
-  // parallel inside (no two tets of a colour share a vertex, so the result does not depend on
-  // the thread count).
+  // One Gauss-Seidel sweep in the model's solve order, four tets of a colour at a time; blocks
+  // or colours run in parallel (the result does not depend on the thread count).
   int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                          const detail::ProjectionParams& params, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     std::vector<int> floor_hits(tp.size(), 0);
-    for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
-      const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
-      tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
-        int hits = 0;
-        for (size_t i = b; i < e; ++i)
-          hits += detail::project_pack(packed.packs[first + i], x, lambda, dlambda, m, params.alpha_tilde,
-                                       params.lambda_scale, params.inversion_floor, params.line_search);
-        floor_hits[chunk] += hits;
-      }, 32);
-    }
+    for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
+      int hits = 0;
+      for (size_t i = b; i < e; ++i)
+        hits += detail::project_pack(packed.packs[i], x, lambda, dlambda, m, params.alpha_tilde, params.lambda_scale,
+                                     params.inversion_floor, params.line_search);
+      floor_hits[chunk] += hits;
+    });
     int total = 0;
     for (int h : floor_hits) total += h;
     return total;
@@ -155,14 +168,13 @@ struct Stepper::Impl {
     return params.inversion_floor > 0 ? volume_pass(m, x, params.inversion_floor, tp) : 0;
   }
 
-  // One pass of the inversion floor in colour order, four tets at a time. The first pass of a
-  // substep (all = true) visits every pack; a later one only the packs with a corner that a
+  // One pass of the inversion floor in the solve order, four tets at a time. The first pass of
+  // a substep (all = true) visits every pack; a later one only the packs with a corner that a
   // floor correction moved in the previous pass or earlier in this one (a tet's det F changes
-  // only when a corner moves). When few vertices moved it queues their packs by colour on this
-  // thread (volume_pass_from_moved); otherwise it checks every pack's corners. Each colour of a
-  // scan is split between the threads (no two tets of a colour share a vertex, so the result
-  // does not depend on the thread count); the same packs either way (docs/solver.md, "The
-  // floor pass"). Returns the corrections made.
+  // only when a corner moves). When few vertices moved it queues their packs by colour range on
+  // this thread (volume_pass_from_moved); otherwise it checks every pack's corners, phase by
+  // phase like a sweep (the result does not depend on the thread count); the same packs either
+  // way (docs/solver.md, "The floor pass"). Returns the corrections made.
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp, bool all = true) {
     const detail::PackedModel& packed = detail::packed(m);
     if (floor_stamp.size() != m.vertex_count() || floor_pack_mark.size() != packed.packs.size() ||
@@ -176,18 +188,15 @@ struct Stepper::Impl {
     floor_hits_per_chunk.assign(tp.size(), 0);
     floor_moved_chunks.resize(tp.size());
     for (auto& v : floor_moved_chunks) v.clear();
-    for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
-      const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
-      tp.parallel_for(count, [&](int chunk, size_t b, size_t e) {
-        int hits = 0;
-        for (size_t i = b; i < e; ++i) {
-          const detail::TetPack& p = packed.packs[first + i];
-          if (!all && !pack_moved(p, serial - 1)) continue;
-          hits += correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
-        }
-        floor_hits_per_chunk[chunk] += hits;
-      }, 32);
-    }
+    for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
+      int hits = 0;
+      for (size_t i = b; i < e; ++i) {
+        const detail::TetPack& p = packed.packs[i];
+        if (!all && !pack_moved(p, serial - 1)) continue;
+        hits += correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
+      }
+      floor_hits_per_chunk[chunk] += hits;
+    });
     floor_moved.clear();
     for (const auto& v : floor_moved_chunks) floor_moved.insert(floor_moved.end(), v.begin(), v.end());
     int total = 0;
@@ -195,33 +204,32 @@ struct Stepper::Impl {
     return total;
   }
 
-  // A later pass from the vertices the previous one moved: their packs are queued by colour, and
-  // a correction queues the packs of later colours around the corners it moved.
+  // A later pass from the vertices the previous one moved: their packs are queued and taken in
+  // storage order (a min-heap), and a correction queues the packs after it around the corners it
+  // moved (those before it are the next pass's).
   int volume_pass_from_moved(const BodyModel& m, std::vector<Vec3>& x, double floor, uint32_t serial) {
     const detail::PackedModel& packed = detail::packed(m);
-    const size_t colours = packed.colour_begin.size() - 1;
-    floor_queue.resize(colours);
-    for (auto& q : floor_queue) q.clear();
-    auto queue_around = [&](int32_t v, size_t after_colour) {
+    floor_queue.clear();
+    auto queue_around = [&](int32_t v, int64_t after) {
       for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
-        const size_t q = size_t(packed.vertex_slot_entry[a]) / 16;  // 4 x slot + corner; 4 slots per pack
-        if (floor_pack_mark[q] == serial) continue;
-        const size_t c = size_t(std::upper_bound(packed.colour_begin.begin(), packed.colour_begin.end(), q) -
-                                packed.colour_begin.begin()) - 1;
-        if (c + 1 <= after_colour) continue;  // an earlier colour (or this one): the next pass takes it
-        floor_pack_mark[q] = serial;
-        floor_queue[c].push_back(int32_t(q));
+        const int32_t q = packed.vertex_slot_entry[a] / 16;  // 4 x slot + corner; 4 slots per pack
+        if (floor_pack_mark[size_t(q)] == serial || q <= after) continue;
+        floor_pack_mark[size_t(q)] = serial;
+        floor_queue.push_back(q);
+        std::push_heap(floor_queue.begin(), floor_queue.end(), std::greater<>());
       }
     };
-    for (int32_t v : floor_moved) queue_around(v, 0);
+    for (int32_t v : floor_moved) queue_around(v, -1);
     floor_moved.clear();
     int hits = 0;
-    for (size_t c = 0; c < colours; ++c)
-      for (size_t i = 0; i < floor_queue[c].size(); ++i) {
-        const size_t before = floor_moved.size();
-        hits += correct_pack(packed.packs[floor_queue[c][i]], x, floor, serial, floor_moved);
-        for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], c + 1);
-      }
+    while (!floor_queue.empty()) {
+      std::pop_heap(floor_queue.begin(), floor_queue.end(), std::greater<>());
+      const int32_t q = floor_queue.back();
+      floor_queue.pop_back();
+      const size_t before = floor_moved.size();
+      hits += correct_pack(packed.packs[size_t(q)], x, floor, serial, floor_moved);
+      for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], q);
+    }
     return hits;
   }
 
@@ -253,12 +261,9 @@ struct Stepper::Impl {
 
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
-    for (size_t c = 0; c + 1 < packed.colour_begin.size(); ++c) {
-      const size_t first = packed.colour_begin[c], count = packed.colour_begin[c + 1] - first;
-      tp.parallel_for(count, [&](int, size_t b, size_t e) {
-        for (size_t i = b; i < e; ++i) detail::apply_increment_lanes(packed.packs[first + i], x, dl, m.material.model);
-      }, 32);
-    }
+    for_each_pack(packed, tp, [&](int, size_t b, size_t e) {
+      for (size_t i = b; i < e; ++i) detail::apply_increment_lanes(packed.packs[i], x, dl, m.material.model);
+    });
   }
 
   // Interaction scratch: per tool, the contact multiplier of each vertex in this substep
