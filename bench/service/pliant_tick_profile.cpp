@@ -11,11 +11,13 @@
 // solver's time budget per tick (iterations and the floor's later passes stop when it is spent).
 //
 // Usage: pliant_tick_profile [--ticks N] [--substeps S] [--iterations I] [--young E] [--gravity] [--mu MU]
-//                            [--time-budget MS] [--json]   (one JSON line per variant and one for the server's work)
+//                            [--time-budget MS] [--method M] [--json]   (one JSON line per variant and one for the
+//                            server's work; --method: the solver family or method of every variant, default xpbd)
 // (--young 1e6 --gravity --iterations 4: the 50k scene of pliant_service_bench, which sags under
 // its weight.)
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/model.hpp"
+#include "pliant/settings.hpp"
 #include "pliant/state.hpp"
 #include "pliant/stepper.hpp"
 #include "pliant/version.hpp"
@@ -28,6 +30,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -57,6 +60,7 @@ int main(int argc, char** argv) {
   double budget_ms = 0;  // --time-budget: SolverSettings::time_budget_ms of every variant
   double mu = -1;  // --mu: the sphere's static and dynamic friction (default: RigidTool's)
   bool json = false;
+  std::string method_name = "xpbd";
   CLI::App app{"pliant_tick_profile: where the time of one server tick goes on the 50k-tet beam", "pliant_tick_profile"};
   app.set_version_flag("--version", std::string(pliant::kVersion));
   app.add_option("--ticks", ticks, "measured ticks per variant, after 30 (default 60)")->check(CLI::Range(1, 100000));
@@ -67,8 +71,15 @@ int main(int argc, char** argv) {
   app.add_option("--mu", mu, "the sphere's static and dynamic friction (default: RigidTool's)")->check(CLI::Range(0.0, 10.0));
   app.add_option("--time-budget", budget_ms, "each variant's solver time budget per tick, ms (default 0: none)")
       ->check(CLI::Range(0.0, 1e6));
+  app.add_option("--method", method_name, "every variant's method: " + std::string(method_names()) + " (default xpbd)");
   app.add_flag("--json", json, "one JSON line per variant and one for the server's work, instead of the table");
   if (auto rc = pliant::cli::parse_or_exit(app, argc, argv, "pliant_tick_profile")) return *rc;
+  const std::optional<Method> method = parse_method(method_name);
+  if (!method) {
+    std::fprintf(stderr, "pliant_tick_profile: --method %s is not one of %s\n", method_name.c_str(),
+                 std::string(method_names()).c_str());
+    return 2;
+  }
   const TetMesh mesh = make_beam(51, 21, 11, 0.005);
   Material mat;
   mat.young = young;
@@ -77,10 +88,10 @@ int main(int argc, char** argv) {
   auto model = build_model(mesh, mat, fixed);
   const char* scene = gravity ? "gravity, damping 0.5/s, no tool" : "no gravity, damping 20/s, sphere pressed 4 mm";
   if (!json) {
-    std::printf("50k beam: %zu vertices, %zu tets, %zu colours; E %g Pa, %s; %d substep(s) x %d iteration(s), %d ticks "
-                "per variant after 30\n",
-                model->vertex_count(), model->tet_count(), model->colours.size(), young, scene, substeps, iterations,
-                ticks);
+    std::printf("50k beam: %zu vertices, %zu tets, %zu colours; E %g Pa, %s; method %s, %d substep(s) x %d iteration(s), "
+                "%d ticks per variant after 30\n",
+                model->vertex_count(), model->tet_count(), model->colours.size(), young, scene, method_name.c_str(),
+                substeps, iterations, ticks);
     std::printf("| variant | tick ms | projection | residual | other | update | iterations / tick | volume corrections / tick | "
                 "ticks with the floor cut by the budget | tets with det F < 0.2 / <= 0 / min det F at the end |\n");
     std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
@@ -97,6 +108,7 @@ int main(int argc, char** argv) {
   };
   for (const Variant& var : variants) {
     SolverSettings s;
+    s.method = *method;
     s.dt = 1.0 / 60;
     s.substeps = substeps;
     s.iterations = iterations;
@@ -116,7 +128,7 @@ int main(int argc, char** argv) {
     RigidTool sphere = RigidTool::sphere(Eigen::Vector3d(0.2, 0.11, 0.025), 0.01);
     if (mu >= 0) sphere.static_friction = sphere.dynamic_friction = mu;
     PhaseTimes sum;
-    double wall = 0, corrections = 0, iterations = 0;
+    double wall = 0, corrections = 0, iterations_done = 0;
     int floor_cut = 0;  // ticks whose later floor passes the budget cut
     const int warmup = 30;  // the press reaches its depth
     for (int k = 0; k < warmup + ticks; ++k) {
@@ -138,7 +150,7 @@ int main(int argc, char** argv) {
       sum.other_ms += r.times.other_ms;
       sum.update_ms += r.times.update_ms + r.times.anderson_ms;
       corrections += r.volume_corrections;
-      iterations += r.iterations;
+      iterations_done += r.iterations;
       floor_cut += r.floor_stopped_by_budget;
     }
     // Volume ratios det F after the last tick: how many tets sit under the floor.
@@ -159,6 +171,7 @@ int main(int argc, char** argv) {
                                                    {"young", young},
                                                    {"scene", scene},
                                                    {"substeps", substeps},
+                                                   {"method", method_name},
                                                    {"iterations", iterations},
                                                    {"ticks", ticks},
                                                    {"tick_ms", wall / ticks},
@@ -168,7 +181,7 @@ int main(int argc, char** argv) {
                                                    {"update_ms", sum.update_ms / ticks},
                                                    {"volume_corrections_per_tick", corrections / ticks},
                                                    {"time_budget_ms", budget_ms},
-                                                   {"iterations_per_tick", iterations / ticks},
+                                                   {"iterations_per_tick", iterations_done / ticks},
                                                    {"ticks_floor_cut_by_budget", floor_cut},
                                                    {"tets_below_floor", under_floor},
                                                    {"tets_inverted", inverted},
@@ -177,7 +190,7 @@ int main(int argc, char** argv) {
     } else {
       std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.1f | %.0f | %d | %d / %d / %.3f |\n", var.name, wall / ticks,
                   sum.projection_ms / ticks, sum.residual_ms / ticks, sum.other_ms / ticks, sum.update_ms / ticks,
-                  iterations / ticks, corrections / ticks, floor_cut, under_floor, inverted, min_det);
+                  iterations_done / ticks, corrections / ticks, floor_cut, under_floor, inverted, min_det);
     }
     std::fflush(stdout);
   }

@@ -67,7 +67,7 @@ struct BodyModel {
   // updates a colour in parallel with the same result as sequentially.
   std::vector<std::vector<int32_t>> vertex_colours;
   // Solve order: colours (small meshes) or blocks of a mesh cut into slabs, each coloured, cut
-  // into packs of 4 tets (padding lanes at a colour's end; compile_solve_order), one
+  // into packs of 4 tets (padding lanes in a short pack; compile_solve_order), one
   // multiplier slot per lane. BodyState::lambda is kept in this order; tet t's multipliers are
   // at slot tet_slot[t] (multipliers_per_tet maps them for snapshots and other I/O).
   std::vector<int32_t> tet_slot;
