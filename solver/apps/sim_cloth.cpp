@@ -30,6 +30,8 @@ cloth:     --grid N (64: N x N particles) --size M (1.0 m) --mass-per-area KG_M2
            --thickness R (0.005 m) --threads T (1) --no-self-collision
            --pressure P (a closed --mesh: keep P x its rest volume; off by default)
            --volume-compliance C (0 m^5/N)
+           --csv FILE (per step: step, t_s, ms, max_stretch, rms_stretch, max_speed_m_s,
+           self_contacts, collider_contacts, min_clearance_m)
            Last line: JSON with ms_per_step_mean/p99, max_stretch (largest relative edge
            stretch over the run), final_stretch_rms, penetrations (particle-steps inside the
            sphere), min_clearance_m (closest particle or triangle centre to the sphere's
@@ -46,7 +48,7 @@ rope:      --segments N (100) --span S (1 m) --length L (1.2 m) --linear-density
 const std::set<std::string> kClothValued = {
     "log-level", "grid", "size", "mass-per-area", "mesh", "scale", "drape", "radius", "height", "seconds", "dt",
     "substeps", "iterations", "stretch-compliance", "shear-compliance", "bend-compliance", "damping",
-    "thickness", "threads", "pressure", "volume-compliance", "segments", "span", "length", "linear-density"};
+    "thickness", "threads", "pressure", "volume-compliance", "csv", "segments", "span", "length", "linear-density"};
 const std::set<std::string> kClothFlags = {"quiet", "no-self-collision"};
 
 namespace {
@@ -162,6 +164,12 @@ int cmd_cloth(const cli::Args& a, cli::Progress& progress) {
   long penetrations = 0;
   bool nan = false;
   size_t self_contacts = 0, contacts = 0;
+  std::ofstream csv;
+  if (auto path = a.str("csv")) {
+    csv.open(*path);
+    if (!csv) throw cli::UsageError("--csv: cannot write '" + *path + "'");
+    csv << "step,t_s,ms,max_stretch,rms_stretch,max_speed_m_s,self_contacts,collider_contacts,min_clearance_m\n";
+  }
   ParticleStepReport last;
   for (long k = 0; k < steps; ++k) {
     last = body->step(dt, colliders);
@@ -169,20 +177,27 @@ int cmd_cloth(const cli::Args& a, cli::Progress& progress) {
     contacts = last.contacts;
     self_contacts = std::max(self_contacts, body->self_contacts());
     const auto& x = body->state().x;
+    double speed = 0.0, clear = 1e300;
     for (size_t i = 0; i < x.size(); ++i) {
       if (!x[i].allFinite() || !body->state().v[i].allFinite()) nan = true;
-      max_speed = std::max(max_speed, body->state().v[i].norm());
+      speed = std::max(speed, body->state().v[i].norm());
     }
+    max_speed = std::max(max_speed, speed);
     if (drape == "sphere") {
       for (const Vec3& p : x) {
         const double c = p.norm() - radius;
-        min_clear = std::min(min_clear, c);
+        clear = std::min(clear, c);
         if (c < 0.0) ++penetrations;
       }
       for (const auto& t : body->triangles())
-        min_clear = std::min(min_clear, ((x[t[0]] + x[t[1]] + x[t[2]]) / 3.0).norm() - radius);
+        clear = std::min(clear, ((x[t[0]] + x[t[1]] + x[t[2]]) / 3.0).norm() - radius);
+      min_clear = std::min(min_clear, clear);
     }
     max_stretch = std::max(max_stretch, last.max_constraint_error);
+    if (csv.is_open())
+      csv << fmt::format("{},{:.6f},{:.4f},{:.6g},{:.6g},{:.6g},{},{},{}\n", k + 1, double(k + 1) * dt, last.wall_ms,
+                         last.max_constraint_error, last.constraint_error, speed, body->self_contacts(),
+                         last.contacts, drape == "sphere" ? fmt::format("{:.6g}", clear) : std::string());
     progress.set(fmt::format("step {}/{}: {:.2f} ms, max stretch {:.2e}", k + 1, steps, last.wall_ms,
                              last.max_constraint_error));
     if (nan) break;

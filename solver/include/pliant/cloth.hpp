@@ -185,6 +185,7 @@ class ConstraintBody : public ParticleBody {
   std::vector<SelfContact> self_contacts_;
   std::vector<std::vector<SelfContact>> self_scratch_;
   size_t last_self_contacts_ = 0;
+  bool stretch_warned_ = false;  // warned of an under-resolved budget; re-armed once it recovers
   double h_ = 0.0;
 };
 

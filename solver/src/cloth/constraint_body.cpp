@@ -684,6 +684,17 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
   }
   report.constraint_error = count ? std::sqrt(sum / double(count)) : 0.0;
   report.max_constraint_error = worst;
+  // An edge at twice its rest length means the budget does not resolve the stretch compliance;
+  // past that, self-collision fights a crumpling fabric and the body blows up (docs/cloth.md,
+  // "Substeps and stretch"). Said once, and again only after the body has recovered.
+  if (worst > 1.0 && !stretch_warned_) {
+    stretch_warned_ = true;
+    spdlog::warn("{}: an edge is stretched to {:.1f} times its rest length with {} substeps x {} iterations per step "
+                 "of {:g} s; the budget is too small for stretch compliance {:g} m/N: use more substeps or iterations",
+                 kind(), 1.0 + worst, settings_.substeps, settings_.iterations, dt, settings_.stretch_compliance);
+  } else if (worst < 0.25) {
+    stretch_warned_ = false;
+  }
   report.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return report;
 }
