@@ -187,9 +187,6 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
   }
   for (size_t b = 0; b < ts_->bodies.size(); ++b)
     if (ts_->body_contact[b] && !ts_->bodies[b]->triangles().empty()) ts_->obstacle_bodies.push_back(b);
-  if (!ts_->obstacle_bodies.empty() && family_of(config.settings.method) == SolverFamilyKind::Newton)
-    spdlog::warn("scene '{}': method newton keeps the cloths' particles outside the body but not the body's "
-                 "vertices off the cloths' triangles (methods xpbd and vbd do both; docs/cloth.md)", id_);
   ts_->in_cloth_pair.assign(ts_->bodies.size(), 0);
   for (const TickState::ClothPair& p : ts_->cloth_pairs) ts_->in_cloth_pair[p.particles] = ts_->in_cloth_pair[p.cloth] = 1;
   config_ = std::move(config);

@@ -1,14 +1,16 @@
 // SPDX-License-Identifier: Apache-2.0
 // The global Newton step (method newton): it reaches the converged implicit-Euler step of the
 // reference solver, converges quadratically near it, conserves linear momentum, holds fixed
-// vertices, pulls grabs to their targets, keeps bodies out of colliders, and feels a tool with
-// the force the body puts on it.
+// vertices, pulls grabs to their targets, keeps bodies out of colliders and off a cloth's
+// triangles, and feels a tool with the force the body puts on it.
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/experiments.hpp"
 #include "pliant/method_choice.hpp"
 #include "pliant/reference_solver.hpp"
 #include "pliant/stepper.hpp"
 #include "pliant/strain_constraint.hpp"
+
+#include "drape_obstacle.hpp"
 
 #include <gtest/gtest.h>
 
@@ -247,6 +249,12 @@ TEST(NewtonStep, AToolLiftedAwayFeelsNoMoreThanItsPress) {
   // alone gave 21 N here.
   EXPECT_LT(lifting, 1.25 * held);
   EXPECT_LT(tick(top + 0.001), 1e-12);  // out of contact: nothing
+}
+
+TEST(NewtonStep, ASaggingBodyRestsOnADrapeAndPushesItWithItsWeight) {
+  // The cloth's triangles as a penalty contact: the same checks as the projecting families'
+  // (ObstacleContact in test_coupling.cpp), the push on the drape the force that holds the body.
+  test::expect_rests_on_the_drape(Method::Newton);
 }
 
 TEST(NewtonStep, StopsWhenCancelled) {

@@ -37,8 +37,9 @@ struct Attachment {
 
 // Triangles the body must stay clear of during a step (a cloth's, at the start of the tick):
 // every free surface vertex stays `radius` from them on the side it started the step on, pushed
-// out inside the iterations like the static colliders, with Coulomb friction `friction` (static
-// and dynamic) against its motion; the step reports the impulse it put on each corner
+// out inside the iterations like the static colliders (method newton: a penalty energy, like its
+// colliders), with Coulomb friction `friction` (static and dynamic) against its motion; the step
+// reports the impulse it put on each corner
 // (StepReport::obstacle_impulses), which the obstacle's owner applies to it.
 struct TriangleObstacle {
   std::vector<Eigen::Vector3d> x;                  // corners, m

@@ -53,8 +53,8 @@ struct StepReport {
   // One per StepInputs::attachments: the force the attachment puts ON THE BODY (lambda / h^2,
   // averaged over the substeps); the force on whatever holds the target is minus this.
   std::vector<Vec3> attachment_forces;
-  // One per StepInputs::obstacles (methods xpbd and its accelerators, and vbd): per corner, the
-  // impulse the body put on it during the step, N s (the body took minus their sum).
+  // One per StepInputs::obstacles (every method): per corner, the impulse the body put on it
+  // during the step, N s (the body took minus their sum).
   std::vector<std::vector<Vec3>> obstacle_impulses;
   PhaseTimes times;
   double wall_ms = 0;

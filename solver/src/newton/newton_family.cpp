@@ -28,6 +28,7 @@
 #include "kernels/projection.hpp"
 #include "newton/two_level.hpp"
 #include "step/family.hpp"
+#include "step/obstacles.hpp"
 #include "step/stages.hpp"
 #include "step/thread_pool.hpp"
 #include "step/volume_floor.hpp"
@@ -125,15 +126,17 @@ class SparseCholesky {
   bool use_single_ = false;
 };
 
-// One vertex touching a collider or a tool in this iteration's active set.
+// One vertex touching a collider, a tool or a triangle obstacle in this iteration's active set.
 struct Contact {
   int32_t vertex;
-  int tool;              // index in inputs.tools, or -1 for a static collider
+  int tool;              // index in inputs.tools, or -1 for a static collider or an obstacle
   Vec3 normal;           // outward normal of the obstacle
   double depth;          // penetration at the positions the contact was found at
   double friction;       // mu
   double normal_force;   // friction's bound: the contact's k depth at the end of the last iteration
   Vec3 obstacle_motion;  // the obstacle's displacement over the substep (tools with velocity)
+  int obstacle = -1;     // index in inputs.obstacles (a cloth's triangles), with its hit
+  ObstacleContacts::Hit hit{};
 };
 
 class NewtonFamily final : public SolverFamily {
@@ -180,8 +183,9 @@ class NewtonFamily final : public SolverFamily {
                        std::array<bool, kCandidates>& kept);
   // lagged_ = contacts_ with their normal forces at the current positions.
   void remember_normal_forces();
-  // contact_force_ for contacts_ at x (tool contacts need them; empty work without one).
-  void tool_contact_forces(const BodyModel& m, const std::vector<Vec3>& x, double h, ThreadPool& tp);
+  // contact_force_ for contacts_ at x (tool and obstacle contacts need them; empty work without
+  // one).
+  void contact_forces(const BodyModel& m, const std::vector<Vec3>& x, double h, ThreadPool& tp);
   // y = H_ x, rows in parallel (H_ stores both triangles, so column c is row c).
   void multiply(ThreadPool& tp, const Eigen::VectorXd& x, Eigen::VectorXd& y) const;
   // d_ from CG on H_ d = -g_ to |H d + g| <= eta |g| in the preconditioner's norm, at most
@@ -260,6 +264,7 @@ class NewtonFamily final : public SolverFamily {
   std::vector<Vec3> contact_force_;   // per contact in contacts_: the force on the body at the end
   std::vector<double> penalty_sum_;   // per vertex: sum of its contacts' k depth (scratch)
   bool inputs_have_obstacles_ = false;
+  ObstacleContacts triangles_;  // the step's triangle obstacles (a cloth's), as penalty contacts
   double tool_time_offset_ = 0;  // the substep's end relative to the step's end (<= 0)
   std::unique_ptr<ThreadPool> pool_;
 };
@@ -612,11 +617,23 @@ void NewtonFamily::remember_normal_forces() {
 void NewtonFamily::find_contacts(const BodyModel& m, const std::vector<Vec3>& x, double h,
                                  const StepInputs& in) {
   contacts_.clear();
-  auto lagged = [&](int32_t v, int tool) {
+  auto lagged = [&](int32_t v, int tool, int obstacle = -1) {
     for (const Contact& c : lagged_)
-      if (c.vertex == v && c.tool == tool) return c.normal_force;
+      if (c.vertex == v && c.tool == tool && c.obstacle == obstacle) return c.normal_force;
     return 0.0;
   };
+  for (size_t o = 0; o < triangles_.count(); ++o) {
+    const std::vector<int32_t>& surface = triangles_.surface();
+    ObstacleContacts::Hit hit;
+    for (size_t k = 0; k < surface.size(); ++k) {
+      const int32_t v = surface[k];
+      if (m.inv_mass[size_t(v)] == 0 || !triangles_.deepest(o, k, x[size_t(v)], hit)) continue;
+      Contact c{v, -1, hit.n, -hit.C, triangles_.friction(o), lagged(v, -1, int(o)), Vec3::Zero()};
+      c.obstacle = int(o);
+      c.hit = hit;
+      contacts_.push_back(c);
+    }
+  }
   if (in.colliders.empty() && in.tools.empty()) return;
   for (size_t i = 0; i < x.size(); ++i) {
     if (m.inv_mass[i] == 0) continue;
@@ -639,8 +656,16 @@ void NewtonFamily::find_contacts(const BodyModel& m, const std::vector<Vec3>& x,
 
 double NewtonFamily::penetration_energy(const BodyModel& m, const std::vector<Vec3>& x,
                                         const StepInputs& in) const {
-  if (in.colliders.empty() && in.tools.empty()) return 0;
   double e = 0;
+  for (size_t o = 0; o < triangles_.count(); ++o) {
+    const std::vector<int32_t>& surface = triangles_.surface();
+    ObstacleContacts::Hit hit;
+    for (size_t k = 0; k < surface.size(); ++k) {
+      const size_t v = size_t(surface[k]);
+      if (m.inv_mass[v] != 0 && triangles_.deepest(o, k, x[v], hit)) e += 0.5 * contact_k_[v] * hit.C * hit.C;
+    }
+  }
+  if (in.colliders.empty() && in.tools.empty()) return e;
   std::vector<RigidTool> tools;
   for (size_t t = 0; t < in.tools.size(); ++t) tools.push_back(tool_now(in, t));
   for (size_t i = 0; i < x.size(); ++i) {
@@ -683,10 +708,10 @@ Vec3 friction_force(const Contact& c, const std::vector<Vec3>& x, const std::vec
   return u < eps ? Vec3(-bound / eps * ut) : Vec3(-bound * ut / u);
 }
 
-void NewtonFamily::tool_contact_forces(const BodyModel& m, const std::vector<Vec3>& x, double h, ThreadPool& tp) {
+void NewtonFamily::contact_forces(const BodyModel& m, const std::vector<Vec3>& x, double h, ThreadPool& tp) {
   contact_force_.assign(contacts_.size(), Vec3::Zero());
   bool touched = false;
-  for (const Contact& c : contacts_) touched = touched || c.tool >= 0;
+  for (const Contact& c : contacts_) touched = touched || c.tool >= 0 || c.obstacle >= 0;
   if (!touched) return;
   // What holds each touching vertex where it is: the inertial and elastic gradient of the
   // incremental potential at x (at the solution it equals the contacts' penalty and friction
@@ -872,13 +897,14 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
   }
   total.tools.assign(in.tools.size(), ToolReaction{});
   total.attachment_forces.assign(in.attachments.size(), Vec3::Zero());
+  triangles_.begin_step(m, state.x, in.obstacles);
   double hook_ms = 0;
   for (int sub = 0; sub < n && !total.cancelled; ++sub) {
     const auto t_sub = Clock::now();
     tool_time_offset_ = (sub + 1 - n) * h;
     v_before_ = state.v;
     predict(m, state, s, in, h, x_start_);
-    inputs_have_obstacles_ = !in.colliders.empty() || !in.tools.empty();
+    inputs_have_obstacles_ = !in.colliders.empty() || !in.tools.empty() || triangles_.active();
     y_ = state.x;
     std::vector<Vec3>& x = state.x;
     // Warm start: of the prediction y, the motion continued without this step's loads (x + h v:
@@ -1068,9 +1094,12 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
     // Reactions of this substep at the final positions.
     const auto t_fin = Clock::now();
     find_contacts(m, x, h, in);
-    tool_contact_forces(m, x, h, tp);
+    contact_forces(m, x, h, tp);
     for (size_t k = 0; k < contacts_.size(); ++k) {
       const Contact& c = contacts_[k];
+      // A triangle obstacle gives the body this force over the substep; its corners take the
+      // opposite impulse (the scene adds it to the cloth's velocities).
+      if (c.obstacle >= 0) triangles_.add_impulse(size_t(c.obstacle), c.hit, h * contact_force_[k]);
       if (c.tool < 0) continue;
       const Vec3& f_body = contact_force_[k];
       ToolReaction& r = total.tools[c.tool];
@@ -1106,6 +1135,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
     for (ToolContact& c : r.contacts) c.force /= n;
   }
   for (Vec3& f : total.attachment_forces) f /= n;
+  triangles_.finish(total);
   total.substeps = n;
   // The multipliers belong to the constraint-projection family: none here.
   state.lambda.assign(m.slot_count(), Vec6::Zero());

@@ -55,58 +55,59 @@ void ObstacleContacts::begin_step(const BodyModel& m, const std::vector<Vec3>& x
   }
 }
 
+bool ObstacleContacts::deepest(size_t o, size_t k, const Vec3& x, Hit& hit) const {
+  const TriangleObstacle& ob = *obstacles_[o];
+  const Vec3& start = step_start_[k];
+  if (!x.allFinite()) return false;
+  // Most vertices of a large body are nowhere near the cloth: its box first.
+  if ((start.cwiseMax(x).array() < boxes_[o].first.array()).any() ||
+      (start.cwiseMin(x).array() > boxes_[o].second.array()).any())
+    return false;
+  grids_[o].candidates(start, x, near_);
+  hit = Hit{};
+  for (int32_t t : near_) {
+    const auto& tri = ob.triangles[size_t(t)];
+    const std::array<Vec3, 3> corners{ob.x[tri[0]], ob.x[tri[1]], ob.x[tri[2]]};
+    double C;
+    Vec3 n;
+    std::array<double, 3> bw;
+    // The triangles do not move during the body's step: the same corners at both ends.
+    if (!triangle_contact(start, x, corners, corners, ob.radius, C, n, bw) || !(C < hit.C)) continue;
+    hit = Hit{t, C, n, bw};
+  }
+  return hit.triangle >= 0;
+}
+
+void ObstacleContacts::add_impulse(size_t o, const Hit& hit, const Vec3& impulse_on_body) {
+  const auto& tri = obstacles_[o]->triangles[size_t(hit.triangle)];
+  for (int a = 0; a < 3; ++a) impulses_[o][tri[a]] -= hit.b[a] * impulse_on_body;
+}
+
 int ObstacleContacts::resolve(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec3>& x_substep_start,
                               double h) {
   int contacts = 0;
+  Hit hit;
   for (size_t o = 0; o < obstacles_.size(); ++o) {
-    const TriangleObstacle& ob = *obstacles_[o];
-    const TriangleGrid& grid = grids_[o];
-    const double r = ob.radius;
+    const double friction = obstacles_[o]->friction;
     for (size_t k = 0; k < surface_.size(); ++k) {
       const size_t v = size_t(surface_[k]);
       if (!(m.inv_mass[v] > 0)) continue;
       Vec3& xv = x[v];
-      const Vec3& start = step_start_[k];
-      if (!xv.allFinite()) continue;
-      // Most vertices of a large body are nowhere near the cloth: its box first.
-      if ((start.cwiseMax(xv).array() < boxes_[o].first.array()).any() ||
-          (start.cwiseMin(xv).array() > boxes_[o].second.array()).any())
-        continue;
-      grid.candidates(start, xv, near_);
-      double deepest = 0;
-      int32_t best = -1;
-      std::array<double, 3> best_b{};
-      Vec3 best_n = Vec3::Zero();
-      for (int32_t t : near_) {
-        const auto& tri = ob.triangles[size_t(t)];
-        const std::array<Vec3, 3> corners{ob.x[tri[0]], ob.x[tri[1]], ob.x[tri[2]]};
-        double C;
-        Vec3 n;
-        std::array<double, 3> bw;
-        // The triangles do not move during the body's step: the same corners at both ends.
-        if (!triangle_contact(start, xv, corners, corners, r, C, n, bw) || !(C < deepest)) continue;
-        deepest = C;
-        best = t;
-        best_b = bw;
-        best_n = n;
-      }
-      if (best < 0) continue;
+      if (!deepest(o, k, xv, hit)) continue;
       ++contacts;
       const Vec3 before = xv;
-      xv -= deepest * best_n;
+      xv -= hit.C * hit.n;
       // Friction against the motion since the substep's start, across the normal: held while
       // it is below friction x the push, else shortened by that much.
-      if (ob.friction > 0) {
+      if (friction > 0) {
         const Vec3 moved = xv - x_substep_start[v];
-        const Vec3 slip = moved - moved.dot(best_n) * best_n;
-        const double limit = ob.friction * (-deepest), len = slip.norm();
+        const Vec3 slip = moved - moved.dot(hit.n) * hit.n;
+        const double limit = friction * (-hit.C), len = slip.norm();
         if (len <= limit) xv -= slip;
         else if (len > 0) xv -= slip * (limit / len);
       }
       // The momentum this correction gives the body over the substep comes from the corners.
-      const Vec3 impulse = (xv - before) / (m.inv_mass[v] * h);
-      const auto& tri = ob.triangles[size_t(best)];
-      for (int a = 0; a < 3; ++a) impulses_[o][tri[a]] -= best_b[a] * impulse;
+      add_impulse(o, hit, (xv - before) / (m.inv_mass[v] * h));
     }
   }
   return contacts;

@@ -1,13 +1,15 @@
 // SPDX-License-Identifier: Apache-2.0
 // The body's surface vertices against the step's triangle obstacles (StepInputs::obstacles, a
 // cloth's triangles): a stage of the iterations, like the static colliders, shared by the
-// solver families that project contacts at position level (xpbd and vbd).
+// solver families that project contacts at position level (xpbd and vbd); newton asks it for
+// the contacts and makes them a penalty energy.
 #pragma once
 
 #include "pliant/model.hpp"
 #include "pliant/stepper.hpp"
 #include "particles/triangle_grid.hpp"
 
+#include <array>
 #include <vector>
 
 namespace pliant::detail {
@@ -28,6 +30,21 @@ class ObstacleContacts {
   void finish(StepReport& report);
   bool active() const { return !obstacles_.empty(); }
 
+  // For families that treat the contact as an energy (newton): the surface vertices, and the
+  // deepest contact of surface vertex k (surface()[k]) at x with obstacle o, if it has one.
+  struct Hit {
+    int32_t triangle = -1;
+    double C = 0;                  // < 0: the distance along n less the radius
+    Vec3 n = Vec3::Zero();         // towards the side the vertex started the step on
+    std::array<double, 3> b{};     // barycentric weights of the closest point
+  };
+  const std::vector<int32_t>& surface() const { return surface_; }
+  size_t count() const { return obstacles_.size(); }
+  double friction(size_t o) const { return obstacles_[o]->friction; }
+  bool deepest(size_t o, size_t k, const Vec3& x, Hit& hit) const;
+  // An impulse given to the body at the closest point of a hit: minus it on the triangle's corners.
+  void add_impulse(size_t o, const Hit& hit, const Vec3& impulse_on_body);
+
  private:
   uint64_t model_id_ = 0;
   std::vector<const TriangleObstacle*> obstacles_;
@@ -36,7 +53,7 @@ class ObstacleContacts {
   std::vector<int32_t> surface_;    // surface vertices
   std::vector<Vec3> step_start_;    // their positions at the start of the step
   std::vector<std::vector<Vec3>> impulses_;
-  std::vector<int32_t> near_;       // scratch: a vertex's candidate triangles
+  mutable std::vector<int32_t> near_;  // scratch: a vertex's candidate triangles
 };
 
 }  // namespace pliant::detail
