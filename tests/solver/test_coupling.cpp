@@ -560,18 +560,11 @@ TEST(RopeContact, APinnedRopeHoldsATouchingParticleAndBadInputsAreRefused) {
                std::invalid_argument);
 }
 
-namespace {
-
-}  // namespace
-
 TEST(ObstacleContact, ASaggingBodyRestsOnADrapeAndPushesItWithItsWeight) {
   // The families that project the contact (newton's penalty contact: test_newton_family.cpp).
   for (Method method : {Method::Xpbd, Method::Vbd}) test::expect_rests_on_the_drape(method);
   // Without the drape the same beam sags through where it was.
-  TetMesh mesh = *builtin_mesh("beam1");
-  FixedSelection fixed;
-  fixed.boxes.push_back({Vec3(-1, -1, -1), Vec3(0.01, 1, 1)});
-  const auto model = build_model(mesh, Material{1e5, 0.4, 1000}, fixed);
+  const auto model = test::soft_clamped_beam(*builtin_mesh("beam1"));
   BodyState free = rest_state(*model);
   SolverSettings s;
   s.damping_coefficient = 5;
