@@ -169,6 +169,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
     ts_->body_contact.push_back(contact);
     ts_->bodies_initial.push_back(body->state());
     ts_->body_start.emplace_back();
+    body->set_log_name(fmt::format("scene '{}' body '{}' ({})", id_, bc.name, bc.kind));
     ts_->bodies.push_back(std::move(body));
     bodies_info_.push_back(std::move(info));
   }

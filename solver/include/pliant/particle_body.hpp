@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace pliant {
@@ -95,6 +96,13 @@ class ParticleBody {
   virtual bool move_grab(uint64_t id, const Vec3& target) = 0;
   virtual bool release(uint64_t id) = 0;
   virtual Vec3 grab_force(uint64_t id) const = 0;
+
+  // How the body's log lines name it (a scene sets "scene 'S' body 'B'"); kind() when unset.
+  void set_log_name(std::string name) { log_name_ = std::move(name); }
+  std::string log_name() const { return log_name_.empty() ? kind() : log_name_; }
+
+ private:
+  std::string log_name_;
 };
 
 }  // namespace pliant

@@ -691,7 +691,7 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
     stretch_warned_ = true;
     spdlog::warn("{}: an edge is stretched to {:.1f} times its rest length with {} substeps x {} iterations per step "
                  "of {:g} s; the budget is too small for stretch compliance {:g} m/N: use more substeps or iterations",
-                 kind(), 1.0 + worst, settings_.substeps, settings_.iterations, dt, settings_.stretch_compliance);
+                 log_name(), 1.0 + worst, settings_.substeps, settings_.iterations, dt, settings_.stretch_compliance);
   } else if (worst < 0.25) {
     stretch_warned_ = false;
   }
