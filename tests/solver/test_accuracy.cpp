@@ -2,7 +2,8 @@
 // The accuracy figure of merit: method specs parse as documented (and bad ones are named), and
 // `pliant-sim accuracy` on beam1 with a small budget writes one CSV per spec whose true error
 // falls with the milliseconds spent, a JSON last line with ms_to_error per method, and reports a
-// refused method without stopping the others.
+// refused method without stopping the others. `pliant-sim cloth --csv` traces every step and
+// agrees with its JSON summary.
 #include "pliant/accuracy.hpp"
 
 #include <gtest/gtest.h>
@@ -10,10 +11,12 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <vector>
 
 using namespace pliant;
 
@@ -146,4 +149,41 @@ TEST(AccuracyCommand, Beam1ErrorFallsWithTimeAndEveryMethodIsReported) {
 TEST(AccuracyCommand, BadSpecIsAUsageError) {
   const ToolRun r = run_sim("accuracy --mesh beam1 --methods xpbd:0x1 --budget-ms 5");
   EXPECT_EQ(r.status, 2);
+}
+
+TEST(ClothCommand, CsvTracesEveryStepAndAgreesWithTheSummary) {
+  const std::filesystem::path csv = std::filesystem::temp_directory_path() / ("pliant_cloth_" + std::to_string(::getpid()) + ".csv");
+  const ToolRun r = run_sim("cloth --grid 16 --size 0.2 --drape sphere --radius 0.05 --seconds 0.25 --substeps 8 --csv " +
+                            csv.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const std::string json = last_line(r.out);
+  auto number = [&](const std::string& key) {
+    const size_t at = json.find("\"" + key + "\":");
+    EXPECT_NE(at, std::string::npos) << key;
+    return at == std::string::npos ? -1.0 : std::stod(json.substr(at + key.size() + 3));
+  };
+  std::ifstream in(csv);
+  std::string line;
+  ASSERT_TRUE(std::getline(in, line));
+  EXPECT_EQ(line, "step,t_s,ms,max_stretch,rms_stretch,max_speed_m_s,self_contacts,collider_contacts,min_clearance_m");
+  int rows = 0;
+  double max_stretch = 0, max_speed = 0, min_clearance = 1e300;
+  while (std::getline(in, line)) {
+    std::vector<double> v;
+    std::stringstream ss(line);
+    for (std::string cell; std::getline(ss, cell, ',');) v.push_back(std::stod(cell));
+    ASSERT_EQ(v.size(), 9u) << line;
+    ++rows;
+    EXPECT_EQ(v[0], rows);
+    EXPECT_NEAR(v[1], rows / 60.0, 1e-6);
+    max_stretch = std::max(max_stretch, v[3]);
+    max_speed = std::max(max_speed, v[5]);
+    min_clearance = std::min(min_clearance, v[8]);
+  }
+  std::filesystem::remove(csv);
+  EXPECT_EQ(rows, 15);
+  EXPECT_NEAR(max_stretch, number("max_stretch"), 1e-5 * std::max(1.0, max_stretch));
+  EXPECT_NEAR(max_speed, number("max_speed"), 1e-5 * max_speed);
+  EXPECT_NEAR(min_clearance, number("min_clearance_m"), 1e-8);
+  EXPECT_GT(max_speed, 0.5) << "the cloth falls onto the sphere";
 }
