@@ -622,18 +622,12 @@ void NewtonFamily::find_contacts(const BodyModel& m, const std::vector<Vec3>& x,
       if (c.vertex == v && c.tool == tool && c.obstacle == obstacle) return c.normal_force;
     return 0.0;
   };
-  for (size_t o = 0; o < triangles_.count(); ++o) {
-    const std::vector<int32_t>& surface = triangles_.surface();
-    ObstacleContacts::Hit hit;
-    for (size_t k = 0; k < surface.size(); ++k) {
-      const int32_t v = surface[k];
-      if (m.inv_mass[size_t(v)] == 0 || !triangles_.deepest(o, k, x[size_t(v)], hit)) continue;
-      Contact c{v, -1, hit.n, -hit.C, triangles_.friction(o), lagged(v, -1, int(o)), Vec3::Zero()};
-      c.obstacle = int(o);
-      c.hit = hit;
-      contacts_.push_back(c);
-    }
-  }
+  triangles_.for_each_hit(m, x, [&](size_t o, int32_t v, const ObstacleContacts::Hit& hit) {
+    Contact c{v, -1, hit.n, -hit.C, triangles_.friction(o), lagged(v, -1, int(o)), Vec3::Zero()};
+    c.obstacle = int(o);
+    c.hit = hit;
+    contacts_.push_back(c);
+  });
   if (in.colliders.empty() && in.tools.empty()) return;
   for (size_t i = 0; i < x.size(); ++i) {
     if (m.inv_mass[i] == 0) continue;
@@ -657,14 +651,9 @@ void NewtonFamily::find_contacts(const BodyModel& m, const std::vector<Vec3>& x,
 double NewtonFamily::penetration_energy(const BodyModel& m, const std::vector<Vec3>& x,
                                         const StepInputs& in) const {
   double e = 0;
-  for (size_t o = 0; o < triangles_.count(); ++o) {
-    const std::vector<int32_t>& surface = triangles_.surface();
-    ObstacleContacts::Hit hit;
-    for (size_t k = 0; k < surface.size(); ++k) {
-      const size_t v = size_t(surface[k]);
-      if (m.inv_mass[v] != 0 && triangles_.deepest(o, k, x[v], hit)) e += 0.5 * contact_k_[v] * hit.C * hit.C;
-    }
-  }
+  triangles_.for_each_hit(m, x, [&](size_t, int32_t v, const ObstacleContacts::Hit& hit) {
+    e += 0.5 * contact_k_[size_t(v)] * hit.C * hit.C;
+  });
   if (in.colliders.empty() && in.tools.empty()) return e;
   std::vector<RigidTool> tools;
   for (size_t t = 0; t < in.tools.size(); ++t) tools.push_back(tool_now(in, t));

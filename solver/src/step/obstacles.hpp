@@ -30,18 +30,26 @@ class ObstacleContacts {
   void finish(StepReport& report);
   bool active() const { return !obstacles_.empty(); }
 
-  // For families that treat the contact as an energy (newton): the surface vertices, and the
-  // deepest contact of surface vertex k (surface()[k]) at x with obstacle o, if it has one.
+  // For families that treat the contact as an energy (newton): the deepest contact of surface
+  // vertex k at x with obstacle o, if it has one.
   struct Hit {
     int32_t triangle = -1;
     double C = 0;                  // < 0: the distance along n less the radius
     Vec3 n = Vec3::Zero();         // towards the side the vertex started the step on
     std::array<double, 3> b{};     // barycentric weights of the closest point
   };
-  const std::vector<int32_t>& surface() const { return surface_; }
-  size_t count() const { return obstacles_.size(); }
   double friction(size_t o) const { return obstacles_[o]->friction; }
   bool deepest(size_t o, size_t k, const Vec3& x, Hit& hit) const;
+  // fn(o, v, hit) for every free surface vertex v of x in contact with obstacle o.
+  template <class Fn>
+  void for_each_hit(const BodyModel& m, const std::vector<Vec3>& x, Fn&& fn) const {
+    Hit hit;
+    for (size_t o = 0; o < obstacles_.size(); ++o)
+      for (size_t k = 0; k < surface_.size(); ++k) {
+        const int32_t v = surface_[k];
+        if (m.inv_mass[size_t(v)] > 0 && deepest(o, k, x[size_t(v)], hit)) fn(o, v, hit);
+      }
+  }
   // An impulse given to the body at the closest point of a hit: minus it on the triangle's corners.
   void add_impulse(size_t o, const Hit& hit, const Vec3& impulse_on_body);
 
