@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <functional>
 #include <map>
 #include <numeric>
@@ -42,43 +43,82 @@ void basis(const Vec3& n, Vec3& u, Vec3& w) {
   w = n.cross(u);
 }
 
-// The precision of the per-pair terms kept from the density pass for the correction pass.
+// The precision of the per-pair kernel terms: the offsets p_i - p_j are taken in double and
+// rounded, then poly6, |r|, the spiky gradient and s_corr are computed in single precision (8
+// lanes per AVX2 instruction, and single-precision square roots and divisions are several
+// times faster), summed per particle in double. The pair's two entries stay exactly opposite
+// (the rounded offsets are), so momentum is still conserved.
 using PairReal = float;
+
+// Four doubles in one vector register (GCC and Clang vector extensions), and four pair terms
+// widened into one.
+using Double4 = double __attribute__((vector_size(32)));
+using Float4 = float __attribute__((vector_size(16)));
+inline Double4 widen4(const PairReal* a) {
+  Float4 f;
+  std::memcpy(&f, a, sizeof f);
+  return __builtin_convertvector(f, Double4);
+}
+// The sum of the four lanes, in a fixed order.
+inline double lanes4(const Double4& a) { return (a[0] + a[1]) + (a[2] + a[3]); }
 
 // The SIMD loops of the pair terms, over arrays that do not overlap (__restrict lets the
 // compiler vectorise without run-time overlap checks). Selects are written as max(a, 0) of an
 // already computed a, the one conditional form the compiler turns into vector code here.
 // r2 = |r|^2 and poly6 W = pc max(h^2 - r^2, 0)^3 (0 from h on, and for NaN).
-void poly6_terms(size_t m, const double* __restrict rx, const double* __restrict ry,
-                 const double* __restrict rz, double h2, double pc, double* __restrict r2,
-                 double* __restrict w) {
+void poly6_terms(size_t m, const PairReal* __restrict rx, const PairReal* __restrict ry,
+                 const PairReal* __restrict rz, PairReal h2, PairReal pc, PairReal* __restrict r2,
+                 PairReal* __restrict w) {
   for (size_t q = 0; q < m; ++q) {
-    const double ax = rx[q], ay = ry[q], az = rz[q];
-    const double d2 = ax * ax + ay * ay + az * az;
+    const PairReal ax = rx[q], ay = ry[q], az = rz[q];
+    const PairReal d2 = ax * ax + ay * ay + az * az;
     r2[q] = d2;
-    const double t0 = h2 - d2;
-    const double t = t0 > 0.0 ? t0 : 0.0;
+    const PairReal t0 = h2 - d2;
+    const PairReal t = t0 > PairReal(0) ? t0 : PairReal(0);
     w[q] = pc * t * t * t;
   }
 }
-// The spiky gradient sg max(h - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)), also rounded to
-// single precision into f*.
-void spiky_terms(size_t m, const double* __restrict rx, const double* __restrict ry,
-                 const double* __restrict rz, const double* __restrict len, double h, double sg,
-                 double* __restrict gx, double* __restrict gy, double* __restrict gz,
-                 PairReal* __restrict fx, PairReal* __restrict fy, PairReal* __restrict fz) {
+// The constants of the pair terms, rounded once.
+struct PairConstants {
+  PairReal h, h2, poly6_c, spiky_g, same, inv_wdq, scorr_scale;
+};
+// All the pair terms of the density pass in one SIMD loop: poly6 W, the spiky gradient
+// sg max(h - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)) and, with ScorrN > 0, s_corr =
+// -scale (W / W(dq))^ScorrN. Returns whether some pair lies on the same point (|r|^2 <= same;
+// its gradient is 0 / 0 here, patched by the caller). The square root is correctly rounded in
+// every lane: this file is built without errno (see solver/CMakeLists.txt), and Eigen's
+// single-precision packet sqrt, an approximation that its scalar tail is not, would make a
+// pair's two entries differ.
+template <int ScorrN>
+bool density_terms(size_t m, const PairReal* __restrict rx, const PairReal* __restrict ry,
+                   const PairReal* __restrict rz, const PairConstants& c, PairReal* __restrict w,
+                   PairReal* __restrict gx, PairReal* __restrict gy, PairReal* __restrict gz,
+                   PairReal* __restrict sc) {
+  const PairReal zero = 0;
+  int coincident = 0;
   for (size_t q = 0; q < m; ++q) {
-    const double u0 = h - len[q];
-    const double u = u0 > 0.0 ? u0 : 0.0;
-    const double c = sg * u * u / len[q];
-    const double ax = c * rx[q], ay = c * ry[q], az = c * rz[q];
-    gx[q] = ax;
-    gy[q] = ay;
-    gz[q] = az;
-    fx[q] = static_cast<PairReal>(ax);
-    fy[q] = static_cast<PairReal>(ay);
-    fz[q] = static_cast<PairReal>(az);
+    const PairReal ax = rx[q], ay = ry[q], az = rz[q];
+    const PairReal d2 = ax * ax + ay * ay + az * az;
+    coincident |= static_cast<int>(!(d2 > c.same));
+    const PairReal t0 = c.h2 - d2;
+    const PairReal t = t0 > zero ? t0 : zero;
+    const PairReal wq = c.poly6_c * t * t * t;
+    w[q] = wq;
+    const PairReal len = std::sqrt(d2);
+    const PairReal u0 = c.h - len;
+    const PairReal u = u0 > zero ? u0 : zero;
+    const PairReal f = c.spiky_g * u * u / len;
+    gx[q] = f * ax;
+    gy[q] = f * ay;
+    gz[q] = f * az;
+    if constexpr (ScorrN > 0) {
+      const PairReal r = wq * c.inv_wdq;
+      PairReal rn = r;
+      for (int e = 1; e < ScorrN; ++e) rn *= r;
+      sc[q] = -c.scorr_scale * rn;
+    }
   }
+  return coincident != 0;
 }
 
 }  // namespace
@@ -150,84 +190,64 @@ struct FluidBody::Impl {
   size_t n() const { return x.size(); }
 
   // Pair terms of one particle or of a block of particles, in arrays the compiler vectorises:
-  // the offsets r = p_i - p_j, |r|^2, |r|, poly6 W(r) and, with Gradient, the spiky gradient
-  // grad W (fluid::pair_gradient except for pairs on the same point, which the caller patches;
-  // s_corr goes straight to the caller's per-pair array).
+  // the offsets r = p_i - p_j, |r|^2 (XSPH only) and poly6 W(r). The spiky gradients grad W
+  // (fluid::pair_gradient except for pairs on the same point, which the caller patches) and
+  // s_corr go straight to the caller's per-pair arrays.
   struct PairScratch {
-    std::vector<double> rx, ry, rz, r2, len, w, gx, gy, gz;
+    std::vector<PairReal> rx, ry, rz, r2, w;
     bool coincident = false;  // some pair on the same point (its gradient is left to the caller)
     void fit(size_t m) {
       if (rx.size() >= m) return;
-      for (auto* a : {&rx, &ry, &rz, &r2, &len, &w, &gx, &gy, &gz}) a->resize(m + 64);
+      for (auto* a : {&rx, &ry, &rz, &r2, &w}) a->resize(m + 64);
     }
   };
-  // The offsets of particle i to its neighbours nb, from scratch index `at` on. The gather
-  // stays scalar (no vector gathers for this target); the arithmetic after it is SIMD.
+  // The offsets of particle i to its neighbours nb, from scratch index `at` on, taken in double
+  // and rounded. The gather stays scalar (no vector gathers for this target); the arithmetic
+  // after it is SIMD.
   void gather(size_t i, std::span<const uint32_t> nb, PairScratch& ps, size_t at) const {
     const uint32_t* J = nb.data();
     const size_t m = nb.size();
     // From p itself: a neighbour's three coordinates share a cache line.
     const double xi = p[i].x(), yi = p[i].y(), zi = p[i].z();
     const Vec3* P = p.data();
-    double* rx = ps.rx.data() + at;
-    double* ry = ps.ry.data() + at;
-    double* rz = ps.rz.data() + at;
+    PairReal* rx = ps.rx.data() + at;
+    PairReal* ry = ps.ry.data() + at;
+    PairReal* rz = ps.rz.data() + at;
     for (size_t q = 0; q < m; ++q) {
       const uint32_t j = J[q];
-      rx[q] = xi - P[j].x();
-      ry[q] = yi - P[j].y();
-      rz[q] = zi - P[j].z();
+      rx[q] = static_cast<PairReal>(xi - P[j].x());
+      ry[q] = static_cast<PairReal>(yi - P[j].y());
+      rz[q] = static_cast<PairReal>(zi - P[j].z());
     }
   }
 
-  // One particle's terms (XSPH: poly6 only).
-  template <bool Gradient, bool Scorr, int ScorrN>
-  void pair_terms(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
+  // One particle's poly6 terms (XSPH).
+  void poly6_pairs(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
     ps.fit(nb.size());
     gather(i, nb, ps, 0);
-    kernel_terms<Gradient, Scorr, ScorrN>(nb.size(), ps);
+    poly6_terms(nb.size(), ps.rx.data(), ps.ry.data(), ps.rz.data(), static_cast<PairReal>(k.h2),
+                static_cast<PairReal>(k.poly6_c), ps.r2.data(), ps.w.data());
   }
 
-  // The kernel terms of the m pairs whose offsets are in ps; with Gradient, the gradients also
-  // in PairReal precision to f*, and with Scorr s_corr = -scale (W / W(dq))^n to fsc (n =
-  // ScorrN when > 0, else the setting).
-  template <bool Gradient, bool Scorr, int ScorrN>
-  void kernel_terms(size_t m, PairScratch& ps, PairReal* fx = nullptr, PairReal* fy = nullptr, PairReal* fz = nullptr,
-                    PairReal* fsc = nullptr) const {
-    const double* rx = ps.rx.data();
-    const double* ry = ps.ry.data();
-    const double* rz = ps.rz.data();
-    double* r2 = ps.r2.data();
-    double* w = ps.w.data();
-    const double h2 = k.h2, pc = k.poly6_c;
-    poly6_terms(m, rx, ry, rz, h2, pc, r2, w);
-    if constexpr (Gradient) {
-      double* len = ps.len.data();
-      // Eigen's packet sqrt (std::sqrt in a loop keeps errno handling, which blocks SIMD).
-      Eigen::Map<Eigen::ArrayXd>(len, static_cast<Eigen::Index>(m)) =
-          Eigen::Map<const Eigen::ArrayXd>(r2, static_cast<Eigen::Index>(m)).sqrt();
-      double* gx = ps.gx.data();
-      double* gy = ps.gy.data();
-      double* gz = ps.gz.data();
-      const double same = 1e-18 * h2;
-      spiky_terms(m, rx, ry, rz, len, k.h, k.spiky_g, gx, gy, gz, fx, fy, fz);
-      int coincident = 0;
-      for (size_t q = 0; q < m; ++q) coincident |= static_cast<int>(!(r2[q] > same));
-      ps.coincident = coincident != 0;
-    }
-    if constexpr (Scorr) {
-      PairReal* sc = fsc;
-      const double wq = wdq, scale = scorr_scale;
+  // The kernel terms of the m pairs whose offsets are in ps: poly6 in ps.w, the gradients to
+  // g*, and with Scorr s_corr = -scale (W / W(dq))^n to fsc (n = ScorrN when > 0, else the
+  // setting).
+  template <bool Scorr, int ScorrN>
+  void kernel_terms(size_t m, PairScratch& ps, PairReal* gx, PairReal* gy, PairReal* gz, PairReal* fsc) const {
+    const PairConstants c{static_cast<PairReal>(k.h),           static_cast<PairReal>(k.h2),
+                          static_cast<PairReal>(k.poly6_c),     static_cast<PairReal>(k.spiky_g),
+                          static_cast<PairReal>(1e-18 * k.h2),  static_cast<PairReal>(1.0 / wdq),
+                          static_cast<PairReal>(scorr_scale)};
+    constexpr int kFused = Scorr ? ScorrN : 0;
+    ps.coincident = density_terms<kFused>(m, ps.rx.data(), ps.ry.data(), ps.rz.data(), c, ps.w.data(), gx, gy, gz, fsc);
+    if constexpr (Scorr && ScorrN <= 0) {
+      const PairReal* w = ps.w.data();
       const int n_exp = s.scorr_n;
       for (size_t q = 0; q < m; ++q) {
-        const double t = w[q] / wq;
-        double tn = t;
-        if constexpr (ScorrN > 0) {
-          for (int e = 1; e < ScorrN; ++e) tn *= t;
-        } else {
-          for (int e = 1; e < n_exp; ++e) tn *= t;
-        }
-        sc[q] = static_cast<PairReal>(-scale * tn);
+        const PairReal t = w[q] * c.inv_wdq;
+        PairReal tn = t;
+        for (int e = 1; e < n_exp; ++e) tn *= t;
+        fsc[q] = -c.scorr_scale * tn;
       }
     }
   }
@@ -247,21 +267,24 @@ struct FluidBody::Impl {
       ps.fit(m_all);
       for (size_t sl = s0; sl < s1; ++sl)
         gather(grid.point(sl), grid.slot_neighbours(sl), ps, grid.slot_first(sl) - f0);
-      kernel_terms<true, Scorr, ScorrN>(m_all, ps, pair_gx.data() + f0, pair_gy.data() + f0, pair_gz.data() + f0,
-                                        pair_sc.data() + f0);
+      PairReal* const gxb = pair_gx.data() + f0;
+      PairReal* const gyb = pair_gy.data() + f0;
+      PairReal* const gzb = pair_gz.data() + f0;
+      kernel_terms<Scorr, ScorrN>(m_all, ps, gxb, gyb, gzb, pair_sc.data() + f0);
       if (ps.coincident) {
         // Particles on the same point (a container's corner can put several there): the
         // signed diagonal of fluid::pair_gradient instead of 0 / 0.
-        const double diag = k.spiky_g * k.h2 / std::sqrt(3.0), same = 1e-18 * k.h2;
+        const double diag = k.spiky_g * k.h2 / std::sqrt(3.0);
+        const PairReal same = static_cast<PairReal>(1e-18 * k.h2);
         for (size_t sl = s0; sl < s1; ++sl) {
           const uint32_t i = grid.point(sl);
           const std::span<const uint32_t> nb = grid.slot_neighbours(sl);
           const size_t at = grid.slot_first(sl) - f0;
           for (size_t q = 0; q < nb.size(); ++q) {
-            if (ps.r2[at + q] > same) continue;
-            const double d = i < nb[q] ? diag : -diag;
-            ps.gx[at + q] = ps.gy[at + q] = ps.gz[at + q] = d;
-            pair_gx[f0 + at + q] = pair_gy[f0 + at + q] = pair_gz[f0 + at + q] = static_cast<PairReal>(d);
+            const PairReal ax = ps.rx[at + q], ay = ps.ry[at + q], az = ps.rz[at + q];
+            if (ax * ax + ay * ay + az * az > same && std::isfinite(gxb[at + q])) continue;
+            const PairReal d = static_cast<PairReal>(i < nb[q] ? diag : -diag);
+            gxb[at + q] = gyb[at + q] = gzb[at + q] = d;
           }
         }
       }
@@ -269,13 +292,25 @@ struct FluidBody::Impl {
         const size_t i = grid.point(sl);
         const size_t at = grid.slot_first(sl) - f0;
         const size_t m = grid.slot_first(sl + 1) - f0 - at;
-        const double* w = ps.w.data() + at;
-        const double* gxs = ps.gx.data() + at;
-        const double* gys = ps.gy.data() + at;
-        const double* gzs = ps.gz.data() + at;
-        // Sums with the constant factors applied once.
-        double a_w = 0.0, a_x = 0.0, a_y = 0.0, a_z = 0.0, a_s = 0.0;
-        for (size_t q = 0; q < m; ++q) {
+        const PairReal* w = ps.w.data() + at;
+        const PairReal* gxs = gxb + at;
+        const PairReal* gys = gyb + at;
+        const PairReal* gzs = gzb + at;
+        // Sums in double with the constant factors applied once, in four lanes (pair q in
+        // lane q mod 4, whatever the block or thread), then the lanes and the last pairs in a
+        // fixed order.
+        Double4 l_w{}, l_x{}, l_y{}, l_z{}, l_s{};
+        size_t q = 0;
+        for (; q + 4 <= m; q += 4) {
+          const Double4 gxq = widen4(gxs + q), gyq = widen4(gys + q), gzq = widen4(gzs + q);
+          l_w += widen4(w + q);
+          l_x += gxq;
+          l_y += gyq;
+          l_z += gzq;
+          l_s += gxq * gxq + gyq * gyq + gzq * gzq;
+        }
+        double a_w = lanes4(l_w), a_x = lanes4(l_x), a_y = lanes4(l_y), a_z = lanes4(l_z), a_s = lanes4(l_s);
+        for (; q < m; ++q) {
           const double gxq = gxs[q], gyq = gys[q], gzq = gzs[q];
           a_w += w[q];
           a_x += gxq;
@@ -314,8 +349,18 @@ struct FluidBody::Impl {
       const double li = lam[i];
       const uint32_t* J = nb.data();
       const double* L = lam.data();
-      double dx = 0.0, dy = 0.0, dz = 0.0;
-      for (size_t q = 0; q < m; ++q) {
+      // In four lanes as in the density pass, then the lanes and the last pairs.
+      Double4 l_x{}, l_y{}, l_z{};
+      size_t q = 0;
+      for (; q + 4 <= m; q += 4) {
+        const Double4 lj = {L[J[q]], L[J[q + 1]], L[J[q + 2]], L[J[q + 3]]};
+        const Double4 c = Scorr ? li + lj + widen4(scs + q) : li + lj;
+        l_x += c * widen4(gxs + q);
+        l_y += c * widen4(gys + q);
+        l_z += c * widen4(gzs + q);
+      }
+      double dx = lanes4(l_x), dy = lanes4(l_y), dz = lanes4(l_z);
+      for (; q < m; ++q) {
         const double c = Scorr ? li + L[J[q]] + scs[q] : li + L[J[q]];
         dx += c * gxs[q];
         dy += c * gys[q];
@@ -537,7 +582,7 @@ struct FluidBody::Impl {
         PairScratch ps;
         for (size_t i = b; i < e; ++i) {
           const std::span<const uint32_t> nb = grid.neighbours(i);
-          pair_terms<false, false, 0>(i, nb, ps);
+          poly6_pairs(i, nb, ps);
           double ax = 0.0, ay = 0.0, az = 0.0;
           const Vec3 vi = v[i];
           for (size_t q = 0; q < nb.size(); ++q) {
