@@ -136,7 +136,8 @@ TEST(FluidConstraint, GradientMatchesFiniteDifferencesOfTheSpikyDensity) {
 
 TEST(FluidNeighbours, MatchBruteForceAndDoNotDependOnThreads) {
   const double h = 0.05;
-  const std::vector<Vec3> x = random_points(3000, 0.5, 11);
+  // Enough points that the grid sorts them in parallel chunks, merged.
+  const std::vector<Vec3> x = random_points(6000, 0.63, 11);
   fluid::NeighbourGrid one, three;
   one.build(x, h, nullptr);
   ThreadPool pool(3);
@@ -154,7 +155,7 @@ TEST(FluidNeighbours, MatchBruteForceAndDoNotDependOnThreads) {
     ASSERT_EQ(got, brute) << "particle " << i;
     total += brute.size();
   }
-  EXPECT_GT(total, 3000u) << "too few pairs to test anything";
+  EXPECT_GT(total, 6000u) << "too few pairs to test anything";
   // Far and non-finite points do not break the grid.
   std::vector<Vec3> y = x;
   y[0] = Vec3(1e30, -1e30, 0);
@@ -208,6 +209,10 @@ TEST(FluidNeighbours, CellOrderIsAPermutationGroupingCells) {
                                long(std::floor(x[i].x() / h))};
   };
   for (size_t i = 1; i < order.size(); ++i) ASSERT_LE(cell(order[i - 1]), cell(order[i]));
+  // Sorted by chunks on three threads and merged, a larger set comes out in the same order.
+  const std::vector<Vec3> y = random_points(9000, 1.0, 6);
+  ThreadPool pool(3);
+  EXPECT_EQ(fluid::NeighbourGrid::cell_order(y, h, &pool), fluid::NeighbourGrid::cell_order(y, h));
 }
 
 namespace {

@@ -386,7 +386,7 @@ struct FluidBody::Impl {
   }
 
   void reorder() {
-    const std::vector<uint32_t> order = fluid::NeighbourGrid::cell_order(x, h);
+    const std::vector<uint32_t> order = fluid::NeighbourGrid::cell_order(x, h, pool.get());
     auto gather = [&](auto& a) {
       std::remove_reference_t<decltype(a)> b(a.size());
       for (size_t i = 0; i < order.size(); ++i) b[i] = a[order[i]];
@@ -583,11 +583,24 @@ struct FluidBody::Impl {
         for (size_t i = b; i < e; ++i) {
           const std::span<const uint32_t> nb = grid.neighbours(i);
           poly6_pairs(i, nb, ps);
-          double ax = 0.0, ay = 0.0, az = 0.0;
           const Vec3 vi = v[i];
-          for (size_t q = 0; q < nb.size(); ++q) {
-            const Vec3& vj = v[nb[q]];
-            const double w = ps.w[q];
+          const size_t m = nb.size();
+          const uint32_t* J = nb.data();
+          const PairReal* W = ps.w.data();
+          // In four lanes as in the density pass, then the lanes and the last pairs.
+          Double4 l_x{}, l_y{}, l_z{};
+          size_t q = 0;
+          for (; q + 4 <= m; q += 4) {
+            const Vec3 &v0 = v[J[q]], &v1 = v[J[q + 1]], &v2 = v[J[q + 2]], &v3 = v[J[q + 3]];
+            const Double4 w = widen4(W + q);
+            l_x += (Double4{v0.x(), v1.x(), v2.x(), v3.x()} - vi.x()) * w;
+            l_y += (Double4{v0.y(), v1.y(), v2.y(), v3.y()} - vi.y()) * w;
+            l_z += (Double4{v0.z(), v1.z(), v2.z(), v3.z()} - vi.z()) * w;
+          }
+          double ax = lanes4(l_x), ay = lanes4(l_y), az = lanes4(l_z);
+          for (; q < m; ++q) {
+            const Vec3& vj = v[J[q]];
+            const double w = W[q];
             ax += (vj.x() - vi.x()) * w;
             ay += (vj.y() - vi.y()) * w;
             az += (vj.z() - vi.z()) * w;

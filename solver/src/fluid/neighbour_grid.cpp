@@ -3,8 +3,14 @@
 
 #include "step/thread_pool.hpp"
 
+#if defined(__AVX2__)
+#include <immintrin.h>
+#endif
+
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <limits>
 #include <functional>
 #include <numeric>
 
@@ -34,11 +40,81 @@ uint64_t key_hash(uint64_t k) {
   return k;
 }
 
+#if defined(__AVX2__)
+// For each 8-bit mask, the lanes whose bit is set, in order: the permutation that packs the
+// hits of 8 candidates to the front of a vector.
+struct CompressTable {
+  alignas(32) uint32_t lanes[256][8] = {};
+  constexpr CompressTable() {
+    for (int m = 0; m < 256; ++m) {
+      int k = 0;
+      for (int l = 0; l < 8; ++l)
+        if ((m >> l) & 1) lanes[m][k++] = static_cast<uint32_t>(l);
+    }
+  }
+};
+constexpr CompressTable kCompress;
+#endif
+
+// Appends to o the candidates q in [0, m) (m a multiple of 8) within h of (xi, yi, zi), except
+// q = self, and returns how many; o has room for m + 8 entries. cx, cy, cz, id are the
+// candidates' coordinates and points.
+size_t collect(size_t m, const double* cx, const double* cy, const double* cz, const uint32_t* id, double xi,
+               double yi, double zi, double h2, size_t self, uint32_t* o) {
+  size_t hits = 0;
+#if defined(__AVX2__)
+  const __m256d vx = _mm256_set1_pd(xi), vy = _mm256_set1_pd(yi), vz = _mm256_set1_pd(zi), vh = _mm256_set1_pd(h2);
+  auto below = [&](size_t q) {
+    const __m256d dx = _mm256_sub_pd(_mm256_loadu_pd(cx + q), vx);
+    const __m256d dy = _mm256_sub_pd(_mm256_loadu_pd(cy + q), vy);
+    const __m256d dz = _mm256_sub_pd(_mm256_loadu_pd(cz + q), vz);
+    const __m256d d2 = _mm256_fmadd_pd(dz, dz, _mm256_fmadd_pd(dy, dy, _mm256_mul_pd(dx, dx)));
+    return _mm256_movemask_pd(_mm256_cmp_pd(d2, vh, _CMP_LT_OQ));
+  };
+  for (size_t q = 0; q < m; q += 8) {
+    unsigned mask = static_cast<unsigned>(below(q) | (below(q + 4) << 4));
+    if (self - q < 8) mask &= ~(1u << (self - q));
+    const __m256i ids = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(id + q));
+    const __m256i perm = _mm256_load_si256(reinterpret_cast<const __m256i*>(kCompress.lanes[mask]));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(o + hits), _mm256_permutevar8x32_epi32(ids, perm));
+    hits += static_cast<size_t>(std::popcount(mask));
+  }
+#else
+  // Branch-free compaction: every candidate is written, the count moves on for hits.
+  for (size_t q = 0; q < m; ++q) {
+    const double dx = cx[q] - xi, dy = cy[q] - yi, dz = cz[q] - zi;
+    o[hits] = id[q];
+    hits += static_cast<size_t>((dx * dx + dy * dy + dz * dz < h2) & (q != self));
+  }
+#endif
+  return hits;
+}
+
 void run(ThreadPool* pool, size_t n, const std::function<void(int, size_t, size_t)>& fn, size_t min_parallel) {
   if (pool)
     pool->parallel_for(n, fn, min_parallel);
   else
     fn(0, 0, n);
+}
+
+// Sorts a (distinct entries, so there is one result) with the pool: each chunk of the pool's
+// split sorted on its own thread, then the sorted chunks merged.
+template <class T>
+void sort_parallel(std::vector<T>& a, ThreadPool* pool) {
+  const size_t n = a.size();
+  if (!pool || pool->size() == 1 || n < 4096) {
+    std::sort(a.begin(), a.end());
+    return;
+  }
+  std::vector<size_t> end(static_cast<size_t>(pool->size()), 0);
+  pool->parallel_for(n, [&](int c, size_t b, size_t e) {
+    std::sort(a.begin() + static_cast<ptrdiff_t>(b), a.begin() + static_cast<ptrdiff_t>(e));
+    end[static_cast<size_t>(c)] = e;
+  }, 1);
+  for (size_t c = 1; c < end.size(); ++c)
+    if (end[c] > end[c - 1])
+      std::inplace_merge(a.begin(), a.begin() + static_cast<ptrdiff_t>(end[c - 1]),
+                         a.begin() + static_cast<ptrdiff_t>(end[c]));
 }
 
 }  // namespace
@@ -51,7 +127,7 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
   run(pool, n, [&](int, size_t b, size_t e) {
     for (size_t i = b; i < e; ++i) sorted_[i] = {cell_key(x[i], inv_h), static_cast<uint32_t>(i)};
   }, 1024);
-  std::sort(sorted_.begin(), sorted_.end());
+  sort_parallel(sorted_, pool);
   slot_.resize(n);
   cells_.clear();
   for (size_t s = 0; s < n; ++s) {
@@ -103,16 +179,21 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
   run(pool, ncells, [&](int chunk, size_t b, size_t e) {
     std::vector<uint32_t>& out = chunk_list_[chunk];
     size_t used = 0;
-    std::vector<double> d2;
-    uint32_t row_b[9], row_e[9];
+    // The candidates of one cell: the points of its 9 rows one after the other, padded to a
+    // multiple of 8 with points at infinity (never within h).
+    std::vector<double> bx, by, bz;
+    std::vector<uint32_t> bid;
     for (size_t c = b; c < e; ++c) {
       const Cell& cell = cells_[c];
       const int64_t cx = static_cast<int64_t>(cell.key & 0x1FFFFF), cy = static_cast<int64_t>((cell.key >> 21) & 0x1FFFFF),
                     cz = static_cast<int64_t>(cell.key >> 42);
       // The 9 rows (z, then y order); in a row the cells x - 1, x, x + 1 are consecutive keys,
       // so their points are one range of slots from the first to the last that exists.
-      int rows = 0;
-      size_t span = 0;
+      size_t m = 0, own = 0;  // candidates; where the cell's own row starts among them
+      bx.clear();
+      by.clear();
+      bz.clear();
+      bid.clear();
       for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy) {
           const int64_t ay = cy + dy, az = cz + dz;
@@ -129,36 +210,23 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
             last = nb;
           }
           if (!first) continue;
-          row_b[rows] = first->begin;
-          row_e[rows] = last->end;
-          span = std::max<size_t>(span, last->end - first->begin);
-          ++rows;
+          const uint32_t rb = first->begin, re = last->end;
+          if (dy == 0 && dz == 0) own = m - rb;  // slot s sits at own + s
+          bx.insert(bx.end(), sx_.begin() + rb, sx_.begin() + re);
+          by.insert(by.end(), sy_.begin() + rb, sy_.begin() + re);
+          bz.insert(bz.end(), sz_.begin() + rb, sz_.begin() + re);
+          bid.insert(bid.end(), point_.begin() + rb, point_.begin() + re);
+          m += re - rb;
         }
-      if (d2.size() < span) d2.resize(span);
+      const size_t padded = (m + 7) / 8 * 8;
+      bx.resize(padded, std::numeric_limits<double>::infinity());
+      by.resize(padded, std::numeric_limits<double>::infinity());
+      bz.resize(padded, std::numeric_limits<double>::infinity());
+      bid.resize(padded, 0);
       for (uint32_t s = cell.begin; s < cell.end; ++s) {
-        const double xi = sx_[s], yi = sy_[s], zi = sz_[s];
-        for (int r = 0; r < rows; ++r) {
-          const size_t rb = row_b[r], nc = row_e[r] - rb;
-          const double* px = sx_.data() + rb;
-          const double* py = sy_.data() + rb;
-          const double* pz = sz_.data() + rb;
-          double* pd = d2.data();
-          for (size_t q = 0; q < nc; ++q) {
-            const double dx = px[q] - xi, dy = py[q] - yi, dz = pz[q] - zi;
-            pd[q] = dx * dx + dy * dy + dz * dz;
-          }
-          // Branch-free compaction: every candidate is written, the count moves on for hits.
-          if (used + nc > out.size()) out.resize(std::max(2 * out.size(), used + nc + 1024));
-          uint32_t* o = out.data() + used;
-          const uint32_t* ci = point_.data() + rb;
-          const size_t self = s - rb;  // wraps around (no match) when s is outside the row
-          size_t hits = 0;
-          for (size_t q = 0; q < nc; ++q) {
-            o[hits] = ci[q];
-            hits += static_cast<size_t>((pd[q] < h2) & (q != self));
-          }
-          used += hits;
-        }
+        if (used + padded + 8 > out.size()) out.resize(std::max(2 * out.size(), used + padded + 1024));
+        used += collect(padded, bx.data(), by.data(), bz.data(), bid.data(), sx_[s], sy_[s], sz_[s], h2, own + s,
+                        out.data() + used);
         offset_[s + 1] = static_cast<uint32_t>(used);  // chunk-relative for now
       }
     }
@@ -181,11 +249,11 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
   }, 64);
 }
 
-std::vector<uint32_t> NeighbourGrid::cell_order(std::span<const Vec3> x, double h) {
+std::vector<uint32_t> NeighbourGrid::cell_order(std::span<const Vec3> x, double h, ThreadPool* pool) {
   const double inv_h = 1.0 / h;
   std::vector<std::pair<uint64_t, uint32_t>> key(x.size());
   for (size_t i = 0; i < x.size(); ++i) key[i] = {cell_key(x[i], inv_h), static_cast<uint32_t>(i)};
-  std::sort(key.begin(), key.end());
+  sort_parallel(key, pool);
   std::vector<uint32_t> order(x.size());
   for (size_t i = 0; i < x.size(); ++i) order[i] = key[i].second;
   return order;

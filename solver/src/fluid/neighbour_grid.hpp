@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // Fixed-radius neighbour search on a uniform grid of cell h: the points sorted by cell (z, y,
 // x), the occupied cells found through a hash table, and for every cell the points of its 27
-// neighbouring cells gathered once into a contiguous buffer that each of its points scans.
+// neighbouring cells (9 rows of three consecutive cells, each a range of sorted points)
+// copied once into contiguous arrays that each of its points scans 8 candidates at a time.
 // Each point's neighbours (distance < h, itself excluded) come in a fixed order (cells in z,
 // y, x order, points by index within a cell) whatever the number of threads.
 #pragma once
@@ -40,8 +41,8 @@ class NeighbourGrid {
   }
 
   // The permutation that orders points by grid cell (z, then y, then x; ties by index):
-  // order[k] = the point that goes to place k.
-  static std::vector<uint32_t> cell_order(std::span<const Vec3> x, double h);
+  // order[k] = the point that goes to place k. The pool may be null (one thread).
+  static std::vector<uint32_t> cell_order(std::span<const Vec3> x, double h, ThreadPool* pool = nullptr);
 
  private:
   struct Cell {
