@@ -83,6 +83,38 @@ TEST(ClothMath, DihedralAngleIsZeroFlatAndSignedWhenFolded) {
   EXPECT_NEAR(up, -down, 1e-12);
 }
 
+// The bending constraint's value: the angle turned back by the rest angle, against atan2 and a
+// wrap into (-pi, pi], on both sides of the series' reach and in every quadrant.
+TEST(ClothMath, AngleFromRestIsTheWrappedDifferenceOfAngles) {
+  auto wrap = [](double a) {
+    while (a > M_PI) a -= 2.0 * M_PI;
+    while (a <= -M_PI) a += 2.0 * M_PI;
+    return a;
+  };
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> angle(-M_PI, M_PI), scale(1e-6, 1e6), near(-0.3, 0.3);
+  double worst = 0.0;
+  int series = 0;
+  for (int k = 0; k < 200000; ++k) {
+    const double rest = angle(rng);
+    // Half the cases within 0.3 rad of the rest angle (the series' reach is atan(1/4) = 0.245).
+    const double theta = k % 2 ? angle(rng) : rest + near(rng);
+    const double r = scale(rng);
+    const double s = r * std::sin(theta), c = r * std::cos(theta);
+    const double got = cloth_math::angle_from_rest(s, c, std::cos(rest), std::sin(rest));
+    const double want = wrap(std::atan2(s, c) - rest);
+    // Near +-pi the two may land on either side of the cut.
+    const double diff = std::abs(wrap(got - want));
+    worst = std::max(worst, diff);
+    series += std::abs(want) < 0.24;
+    ASSERT_LE(diff, 2e-15) << "s " << s << " c " << c << " rest " << rest;
+    ASSERT_GT(got, -M_PI - 1e-15);
+    ASSERT_LE(got, M_PI + 1e-15);
+  }
+  EXPECT_GT(series, 50000) << "too few cases within the series' reach";
+  EXPECT_EQ(cloth_math::angle_from_rest(0.0, 1.0, 1.0, 0.0), 0.0);
+}
+
 TEST(ClothMath, RopeBendGradientMatchesFiniteDifferences) {
   std::mt19937 rng(11);
   for (int trial = 0; trial < 100; ++trial) {

@@ -127,6 +127,7 @@ class ConstraintBody : public ParticleBody {
   struct Bend {  // dihedral: edge (a, b), wings c (triangle a b c) and d (triangle b a d)
     uint32_t a, b, c, d;
     double rest_angle;
+    double rest_cos = 1.0, rest_sin = 0.0;  // of rest_angle (set when the body is finished)
   };
   struct RopeBend {  // Kelager et al. 2010: |x_b - (x_a + x_b + x_c)/3| = rest
     uint32_t a, b, c;
@@ -192,6 +193,10 @@ class ConstraintBody : public ParticleBody {
 // Distance, dihedral and rope-bending constraints as functions, for tests (values, gradients).
 namespace cloth_math {
 double dihedral_angle(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d);
+// atan2(s, c) - theta0 wrapped into (-pi, pi], from the cosine and sine of theta0: the angle of
+// the pair (s, c) turned back by theta0. Near theta0 (the turned pair within 14 degrees of its
+// axis) a series replaces the libm call, to the last bit or so.
+double angle_from_rest(double s, double c, double cos0, double sin0);
 // Gradients of dihedral_angle with respect to a, b, c, d.
 std::array<Vec3, 4> dihedral_gradient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d);
 // |x_b - centroid(a, b, c)| and its gradient with respect to a, b, c.

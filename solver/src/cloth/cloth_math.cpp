@@ -21,6 +21,24 @@ double dihedral_angle(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d
   return std::atan2(n1.cross(n2).dot(e) / el, n1.dot(n2));
 }
 
+// The pair turned back by theta0: (s', c') = rotation(-theta0) (s, c) in the (cos, sin) plane.
+// Within |s'| <= c' / 4 the odd series of atan(t), t = s' / c', to t^23 leaves out less than
+// 0.25^25 / 25 < 4e-17 rad, below the result's rounding.
+double angle_from_rest(double s, double c, double cos0, double sin0) {
+  const double sr = s * cos0 - c * sin0, cr = c * cos0 + s * sin0;
+  if (cr > 0.0 && std::abs(sr) <= 0.25 * cr) {
+    static constexpr double kCoef[12] = {1.0,        -1.0 / 3.0,  1.0 / 5.0,  -1.0 / 7.0,  1.0 / 9.0,  -1.0 / 11.0,
+                                         1.0 / 13.0, -1.0 / 15.0, 1.0 / 17.0, -1.0 / 19.0, 1.0 / 21.0, -1.0 / 23.0};
+    const double t = sr / cr, u = t * t, u2 = u * u, u4 = u2 * u2, u8 = u4 * u4;
+    // Estrin's scheme: a short dependency chain (a Horner loop of 12 terms was as slow as atan2).
+    const double p01 = kCoef[0] + kCoef[1] * u, p23 = kCoef[2] + kCoef[3] * u, p45 = kCoef[4] + kCoef[5] * u,
+                 p67 = kCoef[6] + kCoef[7] * u, p89 = kCoef[8] + kCoef[9] * u, pab = kCoef[10] + kCoef[11] * u;
+    const double p = (p01 + u2 * p23) + u4 * (p45 + u2 * p67) + u8 * (p89 + u2 * pab);
+    return t * p;
+  }
+  return std::atan2(sr, cr);
+}
+
 // The wing's gradient is the normal over the wing's height (|n| / |e|); the edge vertices'
 // follow from translation and rotation invariance (Bridson et al. 2003, the bending modes).
 std::array<Vec3, 4> dihedral_gradient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {

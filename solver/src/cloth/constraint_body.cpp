@@ -13,7 +13,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <numbers>
 #include <stdexcept>
 #include <string>
 
@@ -79,12 +78,6 @@ std::vector<size_t> colour(std::vector<C>& items, size_t particles, Particles&& 
   }
   items = std::move(ordered);
   return starts;
-}
-
-double wrap_angle(double a) {
-  while (a > std::numbers::pi) a -= 2.0 * std::numbers::pi;
-  while (a <= -std::numbers::pi) a += 2.0 * std::numbers::pi;
-  return a;
 }
 
 Collider inflated(const Collider& c, double r) {
@@ -163,6 +156,10 @@ void ConstraintBody::finish(const ConstraintBodySettings& settings) {
   w_free_ = w_;
   dist_colours_ = colour(dist_, n, [](const Distance& d) { return std::array<uint32_t, 2>{d.i, d.j}; });
   bend_colours_ = colour(bend_, n, [](const Bend& b) { return std::array<uint32_t, 4>{b.a, b.b, b.c, b.d}; });
+  for (Bend& b : bend_) {
+    b.rest_cos = std::cos(b.rest_angle);
+    b.rest_sin = std::sin(b.rest_angle);
+  }
   rope_bend_colours_ =
       colour(rope_bend_, n, [](const RopeBend& b) { return std::array<uint32_t, 3>{b.a, b.b, b.c}; });
   if (settings_.volume) {
@@ -342,7 +339,7 @@ void ConstraintBody::solve_bend(size_t k, double h2) {
   const double q1 = n1.squaredNorm(), q2 = n2.squaredNorm();
   if (el < 1e-15 || q1 < 1e-30 || q2 < 1e-30) return;
   const Vec3 eh = e / el;
-  const double theta = std::atan2(n1.cross(n2).dot(eh), n1.dot(n2));
+  const double angle = cloth_math::angle_from_rest(n1.cross(n2).dot(eh), n1.dot(n2), b.rest_cos, b.rest_sin);
   const Vec3 m1 = n1 / q1, m2 = n2 / q2;
   const Vec3 g[4] = {-(((c - bb).dot(eh)) * m1 + ((d - bb).dot(eh)) * m2),
                      ((c - a).dot(eh)) * m1 + ((d - a).dot(eh)) * m2, -el * m1, -el * m2};
@@ -352,7 +349,7 @@ void ConstraintBody::solve_bend(size_t k, double h2) {
   for (int i = 0; i < 4; ++i) denom += ws[i] * g[i].squaredNorm();
   if (denom <= 1e-30) return;
   double& lambda = state_.lambda[dist_.size() + k];
-  const double dl = (-wrap_angle(theta - b.rest_angle) - alpha * lambda) / denom;
+  const double dl = (-angle - alpha * lambda) / denom;
   lambda += dl;
   p_[b.a] += ws[0] * dl * g[0];
   p_[b.b] += ws[1] * dl * g[1];
