@@ -182,10 +182,9 @@ class SupportInertiaMatrix : public ::testing::TestWithParam<std::tuple<std::str
 TEST_P(SupportInertiaMatrix, ComesToRestWithNoInvertedTetAtTheDefaultBudget) {
   // The robustness case brought to rest on both thesis models at every E, under the default 64 x 1 at
   // 60 Hz, with support_inertia 1 (docs/solver.md, "Support inertia"). Without it the armadillo
-  // at 1 and 10 MPa never settles: a band of vertices next to the clamp keeps moving at 2.6 /
-  // 3.2 m/s after 400 ticks, and both models' 10 kPa runs keep a spot creeping at mm/s
-  // (docs/data/rest_matrix.jsonl). Measured with it: at rest after 113-185 ticks, none inverted
-  // (docs/data/rest_matrix_support.jsonl). The armadillo at 10 MPa also hangs within 3x of the
+  // at 1 and 10 MPa never settles: a band of vertices next to the clamp keeps moving at 1.6 /
+  // 3.4 m/s after 400 ticks (docs/data/rest_matrix.jsonl). Measured with it: at rest after
+  // 115-185 ticks, none inverted (docs/data/rest_matrix_support.jsonl). The armadillo at 10 MPa also hangs within 3x of the
   // Newton equilibrium's |tip| of 5.8 mm ([-1.5, -5.6] mm: `pliant-sim reference --mesh
   // armadillo --young 1e7 --fix-x-max -0.04936`, 200 s, too slow to repeat here), measured 2.05x,
   // where the default material hangs it 11 cm down.
