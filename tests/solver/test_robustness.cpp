@@ -23,10 +23,11 @@ struct Case {
   int ticks;  // the big models run fewer ticks to keep the suite fast on 2 cores
   // Inverted tets allowed at the end of the run. The beams: none. Known limitation: the thesis
   // hippo (slivers down to 6e-15 m^3) and armadillo can end a tick mid-swing with a few inverted
-  // tets at the default 64 x 1 budget (measured worst: hippo 1 of 10,361 at 100 kPa, armadillo
-  // 0 of 54,855; docs/solver.md "Real-time robustness"). The bound is that worst case plus 2:
-  // room for another CPU's rounding, yet plain lumped masses (hippo 9 at 10 kPa, 4 at 100 kPa)
-  // would fail it. At rest none is left (DefaultBudget, SupportInertiaMatrix below).
+  // tets at the default 64 x 1 budget (measured worst in colour order: hippo 1 of 10,361 at
+  // 100 kPa, armadillo 0 of 54,855; in block order hippo 2 at 10 kPa; docs/solver.md "Real-time
+  // robustness"). The bound is the colour order's worst case plus 2: room for another CPU's
+  // rounding, yet plain lumped masses (hippo 9 at 10 kPa, 4 at 100 kPa) would fail it. At rest
+  // none is left (DefaultBudget, SupportInertiaMatrix below).
   size_t max_inverted;
   ElasticModel model = ElasticModel::StVK;
 };
