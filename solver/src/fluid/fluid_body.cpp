@@ -80,11 +80,13 @@ void poly6_terms(size_t m, const PairReal* __restrict rx, const PairReal* __rest
 }
 // The constants of the pair terms, rounded once.
 struct PairConstants {
-  PairReal h, h2, poly6_c, spiky_g, same, inv_wdq, scorr_scale;
+  PairReal h, h2, spiky_g, same, inv_tdq, scorr_scale;
 };
-// All the pair terms of the density pass in one SIMD loop: poly6 W, the spiky gradient
+// All the pair terms of the density pass in one SIMD loop: poly6 W without its constant
+// factor, (h^2 - r^2)^3 (the factor, 315 / (64 pi h^9), overflows single precision below a
+// spacing of about 30 um, so the sums apply it in double), the spiky gradient
 // sg max(h - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)) and, with ScorrN > 0, s_corr =
-// -scale (W / W(dq))^ScorrN. Returns whether some pair lies on the same point (|r|^2 <= same;
+// -scale (W / W(dq))^ScorrN (inv_tdq = 1 / (h^2 - dq^2)^3). Returns whether some pair lies on the same point (|r|^2 <= same;
 // its gradient is 0 / 0 here, patched by the caller). The square root is correctly rounded in
 // every lane: this file is built without errno (see solver/CMakeLists.txt), and Eigen's
 // single-precision packet sqrt, an approximation that its scalar tail is not, would make a
@@ -102,7 +104,7 @@ bool density_terms(size_t m, const PairReal* __restrict rx, const PairReal* __re
     coincident |= static_cast<int>(!(d2 > c.same));
     const PairReal t0 = c.h2 - d2;
     const PairReal t = t0 > zero ? t0 : zero;
-    const PairReal wq = c.poly6_c * t * t * t;
+    const PairReal wq = t * t * t;
     w[q] = wq;
     const PairReal len = std::sqrt(d2);
     const PairReal u0 = c.h - len;
@@ -112,7 +114,7 @@ bool density_terms(size_t m, const PairReal* __restrict rx, const PairReal* __re
     gy[q] = f * ay;
     gz[q] = f * az;
     if constexpr (ScorrN > 0) {
-      const PairReal r = wq * c.inv_wdq;
+      const PairReal r = wq * c.inv_tdq;
       PairReal rn = r;
       for (int e = 1; e < ScorrN; ++e) rn *= r;
       sc[q] = -c.scorr_scale * rn;
@@ -221,30 +223,29 @@ struct FluidBody::Impl {
     }
   }
 
-  // One particle's poly6 terms (XSPH).
+  // One particle's poly6 terms (XSPH), without poly6's constant factor (see density_terms).
   void poly6_pairs(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
     ps.fit(nb.size());
     gather(i, nb, ps, 0);
-    poly6_terms(nb.size(), ps.rx.data(), ps.ry.data(), ps.rz.data(), static_cast<PairReal>(k.h2),
-                static_cast<PairReal>(k.poly6_c), ps.r2.data(), ps.w.data());
+    poly6_terms(nb.size(), ps.rx.data(), ps.ry.data(), ps.rz.data(), static_cast<PairReal>(k.h2), PairReal(1),
+                ps.r2.data(), ps.w.data());
   }
 
-  // The kernel terms of the m pairs whose offsets are in ps: poly6 in ps.w, the gradients to
+  // The kernel terms of the m pairs whose offsets are in ps: poly6 / poly6_c in ps.w, the gradients to
   // g*, and with Scorr s_corr = -scale (W / W(dq))^n to fsc (n = ScorrN when > 0, else the
   // setting).
   template <bool Scorr, int ScorrN>
   void kernel_terms(size_t m, PairScratch& ps, PairReal* gx, PairReal* gy, PairReal* gz, PairReal* fsc) const {
-    const PairConstants c{static_cast<PairReal>(k.h),           static_cast<PairReal>(k.h2),
-                          static_cast<PairReal>(k.poly6_c),     static_cast<PairReal>(k.spiky_g),
-                          static_cast<PairReal>(1e-18 * k.h2),  static_cast<PairReal>(1.0 / wdq),
-                          static_cast<PairReal>(scorr_scale)};
+    const PairConstants c{static_cast<PairReal>(k.h),          static_cast<PairReal>(k.h2),
+                          static_cast<PairReal>(k.spiky_g),    static_cast<PairReal>(1e-18 * k.h2),
+                          static_cast<PairReal>(k.poly6_c / wdq), static_cast<PairReal>(scorr_scale)};
     constexpr int kFused = Scorr ? ScorrN : 0;
     ps.coincident = density_terms<kFused>(m, ps.rx.data(), ps.ry.data(), ps.rz.data(), c, ps.w.data(), gx, gy, gz, fsc);
     if constexpr (Scorr && ScorrN <= 0) {
       const PairReal* w = ps.w.data();
       const int n_exp = s.scorr_n;
       for (size_t q = 0; q < m; ++q) {
-        const PairReal t = w[q] * c.inv_wdq;
+        const PairReal t = w[q] * c.inv_tdq;
         PairReal tn = t;
         for (int e = 1; e < n_exp; ++e) tn *= t;
         fsc[q] = -c.scorr_scale * tn;
@@ -318,7 +319,7 @@ struct FluidBody::Impl {
           a_z += gzq;
           a_s += gxq * gxq + gyq * gyq + gzq * gzq;
         }
-        const double rho = w0 + mass * a_w;
+        const double rho = w0 + mass * k.poly6_c * a_w;
         const double gx = sw * a_x, gy = sw * a_y, gz = sw * a_z;
         const double sq = sw * sw * a_s;
         Vec3 gw;
@@ -605,7 +606,7 @@ struct FluidBody::Impl {
             ay += (vj.y() - vi.y()) * w;
             az += (vj.z() - vi.z()) * w;
           }
-          dp[i] = vi + s.xsph * sw * Vec3(ax, ay, az);
+          dp[i] = vi + s.xsph * sw * k.poly6_c * Vec3(ax, ay, az);
         }
       });
       std::swap(v, dp);
