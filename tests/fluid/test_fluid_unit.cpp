@@ -49,6 +49,39 @@ TEST(FluidKernels, Poly6IntegratesToOneOverItsBall) {
   }
 }
 
+// The wall's density term: poly6's mass beyond a plane at distance y from the centre, against
+// a direct integral over the cap (discs of radius sqrt(h^2 - z^2) for z from y to h, each disc's
+// mass by a radial Simpson rule), and its slope against finite differences.
+TEST(FluidKernels, Poly6BeyondAPlaneIsTheKernelMassOnTheFarSide) {
+  const double h = 0.04;
+  const Kernels k(h);
+  auto simpson = [](double a, double b, int n, auto&& f) {
+    double sum = 0.0;
+    for (int i = 0; i <= n; ++i) {
+      const double w = (i == 0 || i == n) ? 1.0 : (i % 2 ? 4.0 : 2.0);
+      sum += w * f(a + (b - a) * i / n);
+    }
+    return sum * (b - a) / n / 3.0;
+  };
+  auto cap = [&](double y) {
+    return simpson(y, h, 400, [&](double z) {
+      const double rho_max = std::sqrt(std::max(h * h - z * z, 0.0));
+      return simpson(0.0, rho_max, 400,
+                     [&](double rho) { return 2.0 * std::numbers::pi * rho * k.poly6(rho * rho + z * z); });
+    });
+  };
+  EXPECT_NEAR(fluid::poly6_beyond(k, 0.0), 0.5, 1e-12);
+  EXPECT_EQ(fluid::poly6_beyond(k, h), 0.0);
+  EXPECT_NEAR(fluid::poly6_beyond(k, -0.01), 0.5, 1e-12) << "a point beyond the wall counts as on it";
+  for (double f : {0.1, 0.3, 0.5, 0.7, 0.9}) {
+    const double y = f * h;
+    EXPECT_NEAR(fluid::poly6_beyond(k, y), cap(y), 1e-9) << "y = " << f << " h";
+    const double e = 1e-7 * h;
+    const double fd = (fluid::poly6_beyond(k, y + e) - fluid::poly6_beyond(k, y - e)) / (2 * e);
+    EXPECT_NEAR(fluid::poly6_beyond_slope(k, y), fd, 1e-6 * std::abs(fd)) << "y = " << f << " h";
+  }
+}
+
 TEST(FluidKernels, SpikyIntegratesToOneAndItsGradientMatchesFiniteDifferences) {
   const double h = 0.05;
   const Kernels k(h);

@@ -52,18 +52,16 @@ struct Kernels {
 };
 
 // The fraction of poly6's mass beyond a plane at distance y from the kernel's centre (0.5 at
-// y = 0, 0 from y = h): (pi c / 4) int_y^h (h^2 - z^2)^4 dz with c = 315 / (64 pi h^9); and its
+// y = 0, 0 from y = h): (pi c / 4) int_y^h (h^2 - z^2)^4 dz with c = 315 / (64 pi h^9), that is
+// 1/2 - (pi c / 4) g(y) with g(z) = int_0^z (h^2 - s^2)^4 ds (g(h) = 128 h^9 / 315); and its
 // derivative with respect to y.
 inline double poly6_beyond(const Kernels& k, double y) {
   if (y >= k.h) return 0.0;
   y = std::max(y, 0.0);
-  const double h2 = k.h2;
-  auto g = [h2](double z) {
-    const double z2 = z * z;
-    return z * (h2 * h2 * h2 * h2 - 4.0 * h2 * h2 * h2 * z2 / 3.0 + 6.0 * h2 * h2 * z2 * z2 / 5.0 -
-                4.0 * h2 * z2 * z2 * z2 / 7.0 + z2 * z2 * z2 * z2 / 9.0);
-  };
-  return std::numbers::pi * k.poly6_c / 4.0 * (g(k.h) - g(y));
+  const double h2 = k.h2, y2 = y * y;
+  const double g = y * (h2 * h2 * h2 * h2 + y2 * (-4.0 / 3.0 * h2 * h2 * h2 + y2 * (6.0 / 5.0 * h2 * h2 +
+                                                                                   y2 * (-4.0 / 7.0 * h2 + y2 / 9.0))));
+  return 0.5 - std::numbers::pi * k.poly6_c / 4.0 * g;
 }
 inline double poly6_beyond_slope(const Kernels& k, double y) {
   if (y >= k.h) return 0.0;
