@@ -43,11 +43,12 @@ void basis(const Vec3& n, Vec3& u, Vec3& w) {
   w = n.cross(u);
 }
 
-// The precision of the per-pair kernel terms: the offsets p_i - p_j are taken in double and
-// rounded, then poly6, |r|, the spiky gradient and s_corr are computed in single precision (8
-// lanes per AVX2 instruction, and single-precision square roots and divisions are several
-// times faster), summed per particle in double. The pair's two entries stay exactly opposite
-// (the rounded offsets are), so momentum is still conserved.
+// The precision of the per-pair kernel terms: the offsets (p_i - p_j) / h are taken in double
+// and rounded, then poly6, |r|, the spiky gradient and s_corr are computed in single precision
+// in units of h (8 lanes per AVX2 instruction, and single-precision square roots and divisions
+// are several times faster; dimensionless, they neither overflow nor underflow at any scale),
+// and summed per particle in double with the dimensional factors. The pair's two entries stay
+// exactly opposite (the rounded offsets are), so momentum is still conserved.
 using PairReal = float;
 
 // Four doubles in one vector register (GCC and Clang vector extensions), and four pair terms
@@ -80,13 +81,12 @@ void poly6_terms(size_t m, const PairReal* __restrict rx, const PairReal* __rest
 }
 // The constants of the pair terms, rounded once.
 struct PairConstants {
-  PairReal h, h2, spiky_g, same, inv_tdq, scorr_scale;
+  PairReal same, inv_tdq, scorr_scale;
 };
-// All the pair terms of the density pass in one SIMD loop: poly6 W without its constant
-// factor, (h^2 - r^2)^3 (the factor, 315 / (64 pi h^9), overflows single precision below a
-// spacing of about 30 um, so the sums apply it in double), the spiky gradient
-// sg max(h - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)) and, with ScorrN > 0, s_corr =
-// -scale (W / W(dq))^ScorrN (inv_tdq = 1 / (h^2 - dq^2)^3). Returns whether some pair lies on the same point (|r|^2 <= same;
+// All the pair terms of the density pass in one SIMD loop, from the offsets r in units of h:
+// poly6 W / (pc h^6) = max(1 - r^2, 0)^3 (pc = 315 / (64 pi h^9)), the spiky gradient
+// grad W / (sg h^2) = max(1 - |r|, 0)^2 r / |r| (sg = -45 / (pi h^6)) and, with ScorrN > 0,
+// s_corr = -scale (W / W(dq))^ScorrN (inv_tdq = 1 / (1 - dq^2)^3, dq in units of h). Returns whether some pair lies on the same point (|r|^2 <= same;
 // its gradient is 0 / 0 here, patched by the caller). The square root is correctly rounded in
 // every lane: this file is built without errno (see solver/CMakeLists.txt), and Eigen's
 // single-precision packet sqrt, an approximation that its scalar tail is not, would make a
@@ -102,14 +102,14 @@ bool density_terms(size_t m, const PairReal* __restrict rx, const PairReal* __re
     const PairReal ax = rx[q], ay = ry[q], az = rz[q];
     const PairReal d2 = ax * ax + ay * ay + az * az;
     coincident |= static_cast<int>(!(d2 > c.same));
-    const PairReal t0 = c.h2 - d2;
+    const PairReal t0 = PairReal(1) - d2;
     const PairReal t = t0 > zero ? t0 : zero;
     const PairReal wq = t * t * t;
     w[q] = wq;
     const PairReal len = std::sqrt(d2);
-    const PairReal u0 = c.h - len;
+    const PairReal u0 = PairReal(1) - len;
     const PairReal u = u0 > zero ? u0 : zero;
-    const PairReal f = c.spiky_g * u * u / len;
+    const PairReal f = u * u / len;
     gx[q] = f * ax;
     gy[q] = f * ay;
     gz[q] = f * az;
@@ -190,6 +190,10 @@ struct FluidBody::Impl {
   }
 
   size_t n() const { return x.size(); }
+  // The dimensional factors of the pair terms kept in units of h: poly6 pc h^6, the spiky
+  // gradient sg h^2.
+  double poly6_scale() const { return k.poly6_c * k.h2 * k.h2 * k.h2; }
+  double gradient_unit() const { return k.spiky_g * k.h2; }
 
   // Pair terms of one particle or of a block of particles, in arrays the compiler vectorises:
   // the offsets r = p_i - p_j, |r|^2 (XSPH only) and poly6 W(r). The spiky gradients grad W
@@ -203,42 +207,41 @@ struct FluidBody::Impl {
       for (auto* a : {&rx, &ry, &rz, &r2, &w}) a->resize(m + 64);
     }
   };
-  // The offsets of particle i to its neighbours nb, from scratch index `at` on, taken in double
-  // and rounded. The gather stays scalar (no vector gathers for this target); the arithmetic
-  // after it is SIMD.
+  // The offsets of particle i to its neighbours nb in units of h, from scratch index `at` on,
+  // taken in double and rounded. The gather stays scalar (no vector gathers for this target);
+  // the arithmetic after it is SIMD.
   void gather(size_t i, std::span<const uint32_t> nb, PairScratch& ps, size_t at) const {
     const uint32_t* J = nb.data();
     const size_t m = nb.size();
     // From p itself: a neighbour's three coordinates share a cache line.
-    const double xi = p[i].x(), yi = p[i].y(), zi = p[i].z();
+    const double xi = p[i].x(), yi = p[i].y(), zi = p[i].z(), inv_h = 1.0 / k.h;
     const Vec3* P = p.data();
     PairReal* rx = ps.rx.data() + at;
     PairReal* ry = ps.ry.data() + at;
     PairReal* rz = ps.rz.data() + at;
     for (size_t q = 0; q < m; ++q) {
       const uint32_t j = J[q];
-      rx[q] = static_cast<PairReal>(xi - P[j].x());
-      ry[q] = static_cast<PairReal>(yi - P[j].y());
-      rz[q] = static_cast<PairReal>(zi - P[j].z());
+      rx[q] = static_cast<PairReal>((xi - P[j].x()) * inv_h);
+      ry[q] = static_cast<PairReal>((yi - P[j].y()) * inv_h);
+      rz[q] = static_cast<PairReal>((zi - P[j].z()) * inv_h);
     }
   }
 
-  // One particle's poly6 terms (XSPH), without poly6's constant factor (see density_terms).
+  // One particle's poly6 terms (XSPH), in units of pc h^6 (see density_terms).
   void poly6_pairs(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
     ps.fit(nb.size());
     gather(i, nb, ps, 0);
-    poly6_terms(nb.size(), ps.rx.data(), ps.ry.data(), ps.rz.data(), static_cast<PairReal>(k.h2), PairReal(1),
-                ps.r2.data(), ps.w.data());
+    poly6_terms(nb.size(), ps.rx.data(), ps.ry.data(), ps.rz.data(), PairReal(1), PairReal(1), ps.r2.data(),
+                ps.w.data());
   }
 
-  // The kernel terms of the m pairs whose offsets are in ps: poly6 / poly6_c in ps.w, the gradients to
+  // The kernel terms of the m pairs whose offsets are in ps (units of h): poly6 / (pc h^6) in ps.w, the gradients / (sg h^2) to
   // g*, and with Scorr s_corr = -scale (W / W(dq))^n to fsc (n = ScorrN when > 0, else the
   // setting).
   template <bool Scorr, int ScorrN>
   void kernel_terms(size_t m, PairScratch& ps, PairReal* gx, PairReal* gy, PairReal* gz, PairReal* fsc) const {
-    const PairConstants c{static_cast<PairReal>(k.h),          static_cast<PairReal>(k.h2),
-                          static_cast<PairReal>(k.spiky_g),    static_cast<PairReal>(1e-18 * k.h2),
-                          static_cast<PairReal>(k.poly6_c / wdq), static_cast<PairReal>(scorr_scale)};
+    const PairConstants c{PairReal(1e-18), static_cast<PairReal>(poly6_scale() / wdq),
+                          static_cast<PairReal>(scorr_scale)};
     constexpr int kFused = Scorr ? ScorrN : 0;
     ps.coincident = density_terms<kFused>(m, ps.rx.data(), ps.ry.data(), ps.rz.data(), c, ps.w.data(), gx, gy, gz, fsc);
     if constexpr (Scorr && ScorrN <= 0) {
@@ -274,9 +277,9 @@ struct FluidBody::Impl {
       kernel_terms<Scorr, ScorrN>(m_all, ps, gxb, gyb, gzb, pair_sc.data() + f0);
       if (ps.coincident) {
         // Particles on the same point (a container's corner can put several there): the
-        // signed diagonal of fluid::pair_gradient instead of 0 / 0.
-        const double diag = k.spiky_g * k.h2 / std::sqrt(3.0);
-        const PairReal same = static_cast<PairReal>(1e-18 * k.h2);
+        // signed diagonal of fluid::pair_gradient instead of 0 / 0 (in units of sg h^2).
+        const double diag = 1.0 / std::sqrt(3.0);
+        const PairReal same = PairReal(1e-18);
         for (size_t sl = s0; sl < s1; ++sl) {
           const uint32_t i = grid.point(sl);
           const std::span<const uint32_t> nb = grid.slot_neighbours(sl);
@@ -319,9 +322,10 @@ struct FluidBody::Impl {
           a_z += gzq;
           a_s += gxq * gxq + gyq * gyq + gzq * gzq;
         }
-        const double rho = w0 + mass * k.poly6_c * a_w;
-        const double gx = sw * a_x, gy = sw * a_y, gz = sw * a_z;
-        const double sq = sw * sw * a_s;
+        const double rho = w0 + mass * poly6_scale() * a_w;
+        const double gs = sw * gradient_unit();
+        const double gx = gs * a_x, gy = gs * a_y, gz = gs * a_z;
+        const double sq = gs * gs * a_s;
         Vec3 gw;
         const double c = rho / s.rest_density + wall_density(p[i], gw) - 1.0;
         wall_grad[i] = gw;
@@ -338,7 +342,7 @@ struct FluidBody::Impl {
   // then the colliders and the container.
   template <bool Scorr>
   void correction_pass(size_t b, size_t e, std::span<const Collider> inflated) {
-    const double sw = mass / s.rest_density;
+    const double gs = mass / s.rest_density * gradient_unit();  // m / rho0 in units of the gradients
     for (size_t i = b; i < e; ++i) {
       const std::span<const uint32_t> nb = grid.neighbours(i);
       const size_t f = grid.first(i);
@@ -367,7 +371,7 @@ struct FluidBody::Impl {
         dy += c * gys[q];
         dz += c * gzs[q];
       }
-      p[i] += sw * Vec3(dx, dy, dz) + li * wall_grad[i];
+      p[i] += gs * Vec3(dx, dy, dz) + li * wall_grad[i];
       lam_sum[i] += li;
       collide(i, inflated);
     }
@@ -606,7 +610,7 @@ struct FluidBody::Impl {
             ay += (vj.y() - vi.y()) * w;
             az += (vj.z() - vi.z()) * w;
           }
-          dp[i] = vi + s.xsph * sw * k.poly6_c * Vec3(ax, ay, az);
+          dp[i] = vi + s.xsph * sw * poly6_scale() * Vec3(ax, ay, az);
         }
       });
       std::swap(v, dp);
