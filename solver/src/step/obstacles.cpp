@@ -86,30 +86,26 @@ void ObstacleContacts::add_impulse(size_t o, const Hit& hit, const Vec3& impulse
 int ObstacleContacts::resolve(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec3>& x_substep_start,
                               double h) {
   int contacts = 0;
-  Hit hit;
-  for (size_t o = 0; o < obstacles_.size(); ++o) {
-    const double friction = obstacles_[o]->friction;
-    for (size_t k = 0; k < surface_.size(); ++k) {
-      const size_t v = size_t(surface_[k]);
-      if (!(m.inv_mass[v] > 0)) continue;
-      Vec3& xv = x[v];
-      if (!deepest(o, k, xv, hit)) continue;
-      ++contacts;
-      const Vec3 before = xv;
-      xv -= hit.C * hit.n;
-      // Friction against the motion since the substep's start, across the normal: held while
-      // it is below friction x the push, else shortened by that much.
-      if (friction > 0) {
-        const Vec3 moved = xv - x_substep_start[v];
-        const Vec3 slip = moved - moved.dot(hit.n) * hit.n;
-        const double limit = friction * (-hit.C), len = slip.norm();
-        if (len <= limit) xv -= slip;
-        else if (len > 0) xv -= slip * (limit / len);
-      }
-      // The momentum this correction gives the body over the substep comes from the corners.
-      add_impulse(o, hit, (xv - before) / (m.inv_mass[v] * h));
+  // for_each_hit reads x[v] just before handing its hit over, so a vertex pushed out by one
+  // obstacle meets the next where the first left it.
+  for_each_hit(m, x, [&](size_t o, int32_t vi, const Hit& hit) {
+    const size_t v = size_t(vi);
+    Vec3& xv = x[v];
+    ++contacts;
+    const Vec3 before = xv;
+    xv -= hit.C * hit.n;
+    // Friction against the motion since the substep's start, across the normal: held while it
+    // is below friction x the push, else shortened by that much.
+    if (const double mu = friction(o); mu > 0) {
+      const Vec3 moved = xv - x_substep_start[v];
+      const Vec3 slip = moved - moved.dot(hit.n) * hit.n;
+      const double limit = mu * (-hit.C), len = slip.norm();
+      if (len <= limit) xv -= slip;
+      else if (len > 0) xv -= slip * (limit / len);
     }
-  }
+    // The momentum this correction gives the body over the substep comes from the corners.
+    add_impulse(o, hit, (xv - before) / (m.inv_mass[v] * h));
+  });
   return contacts;
 }
 

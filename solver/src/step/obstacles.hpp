@@ -30,8 +30,8 @@ class ObstacleContacts {
   void finish(StepReport& report);
   bool active() const { return !obstacles_.empty(); }
 
-  // For families that treat the contact as an energy (newton): the deepest contact of surface
-  // vertex k at x with obstacle o, if it has one.
+  // The deepest contact of surface vertex k at x with obstacle o, if it has one (resolve()
+  // projects it; newton makes it a penalty energy).
   struct Hit {
     int32_t triangle = -1;
     double C = 0;                  // < 0: the distance along n less the radius
