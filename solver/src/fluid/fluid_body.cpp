@@ -66,17 +66,15 @@ inline double lanes4(const Double4& a) { return (a[0] + a[1]) + (a[2] + a[3]); }
 // The SIMD loops of the pair terms, over arrays that do not overlap (__restrict lets the
 // compiler vectorise without run-time overlap checks). Selects are written as max(a, 0) of an
 // already computed a, the one conditional form the compiler turns into vector code here.
-// r2 = |r|^2 and poly6 W = pc max(h^2 - r^2, 0)^3 (0 from h on, and for NaN).
+// Poly6 in units of pc h^6 from the offsets in units of h: max(1 - r^2, 0)^3 (0 from h on, and
+// for NaN).
 void poly6_terms(size_t m, const PairReal* __restrict rx, const PairReal* __restrict ry,
-                 const PairReal* __restrict rz, PairReal h2, PairReal pc, PairReal* __restrict r2,
-                 PairReal* __restrict w) {
+                 const PairReal* __restrict rz, PairReal* __restrict w) {
   for (size_t q = 0; q < m; ++q) {
     const PairReal ax = rx[q], ay = ry[q], az = rz[q];
-    const PairReal d2 = ax * ax + ay * ay + az * az;
-    r2[q] = d2;
-    const PairReal t0 = h2 - d2;
+    const PairReal t0 = PairReal(1) - (ax * ax + ay * ay + az * az);
     const PairReal t = t0 > PairReal(0) ? t0 : PairReal(0);
-    w[q] = pc * t * t * t;
+    w[q] = t * t * t;
   }
 }
 // The constants of the pair terms, rounded once.
@@ -196,15 +194,15 @@ struct FluidBody::Impl {
   double gradient_unit() const { return k.spiky_g * k.h2; }
 
   // Pair terms of one particle or of a block of particles, in arrays the compiler vectorises:
-  // the offsets r = p_i - p_j, |r|^2 (XSPH only) and poly6 W(r). The spiky gradients grad W
-  // (fluid::pair_gradient except for pairs on the same point, which the caller patches) and
-  // s_corr go straight to the caller's per-pair arrays.
+  // the offsets (p_i - p_j) / h and poly6 in units of pc h^6. The spiky gradients in units of
+  // sg h^2 (fluid::pair_gradient except for pairs on the same point, which the caller patches)
+  // and s_corr go straight to the caller's per-pair arrays.
   struct PairScratch {
-    std::vector<PairReal> rx, ry, rz, r2, w;
+    std::vector<PairReal> rx, ry, rz, w;
     bool coincident = false;  // some pair on the same point (its gradient is left to the caller)
     void fit(size_t m) {
       if (rx.size() >= m) return;
-      for (auto* a : {&rx, &ry, &rz, &r2, &w}) a->resize(m + 64);
+      for (auto* a : {&rx, &ry, &rz, &w}) a->resize(m + 64);
     }
   };
   // The offsets of particle i to its neighbours nb in units of h, from scratch index `at` on,
@@ -231,8 +229,7 @@ struct FluidBody::Impl {
   void poly6_pairs(size_t i, std::span<const uint32_t> nb, PairScratch& ps) const {
     ps.fit(nb.size());
     gather(i, nb, ps, 0);
-    poly6_terms(nb.size(), ps.rx.data(), ps.ry.data(), ps.rz.data(), PairReal(1), PairReal(1), ps.r2.data(),
-                ps.w.data());
+    poly6_terms(nb.size(), ps.rx.data(), ps.ry.data(), ps.rz.data(), ps.w.data());
   }
 
   // The kernel terms of the m pairs whose offsets are in ps (units of h): poly6 / (pc h^6) in ps.w, the gradients / (sg h^2) to
