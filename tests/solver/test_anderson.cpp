@@ -7,6 +7,8 @@
 #include <Eigen/Dense>
 #include <gtest/gtest.h>
 
+#include <cstring>
+#include <functional>
 #include <random>
 
 using namespace pliant;
@@ -83,4 +85,70 @@ TEST(AndersonMixer, WaitsForAFullWindow) {
   EXPECT_FALSE(mixer.ready());
   mixer.push(Eigen::VectorXd::Constant(3, 9), Eigen::VectorXd::Constant(3, 0.1));
   EXPECT_TRUE(mixer.ready());
+}
+
+namespace {
+
+// Pushes the same history of `size`-entry vectors into a mixer and returns its mixed iterate.
+Eigen::VectorXd mix_history(const std::vector<Eigen::VectorXd>& ys, const std::vector<Eigen::VectorXd>& rs,
+                            double beta, const AndersonMixer::ParallelFor& parallel) {
+  AndersonMixer mixer(4, 1e12, beta);
+  mixer.reset(size_t(ys[0].size()));
+  for (size_t k = 0; k < ys.size(); ++k) mixer.push(ys[k].data(), rs[k].data(), parallel);
+  Eigen::VectorXd out;
+  mixer.accelerate(out);
+  return out;
+}
+
+}  // namespace
+
+TEST(AndersonMixer, MatchesTheLeastSquaresMixAndDoesNotDependOnHowBlocksAreShared) {
+  // Three whole blocks and a partial one; seven pushes fill a window of four.
+  const int n = int(3 * AndersonMixer::kBlock + 77);
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g;
+  std::vector<Eigen::VectorXd> ys, rs;
+  for (int k = 0; k < 7; ++k) {
+    ys.push_back(Eigen::VectorXd::NullaryExpr(n, [&] { return g(rng); }));
+    rs.push_back(Eigen::VectorXd::NullaryExpr(n, [&] { return std::pow(0.7, k) * g(rng); }));
+  }
+  const double beta = 0.5;
+  // The textbook mix with the last four differences as explicit matrices.
+  Eigen::MatrixXd dY(n, 4), dR(n, 4);
+  for (int a = 0; a < 4; ++a) {
+    dY.col(a) = ys[6 - a] - ys[5 - a];
+    dR.col(a) = rs[6 - a] - rs[5 - a];
+  }
+  const Eigen::VectorXd theta = dR.colPivHouseholderQr().solve(rs[6]);
+  const Eigen::VectorXd expected = ys[6] - dY * theta + beta * (rs[6] - dR * theta);
+
+  const Eigen::VectorXd serial = mix_history(ys, rs, beta, {});
+  EXPECT_LT((serial - expected).norm(), 1e-9 * expected.norm());
+  // Blocks handed out one at a time, last first: the same bits.
+  const Eigen::VectorXd shuffled = mix_history(ys, rs, beta, [](size_t blocks, const std::function<void(size_t, size_t)>& fn) {
+    for (size_t b = blocks; b-- > 0;) fn(b, b + 1);
+  });
+  EXPECT_EQ(0, std::memcmp(serial.data(), shuffled.data(), sizeof(double) * size_t(n)));
+}
+
+TEST(AndersonMixer, AnIncrementPushIsAPushOfTheIteratesChange) {
+  const int n = 5000;
+  std::mt19937 rng(8);
+  std::normal_distribution<double> g;
+  AndersonMixer by_increment(3, 1e12, 0.0), explicit_residual(3, 1e12, 0.0);
+  by_increment.reset(n);
+  explicit_residual.reset(n);
+  Eigen::VectorXd previous = Eigen::VectorXd::NullaryExpr(n, [&] { return g(rng); });
+  by_increment.seed(previous.data());
+  for (int k = 0; k < 6; ++k) {
+    const Eigen::VectorXd y = Eigen::VectorXd::NullaryExpr(n, [&] { return g(rng); });
+    const Eigen::VectorXd r = y - previous;
+    by_increment.push_increment(y.data());
+    explicit_residual.push(y, r);
+    previous = y;
+  }
+  Eigen::VectorXd a, b;
+  by_increment.accelerate(a);
+  explicit_residual.accelerate(b);
+  EXPECT_EQ(0, std::memcmp(a.data(), b.data(), sizeof(double) * size_t(n)));
 }

@@ -4,6 +4,7 @@
 #include <Eigen/Dense>
 
 #include <cmath>
+#include <cstring>
 
 namespace pliant::detail {
 
@@ -84,6 +85,7 @@ class Chebyshev final : public Accelerator {
 //    beta = omega: lambda_new = lambda_in - dX theta + omega (D_k - dD theta).
 //  - Extrapolation: theta = 0 in the thesis form, i.e. omega * D_k (what Anderson adds over it
 //    is what this baseline measures).
+// The vector work runs by the mixer's blocks on the step's threads.
 class MultiplierAcceleration final : public Accelerator {
  public:
   enum class Form { Thesis, TypeII, Extrapolation };
@@ -93,24 +95,23 @@ class MultiplierAcceleration final : public Accelerator {
   void begin_substep(size_t, size_t tets) override {
     mixer_.reset(6 * tets);
     increment_.resize(tets);
-    prev_d_.setZero(6 * Eigen::Index(tets));
     pushes_ = 0;
   }
   bool after_sweep(SweepResult& it, AcceleratorServices& services) override {
-    const auto d = flat(it.dlambda);
+    const double* d = it.dlambda.data()->data();
+    double* lambda = it.lambda.data()->data();
+    AndersonMixer::ParallelFor parallel;
+    if (services.parallel_for) parallel = services.parallel_for;
     bool ready = false;
     switch (form_) {
       case Form::Thesis:
-        if (pushes_ > 0) {
-          e_.noalias() = d - prev_d_;
-          mixer_.push(d, e_);
-        }
-        prev_d_ = d;
+        if (pushes_ == 0) mixer_.seed(d);
+        else mixer_.push_increment(d, parallel);
         ready = mixer_.ready();
         break;
       case Form::TypeII:
-        e_.noalias() = flat(it.lambda) - d;  // the iterate the sweep started from
-        mixer_.push(e_, d);
+        e_.noalias() = flat(it.lambda) - flat(it.dlambda);  // the iterate the sweep started from
+        mixer_.push(e_.data(), d, parallel);
         ready = mixer_.ready();
         break;
       case Form::Extrapolation:
@@ -119,21 +120,29 @@ class MultiplierAcceleration final : public Accelerator {
     }
     ++pushes_;
     if (!ready) return false;
-    auto inc = flat(increment_);
-    switch (form_) {
-      case Form::Thesis:
-        services.report->anderson_columns_dropped += mixer_.accelerate(aa_);
-        inc = omega_ * aa_;
-        break;
-      case Form::TypeII:
-        services.report->anderson_columns_dropped += mixer_.accelerate(aa_);
-        inc = aa_ - flat(it.lambda);
-        break;
-      case Form::Extrapolation:
-        inc = omega_ * d;
-        break;
-    }
-    flat(it.lambda) += inc;
+    if (form_ != Form::Extrapolation) services.report->anderson_columns_dropped += mixer_.solve();
+    double* inc = increment_.data()->data();
+    const size_t n = mixer_.size();
+    // The increment and the new multipliers, block by block while the block is in cache.
+    auto blocks = [&](size_t b0, size_t b1) {
+      const size_t i0 = b0 * AndersonMixer::kBlock, i1 = std::min(n, b1 * AndersonMixer::kBlock);
+      switch (form_) {
+        case Form::Thesis:
+          mixer_.mixed(i0, i1, inc + i0);
+          for (size_t i = i0; i < i1; ++i) inc[i] *= omega_;
+          break;
+        case Form::TypeII:
+          mixer_.mixed(i0, i1, inc + i0);
+          for (size_t i = i0; i < i1; ++i) inc[i] -= lambda[i];
+          break;
+        case Form::Extrapolation:
+          for (size_t i = i0; i < i1; ++i) inc[i] = omega_ * d[i];
+          break;
+      }
+      for (size_t i = i0; i < i1; ++i) lambda[i] += inc[i];
+    };
+    if (parallel) parallel(mixer_.blocks(), blocks);
+    else blocks(0, mixer_.blocks());
     services.apply_increment(increment_);
     return true;
   }
@@ -143,7 +152,7 @@ class MultiplierAcceleration final : public Accelerator {
   double omega_;
   int window_;
   AndersonMixer mixer_;
-  Eigen::VectorXd aa_, prev_d_, e_;
+  Eigen::VectorXd e_;
   std::vector<Vec6> increment_;
   int pushes_ = 0;
 };
@@ -172,6 +181,11 @@ std::unique_ptr<Accelerator> make_accelerator(const SolverSettings& s) {
   return std::make_unique<NoAcceleration>();
 }
 
+AcceleratorKey accelerator_key(const SolverSettings& s) {
+  return {s.method, s.anderson_form, s.omega, s.window, s.condition_limit, s.chebyshev.rho, s.chebyshev.gamma,
+          s.chebyshev.delay};
+}
+
 // ---------------------------------------------------------------------------------------------
 
 AndersonMixer::AndersonMixer(int window, double condition_limit, double beta)
@@ -180,28 +194,110 @@ AndersonMixer::AndersonMixer(int window, double condition_limit, double beta)
 void AndersonMixer::reset(size_t size) {
   count_ = 0;
   head_ = -1;
-  y_.setZero(Eigen::Index(size));
-  r_.setZero(Eigen::Index(size));
-  dy_.assign(m_, Eigen::VectorXd::Zero(Eigen::Index(size)));
-  dr_.assign(m_, Eigen::VectorXd::Zero(Eigen::Index(size)));
+  if (size_ != size || dy_.size() != size_t(m_)) {
+    size_ = size;
+    y_.resize(Eigen::Index(size));
+    r_.resize(Eigen::Index(size));
+    dy_.assign(m_, Eigen::VectorXd(Eigen::Index(size)));
+    dr_.assign(m_, Eigen::VectorXd(Eigen::Index(size)));
+  }
+  // Only columns already pushed are read (slot(a) for a < the count of differences).
   gram_.setZero(m_, m_);
+  rhs_.setZero(m_);
   theta_.resize(0);
   columns_used_ = 0;
 }
 
-void AndersonMixer::push(const Eigen::Ref<const Eigen::VectorXd>& y, const Eigen::Ref<const Eigen::VectorXd>& r) {
-  if (count_ > 0) {
-    head_ = (head_ + 1) % m_;
-    dy_[head_] = y - y_;
-    dr_[head_] = r - r_;
-    for (int j = 0; j < m_; ++j) gram_(head_, j) = gram_(j, head_) = dr_[head_].dot(dr_[j]);
+void AndersonMixer::seed(const double* y) { std::copy(y, y + size_, y_.data()); }
+
+void AndersonMixer::push(const double* y, const double* r, const ParallelFor& parallel) { push_impl(y, r, parallel); }
+
+void AndersonMixer::push_increment(const double* y, const ParallelFor& parallel) { push_impl(y, nullptr, parallel); }
+
+namespace {
+
+// Sixteen running sums (four 4-lane vectors: one chain of additions would wait on its latency)
+// in a fixed order, so a block's sum never depends on who computes it.
+double block_dot(const double* a, const double* b, size_t n) {
+  typedef double D4 __attribute__((vector_size(32)));
+  auto load = [](const double* p) {
+    D4 v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  };
+  D4 s0 = {0, 0, 0, 0}, s1 = s0, s2 = s0, s3 = s0;
+  size_t i = 0;
+  for (; i + 16 <= n; i += 16) {
+    s0 += load(a + i) * load(b + i);
+    s1 += load(a + i + 4) * load(b + i + 4);
+    s2 += load(a + i + 8) * load(b + i + 8);
+    s3 += load(a + i + 12) * load(b + i + 12);
   }
-  y_ = y;
-  r_ = r;
+  const D4 s = (s0 + s1) + (s2 + s3);
+  double sum = (s[0] + s[1]) + (s[2] + s[3]);
+  for (; i < n; ++i) sum += a[i] * b[i];
+  return sum;
+}
+
+}  // namespace
+
+void AndersonMixer::push_impl(const double* y, const double* r, const ParallelFor& parallel) {
+  const bool differences = count_ > 0;
+  const int h = differences ? (head_ + 1) % m_ : 0;
+  // Columns after this push, newest (slot h) first.
+  const int columns = differences ? std::min<int>(m_, int(count_)) : 0;
+  auto column_slot = [&](int a) { return ((h - a) % m_ + m_) % m_; };
+  const size_t nb = blocks(), stride = 2 * size_t(m_);
+  partial_.resize(nb * stride);
+  auto work = [&](size_t b0, size_t b1) {
+    for (size_t blk = b0; blk < b1; ++blk) {
+      const size_t i0 = blk * kBlock, n = std::min(kBlock, size_ - i0);
+      double* yp = y_.data() + i0;
+      double* rp = r_.data() + i0;
+      const double* yn = y + i0;
+      if (!differences) {
+        for (size_t i = 0; i < n; ++i) {
+          rp[i] = r ? r[i0 + i] : yn[i] - yp[i];
+          yp[i] = yn[i];
+        }
+        continue;
+      }
+      double* dyh = dy_[h].data() + i0;
+      double* drh = dr_[h].data() + i0;
+      for (size_t i = 0; i < n; ++i) {
+        const double dy = yn[i] - yp[i];
+        const double rn = r ? r[i0 + i] : dy;
+        dyh[i] = dy;
+        drh[i] = rn - rp[i];
+        yp[i] = yn[i];
+        rp[i] = rn;
+      }
+      double* out = partial_.data() + blk * stride;
+      for (int a = 0; a < columns; ++a) {
+        const double* dj = dr_[column_slot(a)].data() + i0;
+        out[a] = block_dot(drh, dj, n);
+        out[m_ + a] = block_dot(dj, rp, n);
+      }
+    }
+  };
+  if (parallel && nb > 1) parallel(nb, work);
+  else work(0, nb);
+  if (differences) {
+    head_ = h;
+    for (int a = 0; a < columns; ++a) {
+      double g = 0, q = 0;
+      for (size_t blk = 0; blk < nb; ++blk) {
+        g += partial_[blk * stride + a];
+        q += partial_[blk * stride + m_ + a];
+      }
+      gram_(h, column_slot(a)) = gram_(column_slot(a), h) = g;
+      rhs_[column_slot(a)] = q;
+    }
+  }
   ++count_;
 }
 
-int AndersonMixer::accelerate(Eigen::VectorXd& out) {
+int AndersonMixer::solve() {
   theta_.setZero(m_);
   columns_used_ = 0;
   int cols = std::min<int>(m_, int(count_) - 1);
@@ -219,17 +315,36 @@ int AndersonMixer::accelerate(Eigen::VectorXd& out) {
     ++dropped;
   }
   Eigen::VectorXd rhs(cols);
-  for (int a = 0; a < cols; ++a) rhs[a] = dr_[slot(a)].dot(r_);
-  Eigen::VectorXd theta = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(A).solve(rhs);
-  if (beta_ != 0) out.noalias() = y_ + beta_ * r_;
-  else out = y_;
-  if (!theta.allFinite()) return dropped;
-  for (int a = 0; a < cols; ++a) {
-    out.noalias() -= theta[a] * dy_[slot(a)];
-    if (beta_ != 0) out.noalias() -= (theta[a] * beta_) * dr_[slot(a)];
-    theta_[a] = theta[a];
-  }
+  for (int a = 0; a < cols; ++a) rhs[a] = rhs_[slot(a)];
+  const Eigen::VectorXd theta = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(A).solve(rhs);
+  if (!theta.allFinite()) return dropped;  // the plain iterate (theta = 0)
+  theta_.head(cols) = theta;
   columns_used_ = cols;
+  return dropped;
+}
+
+void AndersonMixer::mixed(size_t begin, size_t end, double* out) const {
+  const size_t n = end - begin;
+  const double* yp = y_.data() + begin;
+  const double* rp = r_.data() + begin;
+  if (beta_ != 0)
+    for (size_t i = 0; i < n; ++i) out[i] = yp[i] + beta_ * rp[i];
+  else
+    std::copy(yp, yp + n, out);
+  for (int a = 0; a < columns_used_; ++a) {
+    const double t = theta_[a], tb = theta_[a] * beta_;
+    const double* dy = dy_[slot(a)].data() + begin;
+    const double* dr = dr_[slot(a)].data() + begin;
+    for (size_t i = 0; i < n; ++i) out[i] -= t * dy[i];
+    if (beta_ != 0)
+      for (size_t i = 0; i < n; ++i) out[i] -= tb * dr[i];
+  }
+}
+
+int AndersonMixer::accelerate(Eigen::VectorXd& out) {
+  const int dropped = solve();
+  out.resize(Eigen::Index(size_));
+  mixed(0, size_, out.data());
   return dropped;
 }
 

@@ -81,6 +81,18 @@ struct Stepper::Impl {
   std::vector<std::vector<int32_t>> floor_moved_chunks;  // per thread
   std::vector<int32_t> floor_queue;                    // packs to correct (a min-heap)
 
+  // The accelerator of the last substep, kept with its buffers while its settings stay.
+  std::unique_ptr<detail::Accelerator> accel;
+  detail::AcceleratorKey accel_key{};
+  detail::Accelerator& accelerator(const SolverSettings& s) {
+    const detail::AcceleratorKey key = detail::accelerator_key(s);
+    if (!accel || key != accel_key) {
+      accel = detail::make_accelerator(s);
+      accel_key = key;
+    }
+    return *accel;
+  }
+
   ThreadPool& threads(int n) {
     if (!pool || pool_threads != n) {
       pool = std::make_unique<ThreadPool>(n);
@@ -392,7 +404,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
   StepReport rep;
   rep.substeps = 1;
   ThreadPool& tp = I.threads(s.threads);
-  auto accel = detail::make_accelerator(s);
+  detail::Accelerator* accel = &I.accelerator(s);
   accel->begin_substep(m.vertex_count(), packed.slot_count());
   detail::ProjectionParams params;
   params.model = m.material.model;
@@ -413,6 +425,9 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
   services.apply_increment = [&](const std::vector<Vec6>& dl) {
     PhaseTimer t{rep.times.update_ms};
     I.apply_increment(m, x, dl, tp);
+  };
+  services.parallel_for = [&tp](size_t n, const std::function<void(size_t, size_t)>& fn) {
+    tp.parallel_for(n, [&fn](int, size_t b, size_t e) { fn(b, e); }, 2);
   };
 
   double r0 = 0;
