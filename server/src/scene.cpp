@@ -845,7 +845,8 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       if (const auto& contact = t.body_contact[b]) {
         // Two-way with the soft body: the particles move out, the tet body takes their momentum.
         ParticleState ps = t.bodies[b]->state();
-        couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, dt, t.body_start[b]);
+        couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, dt, t.body_start[b],
+                                 t.bodies[b]->segments());
         t.bodies[b]->set_state(ps);
       }
       t.body_reports[b].wall_ms = ms_since(t_body);  // its step and its contacts, below

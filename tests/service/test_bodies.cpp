@@ -868,6 +868,68 @@ TEST(Bodies, ARopeLaidOnTheBeamRestsOnItAndBendsIt) {
   EXPECT_LT(y_on, y_alone - 1e-4) << "tip " << y_on << " with the rope, " << y_alone << " without";
 }
 
+TEST(Bodies, ALineOverTheBeamRestsOnItAlongALink) {
+  // beam1 as above (top face y = 1 cm, z in [0, 1 cm]); a line of 7 links of 3 cm and 2 mm
+  // thickness pinned at both ends at the beam's bottom height, 21 cm apart across it, laid as a
+  // tent whose middle link is 5 mm over the beam: that link's particles (z = -1 and 2 cm) are
+  // either side of the beam, none over it. Free, the line would sag 1.4 cm below its pins. The
+  // links keep the contact along their length, so the line falls onto the beam and rests on it
+  // across that link (with the particles alone the link passed through the beam and the line
+  // sagged below it, as the line without contact does).
+  BodiesServer srv;
+  Client c = srv.client();
+  auto request = [](const std::string& id, bool contact) {
+    v1::CreateSceneRequest r;
+    r.set_scene_id(id);
+    auto* s = r.mutable_spec();
+    s->mutable_mesh()->set_builtin("beam1");
+    client::clamp_below_x(*s, 0.01);
+    s->mutable_material()->set_young_modulus(1e7);
+    s->mutable_solver()->set_method(v1::METHOD_NEWTON);
+    s->mutable_solver()->set_substeps(1);
+    s->mutable_solver()->set_iterations(2);
+    s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+    auto* line = s->add_bodies();
+    line->set_name("line");
+    if (!contact) line->set_soft_body_contact(false);
+    line->set_soft_body_friction(1.0);
+    auto* rs = line->mutable_rope();
+    set(rs->add_points(), 0.06, 0.0, -0.1);
+    set(rs->add_points(), 0.06, 0.015, -0.01);
+    set(rs->add_points(), 0.06, 0.015, 0.02);
+    set(rs->add_points(), 0.06, 0.0, 0.11);
+    rs->set_linear_density(0.02);
+    rs->set_segments(7);
+    rs->set_thickness(0.002);
+    rs->set_damping(5);
+    rs->mutable_pins()->add_indices(0);
+    rs->mutable_pins()->add_indices(7);
+    return r;
+  };
+  ASSERT_TRUE(c.create_scene(request("on", true)).ok());
+  ASSERT_TRUE(c.create_scene(request("off", false)).ok());
+  for (const char* id : {"on", "off"}) ASSERT_TRUE(c.step(id, 120).ok()) << id;
+  const v1::Frame on = latest_frame(c, "on"), off = latest_frame(c, "off");
+  ASSERT_EQ(on.bodies(0).positions_size(), 3 * 8);
+  const auto& p = on.bodies(0).positions();
+  auto at = [&](int i) { return Vec3(p[3 * i], p[3 * i + 1], p[3 * i + 2]); };
+  // The middle link's particles either side of the beam, near the top face's height.
+  EXPECT_LT(at(3).z(), 0.0);
+  EXPECT_GT(at(4).z(), 0.01);
+  for (int i : {3, 4}) {
+    EXPECT_GT(at(i).y(), 0.006) << i;
+    EXPECT_LT(y_of(off.bodies(0).positions(), i), 0.0) << i;  // sagged below the beam
+  }
+  // Every point of every link clear of the beam's cross-section (the square y, z in [0, 1 cm];
+  // the beam bends by micrometres under the line) by most of the thickness.
+  for (int link = 0; link < 7; ++link)
+    for (int k = 0; k <= 100; ++k) {
+      const Vec3 q = at(link) + (k / 100.0) * (at(link + 1) - at(link));
+      const double dy = std::max({-q.y(), q.y() - 0.01, 0.0}), dz = std::max({-q.z(), q.z() - 0.01, 0.0});
+      EXPECT_GT(std::hypot(dy, dz), 0.0015) << "link " << link << " point " << k;
+    }
+}
+
 // A rope stretched between two pins and a little block of water just above its middle, in a
 // container far from the beam.
 v1::CreateSceneRequest line_request(const std::string& id, bool rope_contact) {

@@ -85,6 +85,8 @@ class ConstraintBody : public ParticleBody {
   std::span<const double> inverse_masses() const override { return w_; }
   double contact_radius() const override { return settings_.thickness; }
   std::span<const std::array<uint32_t, 3>> triangles() const override { return triangles_; }
+  // The distance constraints' particle pairs, the grid's shear diagonals left out.
+  std::span<const std::array<uint32_t, 2>> segments() const override { return segments_; }
 
   ParticleStepReport step(double dt, std::span<const Collider> colliders) override;
   void set_gravity(const Vec3& gravity) override;
@@ -156,6 +158,7 @@ class ConstraintBody : public ParticleBody {
   std::vector<Vec3> p_, x_prev_;
   std::vector<std::array<uint32_t, 3>> triangles_;
   std::vector<Distance> dist_;
+  std::vector<std::array<uint32_t, 2>> segments_;
   std::vector<Bend> bend_;
   std::vector<RopeBend> rope_bend_;
   // colour k of a group is [starts[k], starts[k+1])

@@ -26,6 +26,7 @@ struct CouplingSettings {
 
 struct CouplingReport {
   size_t contacts = 0;               // particle-triangle contacts found
+  size_t segment_contacts = 0;       // contacts of points inside segments (couple_particles_to_body)
   double max_depth = 0.0;            // m, the deepest penetration of radius before correction
   Vec3 force_on_body = Vec3::Zero(); // N, the particles' push on the soft body's free vertices over dt
 };
@@ -36,11 +37,16 @@ struct CouplingReport {
 // triangle, however deep it got; the others are measured against the closest triangle (so one
 // that started inside a thin body may leave through the far side). `dt` is the step the
 // positions were reached in (a particle's velocity changes by its correction / dt). Particles
-// with inverse mass 0 are left alone; fixed vertices take no momentum. Throws std::invalid_argument naming the field when
-// sizes disagree or settings are out of range.
+// with inverse mass 0 are left alone; fixed vertices take no momentum. `segments` (a rope's
+// links, a cloth's edges) keep the radius along their length too: points inside each segment,
+// no farther apart than the radius, are treated as particles whose correction the segment's two
+// particles share (by their inverse masses and the point's place), so a link longer than the
+// radius does not slide over an edge of the body between its particles. Throws
+// std::invalid_argument naming the field when sizes disagree or settings are out of range.
 CouplingReport couple_particles_to_body(const BodyModel& model, BodyState& body, ParticleState& particles,
                                         std::span<const double> particle_inv_mass, const CouplingSettings& settings,
-                                        double dt, std::span<const Vec3> particle_start = {});
+                                        double dt, std::span<const Vec3> particle_start = {},
+                                        std::span<const std::array<uint32_t, 2>> segments = {});
 
 // Two-way contact between a particle body (a fluid, a rope, another cloth) and a cloth, after
 // both stepped: each particle stays at least `settings.radius` (the two bodies' contact radii

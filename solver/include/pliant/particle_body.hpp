@@ -82,6 +82,9 @@ class ParticleBody {
   virtual double contact_radius() const = 0;
   // Triangles to draw and to collide with (cloth); empty for fluids and ropes.
   virtual std::span<const std::array<uint32_t, 3>> triangles() const { return {}; }
+  // Segments that keep the contact radius from a soft body along their length, not only at
+  // their particles (a rope's links, a cloth's edges); empty for fluids.
+  virtual std::span<const std::array<uint32_t, 2>> segments() const { return {}; }
 
   // Advances by dt seconds against the colliders.
   virtual ParticleStepReport step(double dt, std::span<const Collider> colliders) = 0;

@@ -156,6 +156,9 @@ void ConstraintBody::finish(const ConstraintBodySettings& settings) {
   }
   w_free_ = w_;
   dist_colours_ = colour(dist_, n, [](const Distance& d) { return std::array<uint32_t, 2>{d.i, d.j}; });
+  segments_.clear();
+  for (const Distance& d : dist_)
+    if (!d.shear) segments_.push_back({d.i, d.j});
   bend_colours_ = colour(bend_, n, [](const Bend& b) { return std::array<uint32_t, 4>{b.a, b.b, b.c, b.d}; });
   for (Bend& b : bend_) {
     b.rest_cos = std::cos(b.rest_angle);

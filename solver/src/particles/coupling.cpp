@@ -10,19 +10,13 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 #include <unordered_map>
 
 namespace pliant {
 using detail::TriangleGrid;
 using detail::triangle_contact;
 namespace {
-
-struct Contact {
-  uint32_t particle;
-  int32_t triangle;
-  std::array<double, 3> b;  // barycentric weights of the closest point
-  Vec3 n;                   // from the surface towards where the particle belongs
-};
 
 // Where segment a -> b enters triangle (p0, p1, p2) from its front (outward) side: the fraction
 // along the segment, or -1.
@@ -46,11 +40,129 @@ double entering_fraction(const Vec3& a, const Vec3& b, const Vec3& p0, const Vec
   return t;
 }
 
+// A point that keeps the contact radius from the body: a particle (j == i, s == 0) or a point
+// s of the way along segment i-j.
+struct Point {
+  uint32_t i, j;
+  double s;
+  Vec3 at(std::span<const Vec3> x) const { return s == 0 ? x[i] : Vec3((1 - s) * x[i] + s * x[j]); }
+};
+
+struct PointContact {
+  Point point;
+  int32_t triangle;
+  std::array<double, 3> b;  // barycentric weights of the surface point
+  Vec3 n;                   // from the surface towards where the point belongs
+};
+
+// How much of a face normal lies across a segment of direction u (1 for a segment along the
+// face, 0 for one piercing it head-on). A segment's point leaves the body by moving across the
+// segment: a move along it slides the segment without changing its line.
+double across(const Vec3& n, const Vec3& u) { return (n - n.dot(u) * u).norm(); }
+constexpr double kMinAcross = 0.25;  // below (within 14 degrees of head-on), a face is not a segment's exit
+
+// The contact of a point that moved from `start` to `now` with the body's surface, if any: the
+// face its path entered first from outside (however deep it got: the closest face of a thin body
+// may be the far one), else the closest face when it is within the radius or inside. A point
+// inside a segment of direction `along` leaves through the near face it needs the least move
+// across the segment to clear (the top of an edge the segment lies over, not the side face that
+// only a slide along the segment would clear), and never through a face the segment pierces
+// head-on.
+bool find_contact(const BodyModel& m, const BodyState& body, const TriangleGrid& grid, const Point& pt,
+                  const Vec3& start, const Vec3& now, const Vec3* along, double radius, std::vector<int32_t>& swept,
+                  PointContact& out, double& depth) {
+  auto normal_of = [&](const Triangle& t) {
+    return Vec3((body.x[t[1]] - body.x[t[0]]).cross(body.x[t[2]] - body.x[t[0]]));
+  };
+  if (start.allFinite()) grid.near_segment(start, now, 4096, swept);
+  else swept.clear();
+  double first = INFINITY;
+  for (int32_t k : swept) {
+    const Triangle& t = m.surface[k];
+    std::array<double, 3> b;
+    const double f = entering_fraction(start, now, body.x[t[0]], body.x[t[1]], body.x[t[2]], b);
+    if (f >= 0 && f < first) {
+      if (along && across(normal_of(t).normalized(), *along) < kMinAcross) continue;
+      first = f;
+      out = PointContact{pt, k, b, Vec3::Zero()};
+    }
+  }
+  if (first < INFINITY) {
+    const Triangle& t = m.surface[out.triangle];
+    out.n = normal_of(t).normalized();
+    const Vec3 q = out.b[0] * body.x[t[0]] + out.b[1] * body.x[t[1]] + out.b[2] * body.x[t[2]];
+    depth = radius - (now - q).dot(out.n);
+    return true;
+  }
+  double best = INFINITY;
+  for (int32_t k : grid.near(now)) {
+    const Triangle& t = m.surface[k];
+    std::array<double, 3> b;
+    const Vec3 q = closest_point_on_triangle(now, body.x[t[0]], body.x[t[1]], body.x[t[2]], b);
+    const double d = (now - q).norm();
+    if (d < best) {
+      best = d;
+      out = PointContact{pt, k, b, Vec3::Zero()};
+    }
+  }
+  if (!(best < INFINITY)) return false;
+  const Triangle& t = m.surface[out.triangle];
+  const Vec3 face = normal_of(t);
+  if (!(face.squaredNorm() > 0)) return false;
+  const Vec3 outward = face.normalized();
+  const Vec3 q = out.b[0] * body.x[t[0]] + out.b[1] * body.x[t[1]] + out.b[2] * body.x[t[2]];
+  const Vec3 d = now - q;
+  const double side = d.dot(outward);
+  if (side >= 0 && d.norm() >= radius) return false;  // outside and clear
+  if (along) {
+    // Faces whose plane the point started outside of come first (it came from that side: a
+    // segment swept over a body's edge goes back over it, not round the far one).
+    double cheapest[2] = {INFINITY, INFINITY};
+    PointContact pick[2];
+    double picked_depth[2] = {0, 0};
+    // The faces along the point's path (its cell included): the face it came over may be
+    // farther than the reach by now.
+    std::vector<int32_t>& candidates = swept;
+    if (candidates.empty()) {
+      const auto near = grid.near(now);
+      candidates.assign(near.begin(), near.end());
+    }
+    for (int32_t k : candidates) {
+      const Triangle& tk = m.surface[k];
+      const Vec3 fk = normal_of(tk);
+      if (!(fk.squaredNorm() > 0)) continue;
+      const Vec3 nk = fk.normalized();
+      const double a = across(nk, *along);
+      if (a < kMinAcross) continue;
+      std::array<double, 3> b;
+      const Vec3 qk = closest_point_on_triangle(now, body.x[tk[0]], body.x[tk[1]], body.x[tk[2]], b);
+      const double need = radius - (now - qk).dot(nk);  // how far along nk the point must go
+      if (need <= 0) continue;
+      const int from_outside = start.allFinite() && (start - qk).dot(nk) >= 0 ? 0 : 1;
+      if (need / a >= cheapest[from_outside]) continue;
+      cheapest[from_outside] = need / a;
+      pick[from_outside] = PointContact{pt, k, b, nk};
+      picked_depth[from_outside] = need;
+    }
+    const int use = cheapest[0] < INFINITY ? 0 : 1;
+    if (!(cheapest[use] < INFINITY)) return false;
+    out = pick[use];
+    depth = picked_depth[use];
+    return true;
+  }
+  // Outside: apart along the line to the closest point (the face normal when on it); inside:
+  // back out through the closest face.
+  out.n = side >= 0 && d.norm() > 1e-12 * radius ? Vec3(d.normalized()) : outward;
+  depth = radius - d.dot(out.n);
+  return true;
+}
+
 }  // namespace
 
 CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, ParticleState& ps,
                                         std::span<const double> wp, const CouplingSettings& s, double dt,
-                                        std::span<const Vec3> particle_start) {
+                                        std::span<const Vec3> particle_start,
+                                        std::span<const std::array<uint32_t, 2>> segments) {
   if (!(s.radius > 0) || !std::isfinite(s.radius))
     throw std::invalid_argument(fmt::format("coupling.radius must be > 0, got {}", s.radius));
   if (!(s.friction >= 0) || !std::isfinite(s.friction))
@@ -63,104 +175,113 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   if (body.x.size() != m.vertex_count() || body.v.size() != m.vertex_count())
     throw std::invalid_argument(fmt::format("coupling: the body state has {} positions and {} velocities, the model {} vertices",
                                             body.x.size(), body.v.size(), m.vertex_count()));
+  for (size_t k = 0; k < segments.size(); ++k)
+    if (segments[k][0] >= ps.x.size() || segments[k][1] >= ps.x.size() || segments[k][0] == segments[k][1])
+      throw std::invalid_argument(fmt::format("coupling: segment {} joins particles {} and {} of {}", k, segments[k][0],
+                                              segments[k][1], ps.x.size()));
   CouplingReport rep;
   if (m.surface.empty() || ps.x.empty()) return rep;
 
-  // Contacts at the positions the step reached.
+  // Where each particle started the step (from its velocity when the caller has no record).
+  std::vector<Vec3> start_storage;
+  std::span<const Vec3> start = particle_start;
+  if (start.empty()) {
+    start_storage.resize(ps.x.size());
+    for (size_t p = 0; p < ps.x.size(); ++p) start_storage[p] = ps.x[p] - dt * ps.v[p];
+    start = start_storage;
+  }
+  auto finite = [&](uint32_t p) { return ps.x[p].allFinite() && ps.v[p].allFinite(); };
+
+  // Contacts at the positions the step reached: every particle, then the inside of every
+  // segment at points no farther apart than the radius (at most 64 a segment), so that a segment
+  // longer than the contact's thickness cannot slide over an edge of the body between its two
+  // particles.
   const TriangleGrid grid(m.surface, std::span<const Vec3>(body.x), s.radius);
-  std::vector<Contact> contacts;
+  std::vector<PointContact> contacts;
   std::vector<int32_t> swept;
+  const std::span<const Vec3> x(ps.x);
   for (size_t p = 0; p < ps.x.size(); ++p) {
-    const Vec3& xp = ps.x[p];
-    if (!xp.allFinite() || !ps.v[p].allFinite()) continue;  // a blown-up body: the caller rolls it back
-    // A particle that crossed the surface during the step (from where its velocity says it
-    // started) goes back out through the face it entered, however deep it got: the closest
-    // face of a thin body may be the far one.
-    const Vec3 start = particle_start.empty() ? Vec3(xp - dt * ps.v[p]) : particle_start[p];
-    if (start.allFinite()) grid.near_segment(start, xp, 4096, swept);
-    else swept.clear();
-    double first = INFINITY;
-    Contact entered{};
-    for (int32_t k : swept) {
-      const Triangle& t = m.surface[k];
-      std::array<double, 3> b;
-      const double f = entering_fraction(start, xp, body.x[t[0]], body.x[t[1]], body.x[t[2]], b);
-      if (f >= 0 && f < first) {
-        first = f;
-        entered = Contact{uint32_t(p), k, b, Vec3::Zero()};
-      }
-    }
-    if (first < INFINITY) {
-      const Triangle& t = m.surface[entered.triangle];
-      entered.n = (body.x[t[1]] - body.x[t[0]]).cross(body.x[t[2]] - body.x[t[0]]).normalized();
-      if (wp[p] > 0) {
-        const Vec3 q = entered.b[0] * body.x[t[0]] + entered.b[1] * body.x[t[1]] + entered.b[2] * body.x[t[2]];
-        rep.max_depth = std::max(rep.max_depth, s.radius - (xp - q).dot(entered.n));
-        contacts.push_back(entered);
-        continue;
-      }
-    }
-    double best = INFINITY;
-    Contact c{};
-    for (int32_t k : grid.near(xp)) {
-      const Triangle& t = m.surface[k];
-      std::array<double, 3> b;
-      const Vec3 q = closest_point_on_triangle(xp, body.x[t[0]], body.x[t[1]], body.x[t[2]], b);
-      const double d = (xp - q).norm();
-      if (d < best) {
-        best = d;
-        c = Contact{uint32_t(p), k, b, Vec3::Zero()};
-      }
-    }
-    if (!(best < INFINITY)) continue;
-    const Triangle& t = m.surface[c.triangle];
-    const Vec3 face = (body.x[t[1]] - body.x[t[0]]).cross(body.x[t[2]] - body.x[t[0]]);
-    if (!(face.squaredNorm() > 0)) continue;
-    const Vec3 outward = face.normalized();
-    const Vec3 q = c.b[0] * body.x[t[0]] + c.b[1] * body.x[t[1]] + c.b[2] * body.x[t[2]];
-    const Vec3 d = xp - q;
-    const double side = d.dot(outward);
-    if (side >= 0 && d.norm() >= s.radius) continue;  // outside and clear
-    // Outside: apart along the line to the closest point (the face normal when on it); inside:
-    // back out through the closest face.
-    c.n = side >= 0 && d.norm() > 1e-12 * s.radius ? Vec3(d.normalized()) : outward;
-    if (!(wp[p] > 0)) continue;  // a pinned particle stays where its pin holds it
-    rep.max_depth = std::max(rep.max_depth, s.radius - d.dot(c.n));
+    if (!finite(uint32_t(p))) continue;  // a blown-up body: the caller rolls it back
+    if (!(wp[p] > 0)) continue;           // a pinned particle stays where its pin holds it
+    const Point pt{uint32_t(p), uint32_t(p), 0.0};
+    PointContact c;
+    double depth = 0;
+    if (!find_contact(m, body, grid, pt, start[p], ps.x[p], nullptr, s.radius, swept, c, depth)) continue;
+    rep.max_depth = std::max(rep.max_depth, depth);
     contacts.push_back(c);
   }
-  rep.contacts = contacts.size();
+  const size_t particle_contacts = contacts.size();
+  for (const auto& seg : segments) {
+    const uint32_t i = seg[0], j = seg[1];
+    if (!finite(i) || !finite(j) || !(wp[i] > 0 || wp[j] > 0)) continue;
+    const double length = (ps.x[i] - ps.x[j]).norm();
+    if (!(length > 0)) continue;
+    const Vec3 u = (ps.x[j] - ps.x[i]) / length;
+    const int inside = std::min(64, int(std::ceil(length / s.radius)) - 1);  // interior points
+    for (int k = 1; k <= inside; ++k) {
+      const Point pt{i, j, double(k) / double(inside + 1)};
+      const Vec3 now = pt.at(x), from = pt.at(start);
+      PointContact c;
+      double depth = 0;
+      if (!find_contact(m, body, grid, pt, from, now, &u, s.radius, swept, c, depth)) continue;
+      rep.max_depth = std::max(rep.max_depth, depth);
+      contacts.push_back(c);
+    }
+  }
+  rep.contacts = particle_contacts;
+  rep.segment_contacts = contacts.size() - particle_contacts;
   if (contacts.empty()) return rep;
 
-  // The particle takes the whole position correction; the body takes the momentum that the
-  // correction gave the particle, as a change of its vertices' velocities (shared by the
-  // barycentric weights). The body's positions stay: its own next step spreads the push through
-  // its elasticity, which a position correction of a few light surface vertices would not (a
-  // heavy rope landing on a light beam would dent it through). Momentum is exact at once:
-  // what the particles gain, the body loses.
+  // The particles take the whole position correction (a segment's point shares it between its
+  // two particles by their inverse masses and its place along the segment, as a position-based
+  // constraint on that point does); the body takes the momentum that the correction gave the
+  // particles, as a change of its vertices' velocities (shared by the barycentric weights). The
+  // body's positions stay: its own next step spreads the push through its elasticity, which a
+  // position correction of a few light surface vertices would not (a heavy rope landing on a
+  // light beam would dent it through). Momentum is exact at once: what the particles gain, the
+  // body loses.
   const double inv_dt = 1.0 / dt;
   std::vector<Vec3> body_dv(body.v.size(), Vec3::Zero());  // applied after every contact's slip is measured
-  for (const Contact& c : contacts) {
+  for (const PointContact& c : contacts) {
+    const Point& pt = c.point;
     const Triangle& t = m.surface[c.triangle];
-    Vec3& xp = ps.x[c.particle];
-    const Vec3 before = xp;
+    const double ai = 1 - pt.s, aj = pt.s;  // the point's weights on its particles
+    const double wi = wp[pt.i], wj = pt.j == pt.i ? 0.0 : wp[pt.j];
+    const double w = ai * ai * wi + aj * aj * wj;
+    if (!(w > 0)) continue;
+    const Vec3 before = pt.at(x);
     const Vec3 q = c.b[0] * body.x[t[0]] + c.b[1] * body.x[t[1]] + c.b[2] * body.x[t[2]];
-    const double C = (xp - q).dot(c.n) - s.radius;
-    if (C >= 0) continue;
-    xp -= C * c.n;
+    const double C = (before - q).dot(c.n) - s.radius;
+    if (C >= 0) continue;  // cleared by an earlier correction
+    Vec3 move = -C * c.n;
+    if (pt.j != pt.i) {
+      // A segment's point moves across the segment (see `across`): over a body's edge the part
+      // of the face normal across the segment is the edge-edge contact's normal (edge x
+      // segment); on a face it is the normal itself.
+      const Vec3 u = (ps.x[pt.j] - ps.x[pt.i]).normalized();
+      const Vec3 dir = c.n - c.n.dot(u) * u;
+      const double a = dir.norm();
+      move = (-C / (a * a)) * dir;           // its step along c.n is -C
+    }
     if (s.friction > 0) {
-      // The particle's slip against the surface point over the step, tangential part, taken back
+      // The point's slip against the surface point over the step, tangential part, taken back
       // by at most friction x the normal correction.
       Vec3 q_start = Vec3::Zero();
       for (int a = 0; a < 3; ++a) q_start += c.b[a] * (body.x[t[a]] - dt * body.v[t[a]]);
-      const Vec3 p_start = particle_start.empty() ? Vec3(before - dt * ps.v[c.particle]) : particle_start[c.particle];
-      const Vec3 slip = (xp - p_start) - (q - q_start);
+      const Vec3 slip = (before + move - pt.at(start)) - (q - q_start);
       const Vec3 tangential = slip - slip.dot(c.n) * c.n;
       const double tn = tangential.norm();
-      if (tn > 0) xp -= std::min(tn, s.friction * -C) * (tangential / tn);
+      if (tn > 0) move -= std::min(tn, s.friction * -C) * (tangential / tn);
     }
-    const Vec3 dv = (xp - before) * inv_dt;
-    ps.v[c.particle] += dv;
-    const Vec3 impulse = dv / wp[c.particle];  // the particle's momentum change
+    // Each particle moves by its share; the momentum they gain is move / w in all.
+    Vec3 impulse = Vec3::Zero();
+    for (const auto& [p, a, wk] : {std::tuple{pt.i, ai, wi}, std::tuple{pt.j, aj, wj}}) {
+      if (!(wk > 0) || a == 0) continue;
+      const Vec3 dx = (a * wk / w) * move;
+      ps.x[p] += dx;
+      ps.v[p] += dx * inv_dt;
+      impulse += dx * inv_dt / wk;
+    }
     for (int a = 0; a < 3; ++a) body_dv[t[a]] -= c.b[a] * m.inv_mass[t[a]] * impulse;
     for (int a = 0; a < 3; ++a)
       if (m.inv_mass[t[a]] > 0) rep.force_on_body -= c.b[a] * impulse * inv_dt;
