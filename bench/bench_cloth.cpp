@@ -5,10 +5,17 @@
 // top and stepped kWarmSteps steps (lying on the sphere, its edges still swinging). Arguments:
 // substeps, threads, self-collision (0/1). Counters: particles, constraints, self_contacts,
 // s_per_particle_substep.
+// BM_ClothOnBodyContact: one contact pass of a cloth hung over beam3 against the tet body
+// (couple_particles_to_body, as a scene runs it once per tick), its particles alone or with its
+// edges. Arguments: grid resolution, edges (0/1). Counters: particles, segments, contacts.
+#include "pliant/builtin_meshes.hpp"
 #include "pliant/cloth.hpp"
+#include "pliant/coupling.hpp"
 
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
+#include <cmath>
 #include <vector>
 
 using namespace pliant;
@@ -42,7 +49,52 @@ void BM_ClothDrapeStep(benchmark::State& state) {
       double(cloth->size()) * s.substeps, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
 }
 
+// A cloth 3.5 mm over beam3's top (0.12 m square), beside the beam up to 2 cm lower, falling
+// at 0.3 m/s: its edges cross the beam's top edges.
+void BM_ClothOnBodyContact(benchmark::State& state) {
+  const TetMesh mesh = *builtin_mesh("beam3");
+  const auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+  const BodyState body = rest_state(*model);
+  ClothGridSpec g;
+  g.nx = g.ny = int(state.range(0));
+  g.size_x = g.size_y = 0.12;
+  g.origin = Vec3(-0.01, 0.0135, -0.055);
+  ConstraintBodySettings cs;
+  cs.thickness = 0.002;
+  const auto cloth = ConstraintBody::cloth_grid(g, cs);
+  ParticleState hung = cloth->state();
+  for (Vec3& x : hung.x)
+    if (x.z() < 0.0 || x.z() > 0.01) x.y() -= 0.02 * std::min(1.0, std::abs(x.z() - 0.005) / 0.03);
+  for (Vec3& v : hung.v) v = Vec3(0, -0.3, 0);
+  const std::vector<Vec3> start = hung.x;
+  CouplingSettings contact;
+  contact.radius = cs.thickness;
+  const bool edges = state.range(1) != 0;
+  size_t found = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    ParticleState p = hung;
+    BodyState b = body;
+    state.ResumeTiming();
+    const CouplingReport r = couple_particles_to_body(*model, b, p, cloth->inverse_masses(), contact, 1.0 / 60, start,
+                                                      edges ? cloth->segments() : std::span<const std::array<uint32_t, 2>>{});
+    found = r.contacts + r.segment_contacts;
+    benchmark::DoNotOptimize(p.x.data());
+  }
+  state.counters["particles"] = double(cloth->size());
+  state.counters["segments"] = edges ? double(cloth->segments().size()) : 0.0;
+  state.counters["contacts"] = double(found);
+}
+
 }  // namespace
+
+BENCHMARK(BM_ClothOnBodyContact)
+    ->ArgNames({"grid", "edges"})
+    ->Args({64, 0})
+    ->Args({64, 1})
+    ->Args({128, 0})
+    ->Args({128, 1})
+    ->Unit(benchmark::kMillisecond);
 
 BENCHMARK(BM_ClothDrapeStep)
     ->ArgNames({"substeps", "threads", "self"})
