@@ -120,6 +120,9 @@ class ConstraintBody : public ParticleBody {
   double volume() const;  // enclosed volume of the triangles (closed surfaces), m^3
   // Self-collision contacts found in the last substep.
   size_t self_contacts() const { return last_self_contacts_; }
+  // Whether the last step left self-collision out: it started with an edge past twice its rest
+  // length, where self-collision would fight the crumpling fabric and blow it up.
+  bool self_collision_suspended() const { return self_suspended_; }
 
   struct Distance {
     uint32_t i, j;
@@ -190,6 +193,7 @@ class ConstraintBody : public ParticleBody {
   std::vector<std::vector<SelfContact>> self_scratch_;
   size_t last_self_contacts_ = 0;
   bool stretch_warned_ = false;  // warned of an under-resolved budget; re-armed once it recovers
+  bool self_suspended_ = false;  // the last step left self-collision out
   double h_ = 0.0;
 };
 

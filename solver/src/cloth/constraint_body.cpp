@@ -20,6 +20,10 @@ namespace pliant {
 
 namespace {
 
+// A step that starts with an edge stretched past (1 + this) times its rest length leaves
+// self-collision out (ConstraintBody::step).
+constexpr double kSelfCollisionStretchLimit = 1.0;
+
 // A colour smaller than this runs on the calling thread: below it the hand-off to the pool
 // costs about what the work does (a few microseconds of constraints). The 64 x 64 drape's
 // bending colours (about 700 constraints each) gain from the second thread.
@@ -627,7 +631,16 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
   const double h = dt / ns, h2 = h * h;
   h_ = h;
   const size_t n = size();
-  const bool self = settings_.self_collision && !triangles_.empty();
+  // Past twice their rest length the edges no longer hold the fabric's shape and self-collision
+  // fights the crumpling cloth until it blows up (docs/cloth.md, "Substeps and stretch"), so a
+  // step that starts with such an edge leaves self-collision out. Decided from the state alone,
+  // so that a restored snapshot steps as the original did.
+  const bool wants_self = settings_.self_collision && !triangles_.empty();
+  const bool over = wants_self && max_stretch() > kSelfCollisionStretchLimit;
+  if (over != self_suspended_)
+    spdlog::debug("{}: self-collision {}", log_name(), over ? "left out: an edge is past twice its rest length" : "back on");
+  self_suspended_ = over;
+  const bool self = wants_self && !over;
   if (self) build_self_hash(dt);
   const double keep = std::max(0.0, 1.0 - settings_.damping * h);
   ParticleStepReport report;
@@ -691,7 +704,8 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
   if (worst > 1.0 && !stretch_warned_) {
     stretch_warned_ = true;
     spdlog::warn("{}: an edge is stretched to {:.1f} times its rest length with {} substeps x {} iterations per step "
-                 "of {:g} s; the budget is too small for stretch compliance {:g} m/N: use more substeps or iterations",
+                 "of {:g} s; the budget is too small for stretch compliance {:g} m/N: use more substeps or iterations "
+                 "(self-collision is left out while an edge is past twice its rest length)",
                  log_name(), 1.0 + worst, settings_.substeps, settings_.iterations, dt, settings_.stretch_compliance);
   } else if (worst < 0.25) {
     stretch_warned_ = false;
