@@ -20,8 +20,8 @@ namespace pliant {
 
 namespace {
 
-// A step that starts with an edge stretched past (1 + this) times its rest length leaves
-// self-collision out (ConstraintBody::step).
+// An edge stretched past (1 + this) times its rest length: the step that starts with one leaves
+// self-collision out, and the step that ends with one says so in the log (ConstraintBody::step).
 constexpr double kSelfCollisionStretchLimit = 1.0;
 
 // A colour smaller than this runs on the calling thread: below it the hand-off to the pool
@@ -701,12 +701,12 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
   // An edge at twice its rest length means the budget does not resolve the stretch compliance;
   // past that, self-collision fights a crumpling fabric and the body blows up (docs/cloth.md,
   // "Substeps and stretch"). Said once, and again only after the body has recovered.
-  if (worst > 1.0 && !stretch_warned_) {
+  if (worst > kSelfCollisionStretchLimit && !stretch_warned_) {
     stretch_warned_ = true;
     spdlog::warn("{}: an edge is stretched to {:.1f} times its rest length with {} substeps x {} iterations per step "
-                 "of {:g} s; the budget is too small for stretch compliance {:g} m/N: use more substeps or iterations "
-                 "(self-collision is left out while an edge is past twice its rest length)",
-                 log_name(), 1.0 + worst, settings_.substeps, settings_.iterations, dt, settings_.stretch_compliance);
+                 "of {:g} s; the budget is too small for stretch compliance {:g} m/N: use more substeps or iterations{}",
+                 log_name(), 1.0 + worst, settings_.substeps, settings_.iterations, dt, settings_.stretch_compliance,
+                 wants_self ? " (self-collision is left out while an edge is past twice its rest length)" : "");
   } else if (worst < 0.25) {
     stretch_warned_ = false;
   }
