@@ -806,6 +806,30 @@ TEST(Bodies, BadSpecsAreRefusedNamingTheField) {
 
 }  // namespace
 
+namespace {
+
+// beam1 (E 10 MPa, the Newton step, 2 iterations per tick, lockstep) clamped at x <= 1 cm, and
+// one rope body `name` with friction 1 against it (the contact off when `contact` is false):
+// returns the rope's spec for the caller to lay out.
+v1::RopeSpec* beam1_with_rope(v1::CreateSceneRequest& r, const std::string& id, const std::string& name, bool contact) {
+  r.set_scene_id(id);
+  auto* s = r.mutable_spec();
+  s->mutable_mesh()->set_builtin("beam1");
+  client::clamp_below_x(*s, 0.01);
+  s->mutable_material()->set_young_modulus(1e7);
+  s->mutable_solver()->set_method(v1::METHOD_NEWTON);
+  s->mutable_solver()->set_substeps(1);
+  s->mutable_solver()->set_iterations(2);
+  s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
+  auto* rope = s->add_bodies();
+  rope->set_name(name);
+  if (!contact) rope->set_soft_body_contact(false);
+  rope->set_soft_body_friction(1.0);
+  return rope->mutable_rope();
+}
+
+}  // namespace
+
 TEST(Bodies, ARopeLaidOnTheBeamRestsOnItAndBendsIt) {
   // beam1 (E 10 MPa, the Newton step, 2 iterations per tick) clamped at x <= 1 cm (top face
   // y = 1 cm, z in [0, 1 cm]); a 7 cm rope of 1.4 g dropped onto its top from 5 mm above, along
@@ -817,20 +841,7 @@ TEST(Bodies, ARopeLaidOnTheBeamRestsOnItAndBendsIt) {
   Client c = srv.client();
   auto request = [](const std::string& id, bool contact) {
     v1::CreateSceneRequest r;
-    r.set_scene_id(id);
-    auto* s = r.mutable_spec();
-    s->mutable_mesh()->set_builtin("beam1");
-    client::clamp_below_x(*s, 0.01);
-    s->mutable_material()->set_young_modulus(1e7);
-    s->mutable_solver()->set_method(v1::METHOD_NEWTON);
-    s->mutable_solver()->set_substeps(1);
-    s->mutable_solver()->set_iterations(2);
-    s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
-    auto* rope = s->add_bodies();
-    rope->set_name("rope");
-    if (!contact) rope->set_soft_body_contact(false);
-    rope->set_soft_body_friction(1.0);
-    auto* rs = rope->mutable_rope();
+    auto* rs = beam1_with_rope(r, id, "rope", contact);
     set(rs->add_points(), 0.02, 0.015, 0.005);
     set(rs->add_points(), 0.09, 0.015, 0.005);
     rs->set_linear_density(0.02);
@@ -880,20 +891,7 @@ TEST(Bodies, ALineOverTheBeamRestsOnItAlongALink) {
   Client c = srv.client();
   auto request = [](const std::string& id, bool contact) {
     v1::CreateSceneRequest r;
-    r.set_scene_id(id);
-    auto* s = r.mutable_spec();
-    s->mutable_mesh()->set_builtin("beam1");
-    client::clamp_below_x(*s, 0.01);
-    s->mutable_material()->set_young_modulus(1e7);
-    s->mutable_solver()->set_method(v1::METHOD_NEWTON);
-    s->mutable_solver()->set_substeps(1);
-    s->mutable_solver()->set_iterations(2);
-    s->mutable_tick()->set_mode(v1::TICK_MODE_LOCKSTEP);
-    auto* line = s->add_bodies();
-    line->set_name("line");
-    if (!contact) line->set_soft_body_contact(false);
-    line->set_soft_body_friction(1.0);
-    auto* rs = line->mutable_rope();
+    auto* rs = beam1_with_rope(r, id, "line", contact);
     set(rs->add_points(), 0.06, 0.0, -0.1);
     set(rs->add_points(), 0.06, 0.015, -0.01);
     set(rs->add_points(), 0.06, 0.015, 0.02);
