@@ -845,8 +845,9 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       if (const auto& contact = t.body_contact[b]) {
         // Two-way with the soft body: the particles move out, the tet body takes their momentum.
         ParticleState ps = t.bodies[b]->state();
-        couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, dt, t.body_start[b],
-                                 t.bodies[b]->segments());
+        const CouplingReport r = couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(),
+                                                          *contact, dt, t.body_start[b], t.bodies[b]->segments());
+        t.body_reports[b].soft_body_contacts = r.contacts + r.segment_contacts;
         t.bodies[b]->set_state(ps);
       }
       t.body_reports[b].wall_ms = ms_since(t_body);  // its step and its contacts, below

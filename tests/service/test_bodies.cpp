@@ -926,6 +926,43 @@ TEST(Bodies, ALineOverTheBeamRestsOnItAlongALink) {
       const double dy = std::max({-q.y(), q.y() - 0.01, 0.0}), dz = std::max({-q.z(), q.z() - 0.01, 0.0});
       EXPECT_GT(std::hypot(dy, dz), 0.0015) << "link " << link << " point " << k;
     }
+  // Frames count the points the contact pushed (the resting link's, each tick).
+  EXPECT_GT(on.solver().bodies(0).soft_body_contacts(), 0u);
+  EXPECT_EQ(off.solver().bodies(0).soft_body_contacts(), 0u);
+}
+
+TEST(Bodies, AnOverstretchedClothSaysInItsFramesThatItLeftSelfCollisionOut) {
+  // A 32 x 32 cloth, 0.3 m wide, hung from two corners away from the beam: with 4 substeps of
+  // one iteration its hanging chains of 31 links stretch far past twice their length, so its
+  // steps leave self-collision out and the frames say so; with 64 they stay within bounds.
+  BodiesServer srv;
+  Client c = srv.client();
+  auto request = [](const std::string& id, int substeps) {
+    v1::CreateSceneRequest r = beam_scene(id);
+    auto* cloth = r.mutable_spec()->add_bodies();
+    cloth->set_name("sheet");
+    auto* cs = cloth->mutable_cloth();
+    auto* g = cs->mutable_grid();
+    g->set_resolution_x(32);
+    g->set_resolution_y(32);
+    g->set_size_x(0.3);
+    g->set_size_y(0.3);
+    set(g->mutable_origin(), 3, 2, 0);
+    cs->set_substeps(substeps);
+    cs->set_thickness(0.003);
+    cs->mutable_pins()->add_indices(0);
+    cs->mutable_pins()->add_indices(31);
+    return r;
+  };
+  ASSERT_TRUE(c.create_scene(request("coarse", 4)).ok());
+  ASSERT_TRUE(c.create_scene(request("fine", 64)).ok());
+  for (const char* id : {"coarse", "fine"}) ASSERT_TRUE(c.step(id, 30).ok()) << id;
+  const v1::Frame coarse = latest_frame(c, "coarse"), fine = latest_frame(c, "fine");
+  ASSERT_EQ(coarse.solver().bodies_size(), 1);
+  EXPECT_GT(coarse.solver().bodies(0).max_constraint_error(), 1.0);
+  EXPECT_TRUE(coarse.solver().bodies(0).self_collision_suspended());
+  EXPECT_LT(fine.solver().bodies(0).max_constraint_error(), 1.0);
+  EXPECT_FALSE(fine.solver().bodies(0).self_collision_suspended());
 }
 
 // A rope stretched between two pins and a little block of water just above its middle, in a

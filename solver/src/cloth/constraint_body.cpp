@@ -646,6 +646,7 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
   ParticleStepReport report;
   report.substeps = ns;
   report.iterations = settings_.iterations;
+  report.self_collision_suspended = over;
   for (int s = 0; s < ns; ++s) {
     for (size_t i = 0; i < n; ++i) {
       x_prev_[i] = state_.x[i];
