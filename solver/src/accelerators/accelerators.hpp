@@ -74,7 +74,7 @@ class AndersonMixer {
   // Makes y the previous iterate of the next push_increment without counting it as a push.
   void seed(const double* y);
   void push(const double* y, const double* r, const ParallelFor& parallel = {});
-  // push(y, y - the previous iterate): the residual is the iterate's change.
+  // push(y, y - the previous iterate): the residual is the iterate's change (after seed() or a push).
   void push_increment(const double* y, const ParallelFor& parallel = {});
   void push(const Eigen::Ref<const Eigen::VectorXd>& y, const Eigen::Ref<const Eigen::VectorXd>& r) {
     push(y.data(), r.data());
