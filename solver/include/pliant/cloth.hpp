@@ -120,9 +120,6 @@ class ConstraintBody : public ParticleBody {
   double volume() const;  // enclosed volume of the triangles (closed surfaces), m^3
   // Self-collision contacts found in the last substep.
   size_t self_contacts() const { return last_self_contacts_; }
-  // Whether the last step left self-collision out: it started with an edge past twice its rest
-  // length, where self-collision would fight the crumpling fabric and blow it up.
-  bool self_collision_suspended() const { return self_suspended_; }
 
   struct Distance {
     uint32_t i, j;
@@ -148,6 +145,12 @@ class ConstraintBody : public ParticleBody {
   void solve_volume(double h2);
   void solve_grabs(double h2);
   void build_self_hash(double dt);
+  // The relative stretch |x_i - x_j| / rest - 1 of the stretch constraints (the grid's shear
+  // diagonals left out): RMS and largest magnitude.
+  struct Stretch {
+    double rms, max;
+  };
+  Stretch stretch() const;
   void find_self_contacts();
   void solve_self_contacts();
   size_t solve_colliders(std::span<const Collider> colliders);
@@ -193,7 +196,6 @@ class ConstraintBody : public ParticleBody {
   std::vector<std::vector<SelfContact>> self_scratch_;
   size_t last_self_contacts_ = 0;
   bool stretch_warned_ = false;  // warned of an under-resolved budget; re-armed once it recovers
-  bool self_suspended_ = false;  // the last step left self-collision out
   double h_ = 0.0;
 };
 

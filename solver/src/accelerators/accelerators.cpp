@@ -100,8 +100,7 @@ class MultiplierAcceleration final : public Accelerator {
   bool after_sweep(SweepResult& it, AcceleratorServices& services) override {
     const double* d = it.dlambda.data()->data();
     double* lambda = it.lambda.data()->data();
-    AndersonMixer::ParallelFor parallel;
-    if (services.parallel_for) parallel = services.parallel_for;
+    const AndersonMixer::ParallelFor& parallel = services.parallel_for;
     bool ready = false;
     switch (form_) {
       case Form::Thesis:

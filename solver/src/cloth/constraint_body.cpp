@@ -238,14 +238,20 @@ Vec3 ConstraintBody::linear_momentum() const {
   return p;
 }
 
-double ConstraintBody::max_stretch() const {
-  double worst = 0.0;
+ConstraintBody::Stretch ConstraintBody::stretch() const {
+  double sum = 0.0, worst = 0.0;
+  size_t count = 0;
   for (const Distance& d : dist_) {
     if (d.shear) continue;
-    worst = std::max(worst, std::abs((state_.x[d.i] - state_.x[d.j]).norm() / d.rest - 1.0));
+    const double e = (state_.x[d.i] - state_.x[d.j]).norm() / d.rest - 1.0;
+    sum += e * e;
+    worst = std::max(worst, std::abs(e));
+    ++count;
   }
-  return worst;
+  return {count ? std::sqrt(sum / double(count)) : 0.0, worst};
 }
+
+double ConstraintBody::max_stretch() const { return stretch().max; }
 
 double ConstraintBody::volume() const { return cloth_math::enclosed_volume(state_.x, triangles_); }
 
@@ -637,9 +643,6 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
   // so that a restored snapshot steps as the original did.
   const bool wants_self = settings_.self_collision && !triangles_.empty();
   const bool over = wants_self && max_stretch() > kSelfCollisionStretchLimit;
-  if (over != self_suspended_)
-    spdlog::debug("{}: self-collision {}", log_name(), over ? "left out: an edge is past twice its rest length" : "back on");
-  self_suspended_ = over;
   const bool self = wants_self && !over;
   if (self) build_self_hash(dt);
   const double keep = std::max(0.0, 1.0 - settings_.damping * h);
@@ -688,17 +691,10 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
   last_self_contacts_ = self ? self_contacts_.size() : 0;
   state_.time += dt;
   ++state_.steps;
-  double sum = 0.0, worst = 0.0;
-  size_t count = 0;
-  for (const Distance& d : dist_) {
-    if (d.shear) continue;
-    const double e = (state_.x[d.i] - state_.x[d.j]).norm() / d.rest - 1.0;
-    sum += e * e;
-    worst = std::max(worst, std::abs(e));
-    ++count;
-  }
-  report.constraint_error = count ? std::sqrt(sum / double(count)) : 0.0;
-  report.max_constraint_error = worst;
+  const Stretch end = stretch();
+  report.constraint_error = end.rms;
+  report.max_constraint_error = end.max;
+  const double worst = end.max;
   // An edge at twice its rest length means the budget does not resolve the stretch compliance;
   // past that, self-collision fights a crumpling fabric and the body blows up (docs/cloth.md,
   // "Substeps and stretch"). Said once, and again only after the body has recovered.
