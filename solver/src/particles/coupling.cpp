@@ -138,11 +138,12 @@ bool find_contact(const BodyModel& m, const BodyState& body, const TriangleGrid&
       const Vec3 qk = closest_point_on_triangle(now, body.x[tk[0]], body.x[tk[1]], body.x[tk[2]], b);
       const double need = radius - (now - qk).dot(nk);  // how far along nk the point must go
       if (need <= 0) continue;
-      const int from_outside = start.allFinite() && (start - qk).dot(nk) >= 0 ? 0 : 1;
-      if (need / a >= cheapest[from_outside]) continue;
-      cheapest[from_outside] = need / a;
-      pick[from_outside] = PointContact{pt, k, b, nk};
-      picked_depth[from_outside] = need;
+      const bool started_outside = start.allFinite() && (start - qk).dot(nk) >= 0;
+      const int rank = started_outside ? 0 : 1;
+      if (need / a >= cheapest[rank]) continue;
+      cheapest[rank] = need / a;
+      pick[rank] = PointContact{pt, k, b, nk};
+      picked_depth[rank] = need;
     }
     const int use = cheapest[0] < INFINITY ? 0 : 1;
     if (!(cheapest[use] < INFINITY)) return false;
