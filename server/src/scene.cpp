@@ -861,15 +861,16 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       ParticleState ps = a.state(), cs = c.state();
       const CouplingReport r =
           pair.rope ? couple_particles_to_rope(ps, a.inverse_masses(), t.body_start[pair.particles], cs,
-                                               c.inverse_masses(), t.body_start[pair.cloth], pair.settings, dt)
+                                               c.inverse_masses(), t.body_start[pair.cloth], pair.settings, dt,
+                                               a.segments())
                     : couple_particles_to_cloth(ps, a.inverse_masses(), t.body_start[pair.particles], cs,
                                                 c.inverse_masses(), c.triangles(), t.body_start[pair.cloth],
-                                                pair.settings, dt);
-      if (r.contacts > 0) {
+                                                pair.settings, dt, a.segments());
+      if (r.contacts + r.segment_contacts > 0) {
         a.set_state(ps);
         c.set_state(cs);
       }
-      t.body_reports[pair.particles].body_contacts += r.contacts;
+      t.body_reports[pair.particles].body_contacts += r.contacts + r.segment_contacts;
       t.body_reports[pair.particles].wall_ms += ms_since(t_pair);
     });
   if (!inputs.tools.empty() && report.tools.size() != inputs.tools.size()) report.tools.resize(inputs.tools.size());

@@ -5,6 +5,7 @@
 // field named when their spec is bad.
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
+#include "pliant/test/segment_distance.hpp"
 #include "pliant/test/wait_until.hpp"
 
 #include "in_process_server.hpp"
@@ -1041,6 +1042,79 @@ TEST(Bodies, ARopeIsAnObstacleToWaterFallingOnIt) {
   EXPECT_LT(through.closest, radius) << "the control's water passes the rope";
   EXPECT_LT(held.rope_lowest, through.rope_lowest - 1e-3) << "the water pushes the rope down";
   EXPECT_GT(held.spread, through.spread + 0.005) << "the water slides off around the rope";
+}
+
+// A bar (a rope of 10 cm links pinned at both ends, 6 segments along x at y = 0.5) and a short
+// rope of three 10 cm links dropped across its middle from 10 cm above: the dropped rope's beads
+// come no nearer than 5 cm to the bar, only its middle link crosses it.
+v1::CreateSceneRequest crossing_ropes_request(const std::string& id, bool contact) {
+  v1::CreateSceneRequest r = beam_scene(id);
+  auto* s = r.mutable_spec();
+  auto* bar = s->add_bodies();
+  bar->set_name("bar");
+  bar->set_body_contact(contact);
+  auto* b = bar->mutable_rope();
+  set(b->add_points(), -3.3, 0.5, 0);
+  set(b->add_points(), -2.7, 0.5, 0);
+  b->set_segments(6);
+  b->mutable_pins()->add_indices(0);
+  b->mutable_pins()->add_indices(6);
+  auto* drop = s->add_bodies();
+  drop->set_name("drop");
+  drop->set_body_contact(contact);
+  auto* d = drop->mutable_rope();
+  set(d->add_points(), -3.0, 0.6, -0.15);
+  set(d->add_points(), -3.0, 0.6, 0.15);
+  d->set_segments(3);
+  d->set_damping(5);
+  return r;
+}
+
+TEST(Bodies, ARopeDroppedAcrossAnotherHangsOnItByItsLink) {
+  // With contact between the two, the dropped rope's middle link lands on the bar and the rope
+  // hangs over it: after every tick the two ropes' links stay apart by nearly the contact
+  // radius (thickness 5 mm each: 1 cm; the points along a link are at most a radius apart, so
+  // sqrt(3)/2 of it where links cross square), and after a second the middle link is still on
+  // the bar (its midpoint above the bar's middle bead). Without (the control) it falls through.
+  BodiesServer srv;
+  Client c = srv.client();
+  const double radius = 0.01;
+  struct Run {
+    double closest = INFINITY;  // the closest the two ropes' links came after a tick
+    double above = 0;           // the dropped rope's middle above the bar's middle bead at the end
+    uint64_t contacts = 0;
+  };
+  auto rope_of = [](const v1::Frame& f, int b) {
+    std::vector<Vec3> x;
+    const auto& p = f.bodies(b).positions();
+    for (int i = 0; i + 2 < p.size(); i += 3) x.emplace_back(p[i], p[i + 1], p[i + 2]);
+    return x;
+  };
+  auto run = [&](const std::string& id, bool contact) {
+    Run out;
+    EXPECT_TRUE(c.create_scene(crossing_ropes_request(id, contact)).ok());
+    for (int k = 0; k < 60; ++k) {
+      EXPECT_TRUE(c.step(id, 1).ok());
+      const v1::Frame f = latest_frame(c, id);
+      if (f.bodies_size() != 2 || f.solver().bodies_size() != 2) {
+        ADD_FAILURE() << "frame without the bodies";
+        return out;
+      }
+      const std::vector<Vec3> bar = rope_of(f, 0), drop = rope_of(f, 1);
+      out.contacts += f.solver().bodies(1).body_contacts();
+      for (size_t i = 0; i + 1 < drop.size(); ++i)
+        for (size_t j = 0; j + 1 < bar.size(); ++j)
+          out.closest = std::min(out.closest, test::segment_distance(drop[i], drop[i + 1], bar[j], bar[j + 1]));
+      out.above = 0.5 * (drop[1].y() + drop[2].y()) - bar[3].y();
+    }
+    return out;
+  };
+  const Run held = run("held", true), through = run("through", false);
+  EXPECT_GT(held.contacts, 0u);
+  EXPECT_EQ(through.contacts, 0u);
+  EXPECT_GT(held.closest, std::sqrt(3.0) / 2 * radius - 1e-4) << "m; the control came to " << through.closest;
+  EXPECT_GT(held.above, std::sqrt(3.0) / 2 * radius - 1e-4) << "m; the dropped rope hangs on the bar";
+  EXPECT_LT(through.above, -0.2) << "the control falls through";
 }
 
 // beam1 clamped at x <= 0.01, soft (100 kPa) so it sags far, over a drape of two triangles

@@ -11,6 +11,7 @@
 #include "pliant/vtu_recording.hpp"
 
 #include "drape_obstacle.hpp"
+#include "pliant/test/segment_distance.hpp"
 
 #include <gtest/gtest.h>
 
@@ -614,6 +615,140 @@ TEST(RopeContact, APinnedRopeHoldsATouchingParticleAndBadInputsAreRefused) {
   const std::vector<Vec3> short_start;
   EXPECT_THROW(couple_particles_to_rope(ps, wp, short_start, rope, wr, rope_start, set, 1.0 / 60),
                std::invalid_argument);
+}
+
+// A link of two 10 g beads along z, 10 cm long, falling 3.5 cm in the step across x = x0: its
+// beads pass 5 cm either side of whatever it crosses at its middle, farther than any contact
+// radius here, so only the points along the link can see that.
+struct FallingLink {
+  ParticleState ps;
+  std::vector<Vec3> start;
+  std::vector<double> w{100.0, 100.0};
+  std::vector<std::array<uint32_t, 2>> segments{{0, 1}};
+  explicit FallingLink(double x0) {
+    start = {Vec3(x0, 0.02, -0.05), Vec3(x0, 0.02, 0.05)};
+    ps.x = {Vec3(x0 + 0.002, -0.015, -0.05), Vec3(x0 + 0.002, -0.015, 0.05)};
+    ps.v = {(ps.x[0] - start[0]) * 60.0, (ps.x[1] - start[1]) * 60.0};
+  }
+  Vec3 momentum() const { return ps.v[0] / w[0] + ps.v[1] / w[1]; }
+};
+
+TEST(RopeContact, ALinkCrossingARopeBetweenTheirBeadsIsHeldAlongItsLengthWithMomentumExact) {
+  // A free rope of one 10 cm link along x (beads of 10 g), still; the falling link crosses its
+  // middle. Bead against link finds nothing; with the falling body's segments the link's inside
+  // points go back above the rope: the two links end no closer than the points' spacing allows
+  // (points at most a radius apart: sqrt(3)/2 of the radius for links crossing square), and the
+  // momentum of the two bodies is unchanged.
+  const double radius = 0.006, dt = 1.0 / 60;
+  auto fresh_rope = [] {
+    ParticleState rope;
+    rope.x = {Vec3(0, 0, 0), Vec3(0.1, 0, 0)};
+    rope.v = {Vec3::Zero(), Vec3::Zero()};
+    return rope;
+  };
+  const std::vector<double> wr{100.0, 100.0};
+  CouplingSettings set;
+  set.radius = radius;
+  {
+    ParticleState rope = fresh_rope();
+    const std::vector<Vec3> rope_start = rope.x;
+    FallingLink link(0.05);
+    const ParticleState before = link.ps;
+    const CouplingReport rep = couple_particles_to_rope(link.ps, link.w, link.start, rope, wr, rope_start, set, dt);
+    EXPECT_EQ(rep.contacts + rep.segment_contacts, 0u) << "the beads alone pass beside the rope";
+    EXPECT_EQ(link.ps.x, before.x);
+  }
+  ParticleState rope = fresh_rope();
+  const std::vector<Vec3> rope_start = rope.x;
+  FallingLink link(0.05);
+  const Vec3 p0 = link.momentum();
+  const CouplingReport rep =
+      couple_particles_to_rope(link.ps, link.w, link.start, rope, wr, rope_start, set, dt, link.segments);
+  EXPECT_EQ(rep.contacts, 0u);
+  EXPECT_GT(rep.segment_contacts, 0u);
+  EXPECT_GT(rep.max_depth, 0.01) << "the link had crossed to the far side";
+  EXPECT_GT(link.ps.x[0].y() + link.ps.x[1].y(), 0) << "the link stays above the rope";
+  EXPECT_GT(test::segment_distance(link.ps.x[0], link.ps.x[1], rope.x[0], rope.x[1]), std::sqrt(3.0) / 2 * radius - 1e-12);
+  EXPECT_GE((link.ps.v[0] + link.ps.v[1]).y(), (rope.v[0] + rope.v[1]).y() - 1e-12)
+      << "the link no longer falls onto the rope's middle";
+  const Vec3 rope_momentum = rope.v[0] / wr[0] + rope.v[1] / wr[1];
+  EXPECT_LT(rope_momentum.y(), 0) << "the rope is pushed down";
+  EXPECT_NEAR((link.momentum() + rope_momentum - p0).norm(), 0, 1e-12 * p0.norm());
+  EXPECT_NEAR((rep.force_on_body * dt - rope_momentum).norm(), 0, 1e-12 * p0.norm());
+  const std::vector<std::array<uint32_t, 2>> bad{{0, 2}};
+  EXPECT_THROW(couple_particles_to_rope(link.ps, link.w, link.start, rope, wr, rope_start, set, dt, bad),
+               std::invalid_argument);
+}
+
+TEST(ClothContact, ALinkFallingAcrossAClothStripBetweenItsBeadsStaysOnItsSide) {
+  // A free strip of cloth 20 cm along x and 2 cm wide (two triangles, corners of 5 g), still;
+  // the falling link crosses it at x = 0.1 with its beads 4 cm beyond either long edge. With the
+  // link's segments its points over the strip end above it at the radius or more, both beads
+  // with them, and the momentum is unchanged; without them the link falls through.
+  const double radius = 0.006, dt = 1.0 / 60;
+  auto fresh_strip = [] {
+    ParticleState strip;
+    strip.x = {Vec3(0, 0, -0.01), Vec3(0.2, 0, -0.01), Vec3(0, 0, 0.01), Vec3(0.2, 0, 0.01)};
+    strip.v.assign(4, Vec3::Zero());
+    return strip;
+  };
+  const std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
+  const std::vector<double> wc(4, 200.0);
+  CouplingSettings set;
+  set.radius = radius;
+  {
+    ParticleState strip = fresh_strip();
+    const std::vector<Vec3> strip_start = strip.x;
+    FallingLink link(0.1);
+    const CouplingReport rep =
+        couple_particles_to_cloth(link.ps, link.w, link.start, strip, wc, triangles, strip_start, set, dt);
+    EXPECT_EQ(rep.contacts + rep.segment_contacts, 0u);
+    EXPECT_LT(link.ps.x[0].y(), 0) << "without its segments the link falls through the strip";
+  }
+  ParticleState strip = fresh_strip();
+  const std::vector<Vec3> strip_start = strip.x;
+  FallingLink link(0.1);
+  Vec3 p0 = link.momentum();
+  const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, strip, wc, triangles, strip_start,
+                                                       set, dt, link.segments);
+  EXPECT_EQ(rep.contacts, 0u);
+  EXPECT_GT(rep.segment_contacts, 0u);
+  EXPECT_EQ(strip.x, strip_start) << "the cloth takes momentum, not a position correction";
+  for (int k = 0; k <= 100; ++k) {
+    const Vec3 p = link.ps.x[0] + (link.ps.x[1] - link.ps.x[0]) * (k / 100.0);
+    if (std::abs(p.z()) <= 0.01) EXPECT_GT(p.y(), std::sqrt(3.0) / 2 * radius - 1e-12) << "at z = " << p.z();
+  }
+  EXPECT_GT(link.ps.x[0].y(), 0);
+  EXPECT_GT(link.ps.x[1].y(), 0);
+  Vec3 cloth_momentum = Vec3::Zero();
+  for (size_t i = 0; i < strip.v.size(); ++i) cloth_momentum += strip.v[i] / wc[i];
+  EXPECT_LT(cloth_momentum.y(), 0) << "the strip is pushed down";
+  EXPECT_NEAR((link.momentum() + cloth_momentum - p0).norm(), 0, 1e-12 * p0.norm());
+  EXPECT_NEAR((rep.force_on_body * dt - cloth_momentum).norm(), 0, 1e-12 * p0.norm());
+}
+
+TEST(ClothContact, ATriangleSweptFromFarAwayDoesNotStallTheSearch) {
+  // One corner of a strip starts the step 10,000 km away (a body that jumped; finite): its
+  // triangle's swept box would span about 1e17 cells of the contact's size. The search grows its
+  // cells instead (at most 64 entries a triangle), and a particle falling through the strip's
+  // other triangle is still held.
+  ParticleState strip;
+  strip.x = {Vec3(0, 0, -0.01), Vec3(0.2, 0, -0.01), Vec3(0, 0, 0.01), Vec3(0.2, 0, 0.01)};
+  strip.v.assign(4, Vec3::Zero());
+  std::vector<Vec3> strip_start = strip.x;
+  strip_start[0] = Vec3(1e7, 1e7, 1e7);
+  const std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
+  const std::vector<double> wc(4, 200.0);
+  ParticleState ps;
+  ps.x = {Vec3(0.15, -0.01, 0.005)};
+  ps.v = {Vec3(0, -1.2, 0)};
+  const std::vector<Vec3> start{Vec3(0.15, 0.01, 0.005)};
+  const std::vector<double> wp{100.0};
+  CouplingSettings set;
+  set.radius = 0.005;
+  const CouplingReport rep = couple_particles_to_cloth(ps, wp, start, strip, wc, triangles, strip_start, set, 1.0 / 60);
+  EXPECT_EQ(rep.contacts, 1u);
+  EXPECT_NEAR(ps.x[0].y(), 0.005, 1e-12);
 }
 
 TEST(ObstacleContact, ASaggingBodyRestsOnADrapeAndPushesItWithItsWeight) {

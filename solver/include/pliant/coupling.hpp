@@ -26,7 +26,7 @@ struct CouplingSettings {
 
 struct CouplingReport {
   size_t contacts = 0;               // particle-triangle contacts found
-  size_t segment_contacts = 0;       // contacts of points inside segments (couple_particles_to_body)
+  size_t segment_contacts = 0;       // contacts of points inside the first body's segments
   double max_depth = 0.0;            // m, the deepest penetration of radius before correction
   Vec3 force_on_body = Vec3::Zero(); // N, the particles' push on the soft body's free vertices over dt
 };
@@ -61,13 +61,17 @@ CouplingReport couple_particles_to_body(const BodyModel& model, BodyState& body,
 // Coulomb friction on the tangential speed up to `settings.friction` x that impulse: momentum is
 // exact. `force_on_body`: the particles' push on the cloth over dt, N (the pinned corners'
 // share included). `*_start`: positions at the start of the step (the side comes from them).
-// Throws std::invalid_argument naming the field when sizes disagree or settings are out of range.
+// `segments` (the first body's links or edges) keep the radius along their length too, as in
+// couple_particles_to_body: their inside points, no farther apart than the radius, are treated as
+// particles moved across their segment, the move and the impulse shared by the segment's two
+// particles (counted in segment_contacts). Throws std::invalid_argument naming the field when
+// sizes disagree or settings are out of range.
 CouplingReport couple_particles_to_cloth(ParticleState& particles, std::span<const double> particle_inv_mass,
                                          std::span<const Vec3> particle_start, ParticleState& cloth,
                                          std::span<const double> cloth_inv_mass,
                                          std::span<const std::array<uint32_t, 3>> triangles,
                                          std::span<const Vec3> cloth_start, const CouplingSettings& settings,
-                                         double dt);
+                                         double dt, std::span<const std::array<uint32_t, 2>> segments = {});
 
 // Two-way contact between a particle body (a fluid, a cloth's particles, another rope) and a
 // rope, after both stepped: each particle stays at least `settings.radius` (the two bodies'
@@ -79,12 +83,14 @@ CouplingReport couple_particles_to_cloth(ParticleState& particles, std::span<con
 // (1-s)^2 w_a + s^2 w_b), with Coulomb friction up to `settings.friction` x the normal impulse,
 // shared by the segment's ends: momentum is exact. `force_on_body`: the particles' push on the
 // rope over dt (its pinned particles' share included). `*_start`: the positions at the start of
-// the step. Throws std::invalid_argument naming the field when sizes disagree or settings are
-// out of range.
+// the step. `segments`: the first body's links or edges, along their length as against a cloth
+// (a link crossing the rope between its two particles). Throws std::invalid_argument naming the
+// field when sizes disagree or settings are out of range.
 CouplingReport couple_particles_to_rope(ParticleState& particles, std::span<const double> particle_inv_mass,
                                         std::span<const Vec3> particle_start, ParticleState& rope,
                                         std::span<const double> rope_inv_mass, std::span<const Vec3> rope_start,
-                                        const CouplingSettings& settings, double dt);
+                                        const CouplingSettings& settings, double dt,
+                                        std::span<const std::array<uint32_t, 2>> segments = {});
 
 // A rigid tool (the haptic bridge's sphere or capsule, at its end-of-step pose) against a particle
 // body after the body's step: every particle whose centre is inside the tool grown by `radius`

@@ -55,7 +55,7 @@ struct ParticleStepReport {
   double max_constraint_error = 0.0;
   size_t contacts = 0;            // particle-collider contacts in the last substep
   size_t tool_contacts = 0;       // particles the rigid tools pushed after the step (the scene's)
-  size_t body_contacts = 0;       // particles the scene's cloths and ropes pushed after the step (the scene's)
+  size_t body_contacts = 0;       // particles and points of segments the scene's cloths and ropes pushed after the step (the scene's)
   size_t soft_body_contacts = 0;  // particles and points of segments the soft body pushed after the step (the scene's)
   bool self_collision_suspended = false;  // cloth: the step left self-collision out (an edge past twice its length)
   double wall_ms = 0.0;

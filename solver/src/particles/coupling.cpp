@@ -313,33 +313,52 @@ void check_pair(const ParticleState& ps, std::span<const double> wp, std::span<c
                                             other.x.size()));
 }
 
-// Particle p's contact with the point sum_k b_k x_k of `other` (corners idx, inverse masses wo),
-// normal n towards the particle, depth -C. Positions: only the particle moves, to the radius on
-// its side (a pinned one stays); the other body stays where its step put it (moving a light
-// cloth's corners by a heavy particle's correction made it spring back through the particles
-// within its next step). Velocities: a perfectly inelastic contact between the particle (inverse
-// mass w_p) and the point (inverse mass sum_k b_k^2 w_k), an impulse along the normal that leaves
-// them no approaching speed, shared by the corners' weights, and Coulomb friction on their
-// tangential speed up to friction x that impulse: momentum is exact, and neither side gets more
-// than their relative speed (a heavy particle carries a light cloth along, a light one stops on a
-// heavy cloth). Counts the contact in rep; nothing when both sides are pinned.
+// The contact of a point of the first body (a particle, or a point along one of its segments)
+// with the point sum_k b_k x_k of `other` (corners idx, inverse masses wo), normal n towards the
+// first body, depth -C, the point to go to `target`. Positions: only the first body moves (a
+// particle to the target, a segment's point by its two particles' shares of the move, by their
+// inverse masses and the point's place, as a position-based constraint on that point does; a
+// pinned particle stays); the other body stays where its step put it (moving a light cloth's
+// corners by a heavy particle's correction made it spring back through the particles within its
+// next step). Velocities: a perfectly inelastic contact between the point (inverse mass w_p, or
+// (1-s)^2 w_i + s^2 w_j along a segment) and the other point (inverse mass sum_k b_k^2 w_k), an
+// impulse along the normal that leaves them no approaching speed, shared by the corners' weights,
+// and Coulomb friction on their tangential speed up to friction x that impulse: momentum is exact,
+// and neither side gets more than their relative speed (a heavy particle carries a light cloth
+// along, a light one stops on a heavy cloth). Counts the contact in rep (a segment's among
+// segment_contacts); nothing when both sides are pinned.
 template <size_t N>
-void exchange(ParticleState& ps, size_t p, std::span<const double> wp, ParticleState& other,
+void exchange(ParticleState& ps, const Point& pt, std::span<const double> wp, ParticleState& other,
               const std::array<size_t, N>& idx, const std::array<double, N>& b, std::span<const double> wo,
-              const Vec3& new_x, const Vec3& n, double C, double friction, double inv_dt, CouplingReport& rep) {
-  double wsum = wp[p];
+              const Vec3& target, const Vec3& n, double C, double friction, double inv_dt, CouplingReport& rep) {
+  const bool segment = pt.j != pt.i;
+  const double ai = 1 - pt.s, aj = pt.s;  // the point's weights on its particles
+  const double wi = wp[pt.i], wj = segment ? wp[pt.j] : 0.0;
+  const double wpoint = segment ? ai * ai * wi + aj * aj * wj : wi;
+  double wsum = wpoint;
   for (size_t k = 0; k < N; ++k) wsum += b[k] * b[k] * wo[idx[k]];
   if (!(wsum > 0)) return;  // a pinned particle on pinned corners
   rep.max_depth = std::max(rep.max_depth, -C);
-  ++rep.contacts;
-  if (wp[p] > 0) ps.x[p] = new_x;
+  ++(segment ? rep.segment_contacts : rep.contacts);
+  if (!segment) {
+    if (wi > 0) ps.x[pt.i] = target;
+  } else if (wpoint > 0) {
+    const Vec3 move = target - pt.at(ps.x);
+    ps.x[pt.i] += (ai * wi / wpoint) * move;
+    ps.x[pt.j] += (aj * wj / wpoint) * move;
+  }
   auto relative = [&] {
     Vec3 vq = Vec3::Zero();
     for (size_t k = 0; k < N; ++k) vq += b[k] * other.v[idx[k]];
-    return Vec3(ps.v[p] - vq);
+    return Vec3(pt.at(ps.v) - vq);
   };
-  auto apply = [&](const Vec3& impulse) {  // on the particle, momentum
-    ps.v[p] += wp[p] * impulse;
+  auto apply = [&](const Vec3& impulse) {  // on the first body's point, momentum
+    if (!segment) {
+      ps.v[pt.i] += wi * impulse;
+    } else {
+      ps.v[pt.i] += (ai * wi) * impulse;
+      ps.v[pt.j] += (aj * wj) * impulse;
+    }
     for (size_t k = 0; k < N; ++k) other.v[idx[k]] -= wo[idx[k]] * b[k] * impulse;
     rep.force_on_body -= impulse * inv_dt;  // on the other body, its pins included
   };
@@ -355,14 +374,60 @@ void exchange(ParticleState& ps, size_t p, std::span<const double> wp, ParticleS
   }
 }
 
+// The points of the first body that keep the radius from the other: every particle, then the
+// inside of every segment at points no farther apart than the radius (at most 64 a segment, as
+// against the soft body), so that a rope's link or a cloth's edge does not pass through the other
+// body between its two particles. fn(point, start, now) for each whose path is finite.
+template <class Fn>
+void for_each_contact_point(const ParticleState& ps, std::span<const Vec3> start,
+                            std::span<const std::array<uint32_t, 2>> segments, double radius, const Fn& fn) {
+  for (size_t p = 0; p < ps.x.size(); ++p)
+    if (ps.x[p].allFinite() && start[p].allFinite()) fn(Point{uint32_t(p), uint32_t(p), 0.0}, start[p], ps.x[p]);
+  for (const auto& seg : segments) {
+    const uint32_t i = seg[0], j = seg[1];
+    if (!ps.x[i].allFinite() || !ps.x[j].allFinite() || !start[i].allFinite() || !start[j].allFinite()) continue;
+    const double length = (ps.x[i] - ps.x[j]).norm();
+    if (!(length > 0)) continue;
+    const int inside = std::min(64, int(std::ceil(length / radius)) - 1);  // interior points
+    for (int k = 1; k <= inside; ++k) {
+      const Point pt{i, j, double(k) / double(inside + 1)};
+      fn(pt, pt.at(start), pt.at(std::span<const Vec3>(ps.x)));
+    }
+  }
+}
+
+// A segment's point moves across the segment (as against the soft body: a move along it slides
+// the link without changing its line): the target `now - C n` becomes now + move with move the
+// part of -C n across the segment, scaled so that its step along n is still -C. False when the
+// segment lies within 14 degrees of n (its particles' own contacts are the ones that hold it).
+bool across_segment(const ParticleState& ps, const Point& pt, const Vec3& now, const Vec3& n, double C,
+                    Vec3& target) {
+  if (pt.j == pt.i) return true;
+  const Vec3 u = (ps.x[pt.j] - ps.x[pt.i]).normalized();
+  const Vec3 dir = n - n.dot(u) * u;
+  const double a = dir.norm();
+  if (!(a >= kMinAcross)) return false;
+  target = now + (-C / (a * a)) * dir;
+  return true;
+}
+
+void check_segments(std::span<const std::array<uint32_t, 2>> segments, size_t particles) {
+  for (size_t k = 0; k < segments.size(); ++k)
+    if (segments[k][0] >= particles || segments[k][1] >= particles || segments[k][0] == segments[k][1])
+      throw std::invalid_argument(fmt::format("segment {} joins particles {} and {} of {}", k, segments[k][0],
+                                              segments[k][1], particles));
+}
+
 }  // namespace
 
 CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const double> wp,
                                          std::span<const Vec3> particle_start, ParticleState& cs,
                                          std::span<const double> wc,
                                          std::span<const std::array<uint32_t, 3>> triangles,
-                                         std::span<const Vec3> cloth_start, const CouplingSettings& s, double dt) {
+                                         std::span<const Vec3> cloth_start, const CouplingSettings& s, double dt,
+                                         std::span<const std::array<uint32_t, 2>> segments) {
   check_pair(ps, wp, particle_start, cs, wc, cloth_start, "cloth", s, dt);
+  check_segments(segments, ps.x.size());
   for (const auto& t : triangles)
     if (t[0] >= cs.x.size() || t[1] >= cs.x.size() || t[2] >= cs.x.size())
       throw std::invalid_argument(fmt::format("cloth triangle ({}, {}, {}) is out of range ({} particles)", t[0], t[1],
@@ -373,7 +438,7 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
     if (!x.allFinite()) return rep;  // a blown-up cloth: the caller rolls it back
 
   // Nothing to do when no particle's path comes within the radius of the cloth's swept box (two
-  // bodies apart in the scene: no grid is built).
+  // bodies apart in the scene: no grid is built); a segment's points lie between its particles.
   Vec3 lo = cs.x[0], hi = cs.x[0];
   for (size_t i = 0; i < cs.x.size(); ++i) {
     lo = lo.cwiseMin(cs.x[i]).cwiseMin(cloth_start[i]);
@@ -381,20 +446,23 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
   }
   lo.array() -= s.radius;
   hi.array() += s.radius;
+  auto box_near = [&](const Vec3& plo, const Vec3& phi) {
+    return (plo.array() <= hi.array()).all() && (phi.array() >= lo.array()).all();
+  };
   bool near_box = false;
-  for (size_t p = 0; p < ps.x.size() && !near_box; ++p) {
-    const Vec3 plo = ps.x[p].cwiseMin(particle_start[p]), phi = ps.x[p].cwiseMax(particle_start[p]);
-    near_box = (plo.array() <= hi.array()).all() && (phi.array() >= lo.array()).all();
+  for (size_t p = 0; p < ps.x.size() && !near_box; ++p)
+    near_box = box_near(ps.x[p].cwiseMin(particle_start[p]), ps.x[p].cwiseMax(particle_start[p]));
+  for (size_t k = 0; k < segments.size() && !near_box; ++k) {
+    const uint32_t i = segments[k][0], j = segments[k][1];
+    near_box = box_near(ps.x[i].cwiseMin(particle_start[i]).cwiseMin(ps.x[j]).cwiseMin(particle_start[j]),
+                        ps.x[i].cwiseMax(particle_start[i]).cwiseMax(ps.x[j]).cwiseMax(particle_start[j]));
   }
   if (!near_box) return rep;
   const TriangleGrid grid(triangles, std::span<const Vec3>(cs.x), s.radius, cloth_start);
   std::vector<int32_t> near;
   const double inv_dt = 1.0 / dt;
-  for (size_t p = 0; p < ps.x.size(); ++p) {
-    Vec3& xp = ps.x[p];
-    const Vec3& start = particle_start[p];
-    if (!xp.allFinite() || !start.allFinite()) continue;
-    grid.candidates(start, xp, near);
+  for_each_contact_point(ps, particle_start, segments, s.radius, [&](const Point& pt, const Vec3& start, const Vec3& now) {
+    grid.candidates_within(start, now, s.radius, near);
     double deepest = 0;  // C = distance along the contact normal - radius; a contact has C < 0
     int32_t best = -1;
     std::array<double, 3> best_b{};
@@ -404,7 +472,7 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
       double C;
       Vec3 n;
       std::array<double, 3> bw;
-      if (!triangle_contact(start, xp, {cloth_start[t[0]], cloth_start[t[1]], cloth_start[t[2]]},
+      if (!triangle_contact(start, now, {cloth_start[t[0]], cloth_start[t[1]], cloth_start[t[2]]},
                             {cs.x[t[0]], cs.x[t[1]], cs.x[t[2]]}, s.radius, C, n, bw) ||
           !(C < deepest))
         continue;
@@ -413,11 +481,12 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
       best_b = bw;
       best_n = n;
     }
-    if (best < 0) continue;
+    if (best < 0) return;
+    Vec3 target = now - deepest * best_n;
+    if (!across_segment(ps, pt, now, best_n, deepest, target)) return;
     const auto& t = triangles[size_t(best)];
-    exchange<3>(ps, p, wp, cs, {t[0], t[1], t[2]}, best_b, wc, Vec3(xp - deepest * best_n), best_n, deepest,
-                s.friction, inv_dt, rep);
-  }
+    exchange<3>(ps, pt, wp, cs, {t[0], t[1], t[2]}, best_b, wc, target, best_n, deepest, s.friction, inv_dt, rep);
+  });
   return rep;
 }
 
@@ -436,23 +505,22 @@ Vec3 closest_on_segment(const Vec3& p, const Vec3& a, const Vec3& b, double& s) 
 CouplingReport couple_particles_to_rope(ParticleState& ps, std::span<const double> wp,
                                         std::span<const Vec3> particle_start, ParticleState& rs,
                                         std::span<const double> wr, std::span<const Vec3> rope_start,
-                                        const CouplingSettings& s, double dt) {
+                                        const CouplingSettings& s, double dt,
+                                        std::span<const std::array<uint32_t, 2>> segments) {
   check_pair(ps, wp, particle_start, rs, wr, rope_start, "rope", s, dt);
+  check_segments(segments, ps.x.size());
   CouplingReport rep;
   if (rs.x.size() < 2 || ps.x.empty()) return rep;
   for (size_t i = 0; i < rs.x.size(); ++i)
     if (!rs.x[i].allFinite() || !rope_start[i].allFinite()) return rep;  // a blown-up rope: the caller rolls it back
   // The segments as degenerate triangles (k, k+1, k+1), binned by their swept boxes.
-  std::vector<std::array<uint32_t, 3>> segments(rs.x.size() - 1);
-  for (size_t k = 0; k + 1 < rs.x.size(); ++k) segments[k] = {uint32_t(k), uint32_t(k + 1), uint32_t(k + 1)};
-  const TriangleGrid grid(segments, std::span<const Vec3>(rs.x), s.radius, rope_start);
+  std::vector<std::array<uint32_t, 3>> links(rs.x.size() - 1);
+  for (size_t k = 0; k + 1 < rs.x.size(); ++k) links[k] = {uint32_t(k), uint32_t(k + 1), uint32_t(k + 1)};
+  const TriangleGrid grid(links, std::span<const Vec3>(rs.x), s.radius, rope_start);
   std::vector<int32_t> near;
   const double inv_dt = 1.0 / dt;
-  for (size_t p = 0; p < ps.x.size(); ++p) {
-    Vec3& xp = ps.x[p];
-    const Vec3& start = particle_start[p];
-    if (!xp.allFinite() || !start.allFinite()) continue;
-    grid.candidates(start, xp, near);
+  for_each_contact_point(ps, particle_start, segments, s.radius, [&](const Point& pt, const Vec3& start, const Vec3& xp) {
+    grid.candidates_within(start, xp, s.radius, near);
     double deepest = 0;  // C = distance along the contact normal - radius; a contact has C < 0
     int32_t best = -1;
     double best_s = 0;
@@ -462,7 +530,7 @@ CouplingReport couple_particles_to_rope(ParticleState& ps, std::span<const doubl
       const Vec3 &sa = rope_start[size_t(k)], &sb = rope_start[size_t(k) + 1];
       double s1;
       const Vec3 q1 = closest_on_segment(xp, a, b, s1);
-      // The particle's offset from the segment's point s1 at the start and at the end; both
+      // The point's offset from the segment's point s1 at the start and at the end; both
       // moving linearly, the offset goes from r0 to r1.
       const Vec3 r1 = xp - q1, r0 = start - (sa + s1 * (sb - sa));
       Vec3 n;
@@ -501,13 +569,15 @@ CouplingReport couple_particles_to_rope(ParticleState& ps, std::span<const doubl
         best_q = q1;
       }
     }
-    if (best < 0) continue;
+    if (best < 0) return;
     // As against a cloth, at the radius where it first touched: a particle that hit the rope off
     // its top keeps its tangential speed and slides around it in the next steps.
+    Vec3 target = best_q + s.radius * best_n;
+    if (!across_segment(ps, pt, xp, best_n, deepest, target)) return;
     const size_t ia = size_t(best);
-    exchange<2>(ps, p, wp, rs, {ia, ia + 1}, {1 - best_s, best_s}, wr, Vec3(best_q + s.radius * best_n), best_n,
-                deepest, s.friction, inv_dt, rep);
-  }
+    exchange<2>(ps, pt, wp, rs, {ia, ia + 1}, {1 - best_s, best_s}, wr, target, best_n, deepest, s.friction, inv_dt,
+                rep);
+  });
   return rep;
 }
 

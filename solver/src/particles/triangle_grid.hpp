@@ -30,7 +30,8 @@ class TriangleGrid {
     for (const auto& t : triangles) edge += (x[t[1]] - x[t[0]]).norm();
     edge = triangles.empty() ? reach : edge / double(triangles.size());
     cell_ = std::max(2 * reach, edge);
-    std::vector<std::pair<uint64_t, int32_t>> entries;
+    boxes_.assign(triangles.size(), {Vec3::Constant(INFINITY), Vec3::Constant(-INFINITY)});
+    std::vector<char> binned(triangles.size(), 0);
     for (size_t k = 0; k < triangles.size(); ++k) {
       const auto& t = triangles[k];
       if (!x[t[0]].allFinite() || !x[t[1]].allFinite() || !x[t[2]].allFinite()) continue;
@@ -42,28 +43,72 @@ class TriangleGrid {
             lo = lo.cwiseMin(swept_from[t[c]]);
             hi = hi.cwiseMax(swept_from[t[c]]);
           }
-      lo.array() -= reach;
-      hi.array() += reach;
-      const auto a = cell_of(lo), b = cell_of(hi);
-      for (int64_t i = a[0]; i <= b[0]; ++i)
-        for (int64_t j = a[1]; j <= b[1]; ++j)
-          for (int64_t l = a[2]; l <= b[2]; ++l) entries.emplace_back(key({i, j, l}), int32_t(k));
+      boxes_[k] = {lo, hi};
+      binned[k] = 1;
     }
-    std::sort(entries.begin(), entries.end());
-    triangles_.reserve(entries.size());
-    for (size_t e = 0; e < entries.size(); ++e) {
-      if (e == 0 || entries[e].first != entries[e - 1].first)
-        ranges_[entries[e].first] = {uint32_t(e), uint32_t(e)};
-      ranges_[entries[e].first].second = uint32_t(e + 1);
-      triangles_.push_back(entries[e].second);
+    // Each triangle's cells (its box grown by the reach), and the range of all of them. A few
+    // triangles swept very far (a body that jumped) would span too many cells: then the cells
+    // grow until the entries are at most 64 a triangle (and a million).
+    std::vector<std::array<std::array<int64_t, 3>, 2>> spans(triangles.size());
+    std::array<int64_t, 3> all_lo{}, all_hi{};
+    double entries = 0;
+    const double cap = 64.0 * double(triangles.size()) + 1e6;
+    for (int attempt = 0;; ++attempt) {
+      all_lo = {INT64_MAX, INT64_MAX, INT64_MAX};
+      all_hi = {INT64_MIN, INT64_MIN, INT64_MIN};
+      entries = 0;
+      for (size_t k = 0; k < triangles.size(); ++k) {
+        if (!binned[k]) continue;
+        spans[k] = {cell_of(Vec3(boxes_[k].first.array() - reach)), cell_of(Vec3(boxes_[k].second.array() + reach))};
+        double n = 1;
+        for (int c = 0; c < 3; ++c) {
+          all_lo[c] = std::min(all_lo[c], spans[k][0][c]);
+          all_hi[c] = std::max(all_hi[c], spans[k][1][c]);
+          n *= double(spans[k][1][c] - spans[k][0][c] + 1);
+        }
+        entries += n;
+      }
+      if (entries <= cap || attempt == 64) break;
+      cell_ *= 2 * std::cbrt(entries / cap);
+    }
+    if (entries == 0) return;
+    // Dense cells over the range when it is not much larger than the entries (a body in one
+    // piece), filled by counting in triangle order; a hash of the occupied cells otherwise.
+    double cells = 1;
+    for (int c = 0; c < 3; ++c) cells *= double(all_hi[c] - all_lo[c] + 1);
+    auto each_cell = [&](auto&& fn) {
+      for (size_t k = 0; k < spans.size(); ++k) {
+        if (!binned[k]) continue;
+        const auto& [a, b] = spans[k];
+        for (int64_t i = a[0]; i <= b[0]; ++i)
+          for (int64_t j = a[1]; j <= b[1]; ++j)
+            for (int64_t l = a[2]; l <= b[2]; ++l) fn(std::array<int64_t, 3>{i, j, l}, int32_t(k));
+      }
+    };
+    if (cells <= 4 * entries + 4096) {
+      dense_lo_ = all_lo;
+      for (int c = 0; c < 3; ++c) dense_n_[c] = all_hi[c] - all_lo[c] + 1;
+      dense_start_.assign(size_t(cells) + 1, 0);
+      each_cell([&](const std::array<int64_t, 3>& c, int32_t) { ++dense_start_[dense_index(c) + 1]; });
+      for (size_t i = 1; i < dense_start_.size(); ++i) dense_start_[i] += dense_start_[i - 1];
+      triangles_.resize(dense_start_.back());
+      std::vector<uint32_t> fill(dense_start_.begin(), dense_start_.end() - 1);
+      each_cell([&](const std::array<int64_t, 3>& c, int32_t k) { triangles_[fill[dense_index(c)]++] = k; });
+      return;
+    }
+    std::vector<std::pair<uint64_t, int32_t>> sorted;
+    sorted.reserve(size_t(entries));
+    each_cell([&](const std::array<int64_t, 3>& c, int32_t k) { sorted.emplace_back(key(c), k); });
+    std::sort(sorted.begin(), sorted.end());
+    triangles_.reserve(sorted.size());
+    for (size_t e = 0; e < sorted.size(); ++e) {
+      if (e == 0 || sorted[e].first != sorted[e - 1].first) ranges_[sorted[e].first] = {uint32_t(e), uint32_t(e)};
+      ranges_[sorted[e].first].second = uint32_t(e + 1);
+      triangles_.push_back(sorted[e].second);
     }
   }
 
-  std::span<const int32_t> near(const Vec3& p) const {
-    const auto it = ranges_.find(key(cell_of(p)));
-    if (it == ranges_.end()) return {};
-    return {triangles_.data() + it->second.first, it->second.second - it->second.first};
-  }
+  std::span<const int32_t> near(const Vec3& p) const { return cell(cell_of(p)); }
 
   // The triangles near a segment: those of every cell its box touches (with repeats), or
   // nothing when that box spans more than max_cells cells.
@@ -75,9 +120,8 @@ class TriangleGrid {
     for (int64_t i = lo[0]; i <= hi[0]; ++i)
       for (int64_t j = lo[1]; j <= hi[1]; ++j)
         for (int64_t l = lo[2]; l <= hi[2]; ++l) {
-          const auto it = ranges_.find(key({i, j, l}));
-          if (it != ranges_.end())
-            out.insert(out.end(), triangles_.begin() + it->second.first, triangles_.begin() + it->second.second);
+          const auto c = cell({i, j, l});
+          out.insert(out.end(), c.begin(), c.end());
         }
   }
 
@@ -91,7 +135,38 @@ class TriangleGrid {
     }
   }
 
+  // The candidates that a point moving from `start` to `x` can touch within `radius`: those of
+  // candidates() whose box (the corners' start and end positions) comes within the radius of the
+  // path's box, in the same order. Every contact triangle_contact finds is among them (it needs
+  // the point, at the end or where it crosses the plane, within the radius of the triangle then,
+  // and both lie in those boxes); a margin of 1e-3 of the radius covers rounding.
+  void candidates_within(const Vec3& start, const Vec3& x, double radius, std::vector<int32_t>& out) const {
+    candidates(start, x, out);
+    const double r = 1.001 * radius;
+    const Vec3 lo = start.cwiseMin(x).array() - r, hi = start.cwiseMax(x).array() + r;
+    std::erase_if(out, [&](int32_t k) {
+      const auto& [blo, bhi] = boxes_[size_t(k)];
+      return !((blo.array() <= hi.array()).all() && (bhi.array() >= lo.array()).all());
+    });
+  }
+
  private:
+  // The triangles binned in cell c (in triangle order).
+  std::span<const int32_t> cell(const std::array<int64_t, 3>& c) const {
+    if (!dense_start_.empty()) {
+      for (int a = 0; a < 3; ++a)
+        if (c[a] < dense_lo_[a] || c[a] >= dense_lo_[a] + dense_n_[a]) return {};
+      const size_t i = dense_index(c);
+      return {triangles_.data() + dense_start_[i], dense_start_[i + 1] - dense_start_[i]};
+    }
+    const auto it = ranges_.find(key(c));
+    if (it == ranges_.end()) return {};
+    return {triangles_.data() + it->second.first, it->second.second - it->second.first};
+  }
+  size_t dense_index(const std::array<int64_t, 3>& c) const {
+    return size_t((c[0] - dense_lo_[0]) + dense_n_[0] * ((c[1] - dense_lo_[1]) + dense_n_[1] * (c[2] - dense_lo_[2])));
+  }
+
   // Finite points only; far-away ones are clamped (their cells are never near a triangle's).
   std::array<int64_t, 3> cell_of(const Vec3& p) const {
     auto axis = [&](double v) { return int64_t(std::clamp(std::floor(v / cell_), -1e15, 1e15)); };
@@ -104,6 +179,11 @@ class TriangleGrid {
   }
 
   double cell_ = 1;
+  std::vector<std::pair<Vec3, Vec3>> boxes_;  // per triangle: its corners' box (start and end), not grown
+  // Dense cells (first cell, counts per axis, each cell's start in triangles_), or a hash of
+  // the occupied cells' ranges when the triangles are spread far apart.
+  std::array<int64_t, 3> dense_lo_{}, dense_n_{};
+  std::vector<uint32_t> dense_start_;
   std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> ranges_;
   std::vector<int32_t> triangles_;
 };
