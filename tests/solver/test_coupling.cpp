@@ -727,6 +727,60 @@ TEST(ClothContact, ALinkFallingAcrossAClothStripBetweenItsBeadsStaysOnItsSide) {
   EXPECT_NEAR((rep.force_on_body * dt - cloth_momentum).norm(), 0, 1e-12 * p0.norm());
 }
 
+TEST(ClothContact, ALinkThreadedThroughTheClothIsLeftToItsParticles) {
+  // A still link through the middle of a still strip, its beads 2 cm above and below it (out of
+  // the radius): threaded through the cloth, as a rope sewn through a drape. Its points near the
+  // crossing are within the radius of the strip on both sides; pushing them out would drag the
+  // beads, each on its own side, towards the cloth every tick. They are left alone.
+  ParticleState strip;
+  strip.x = {Vec3(0, 0, -0.01), Vec3(0.2, 0, -0.01), Vec3(0, 0, 0.01), Vec3(0.2, 0, 0.01)};
+  strip.v.assign(4, Vec3::Zero());
+  const std::vector<Vec3> strip_start = strip.x;
+  const std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
+  const std::vector<double> wc(4, 200.0);
+  ParticleState link;
+  link.x = {Vec3(0.05, 0.02, 0), Vec3(0.15, -0.02, 0)};
+  link.v.assign(2, Vec3::Zero());
+  const std::vector<Vec3> link_start = link.x;
+  const std::vector<double> wl{100.0, 100.0};
+  const std::vector<std::array<uint32_t, 2>> segments{{0, 1}};
+  CouplingSettings set;
+  set.radius = 0.006;
+  const CouplingReport rep =
+      couple_particles_to_cloth(link, wl, link_start, strip, wc, triangles, strip_start, set, 1.0 / 60, segments);
+  EXPECT_EQ(rep.contacts + rep.segment_contacts, 0u);
+  EXPECT_EQ(link.x, link_start);
+  EXPECT_EQ(strip.v[0], Vec3::Zero());
+}
+
+TEST(ClothContact, ALinkWhoseParticleTouchesIsLeftToItsParticles) {
+  // A link settling onto the strip across its width: one bead over the strip, 4 mm above it
+  // (inside the 6 mm radius), the other 4 cm beyond its edge, the link's middle over the strip.
+  // The bead's own contact holds it; the link's points are not pushed as well (where a rope
+  // lies in a crumpled cloth that pushed its beads back into triangles their contacts had just
+  // cleared).
+  ParticleState strip;
+  strip.x = {Vec3(0, 0, -0.02), Vec3(0.2, 0, -0.02), Vec3(0, 0, 0.02), Vec3(0.2, 0, 0.02)};
+  strip.v.assign(4, Vec3::Zero());
+  const std::vector<Vec3> strip_start = strip.x;
+  const std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
+  const std::vector<double> wc(4, 200.0);
+  ParticleState link;
+  link.x = {Vec3(0.1, 0.004, -0.01), Vec3(0.1, 0.004, 0.06)};
+  link.v.assign(2, Vec3(0, -0.1, 0));
+  const std::vector<Vec3> link_start{Vec3(0.1, 0.006, -0.01), Vec3(0.1, 0.006, 0.06)};
+  const std::vector<double> wl{100.0, 100.0};
+  const std::vector<std::array<uint32_t, 2>> segments{{0, 1}};
+  CouplingSettings set;
+  set.radius = 0.006;
+  const CouplingReport rep =
+      couple_particles_to_cloth(link, wl, link_start, strip, wc, triangles, strip_start, set, 1.0 / 60, segments);
+  EXPECT_EQ(rep.contacts, 1u);
+  EXPECT_EQ(rep.segment_contacts, 0u);
+  EXPECT_NEAR(link.x[0].y(), 0.006, 1e-12);
+  EXPECT_EQ(link.x[1], Vec3(0.1, 0.004, 0.06));
+}
+
 TEST(ClothContact, ATriangleSweptFromFarAwayDoesNotStallTheSearch) {
   // One corner of a strip starts the step 10,000 km away (a body that jumped; finite): its
   // triangle's swept box would span about 1e17 cells of the contact's size. The search grows its

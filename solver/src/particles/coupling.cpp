@@ -40,6 +40,25 @@ double entering_fraction(const Vec3& a, const Vec3& b, const Vec3& p0, const Vec
   return t;
 }
 
+// Whether segment a-b passes through triangle (p0, p1, p2), from either side (its edges
+// included, with a margin of 1e-9 in the barycentric weights: a segment through the edge two
+// triangles share pierces both).
+bool pierces(const Vec3& a, const Vec3& b, const Vec3& p0, const Vec3& p1, const Vec3& p2) {
+  constexpr double eps = 1e-9;
+  const Vec3 e1 = p1 - p0, e2 = p2 - p0, d = b - a;
+  const Vec3 pv = d.cross(e2);
+  const double det = e1.dot(pv);
+  if (!(std::abs(det) > 1e-300)) return false;
+  const Vec3 tv = a - p0;
+  const double u = tv.dot(pv) / det;
+  if (u < -eps || u > 1 + eps) return false;
+  const Vec3 qv = tv.cross(e1);
+  const double v = d.dot(qv) / det;
+  if (v < -eps || u + v > 1 + eps) return false;
+  const double t = e2.dot(qv) / det;
+  return t >= 0 && t <= 1;
+}
+
 // A point that keeps the contact radius from the body: a particle (j == i, s == 0) or a point
 // s of the way along segment i-j.
 struct Point {
@@ -377,14 +396,23 @@ void exchange(ParticleState& ps, const Point& pt, std::span<const double> wp, Pa
 // The points of the first body that keep the radius from the other: every particle, then the
 // inside of every segment at points no farther apart than the radius (at most 64 a segment, as
 // against the soft body), so that a rope's link or a cloth's edge does not pass through the other
-// body between its two particles. fn(point, start, now) for each whose path is finite.
+// body between its two particles. fn(point, start, now) for each whose path is finite; it
+// returns whether the point touched. A segment one of whose particles touched is left to its
+// particles: where a rope lies in a crumpled cloth, its links' points pushed its beads back
+// into the triangles their own contacts had just cleared, and the rope stretched to many times
+// its length within a second.
 template <class Fn>
 void for_each_contact_point(const ParticleState& ps, std::span<const Vec3> start,
                             std::span<const std::array<uint32_t, 2>> segments, double radius, const Fn& fn) {
+  std::vector<char> touched(segments.empty() ? 0 : ps.x.size(), 0);
   for (size_t p = 0; p < ps.x.size(); ++p)
-    if (ps.x[p].allFinite() && start[p].allFinite()) fn(Point{uint32_t(p), uint32_t(p), 0.0}, start[p], ps.x[p]);
+    if (ps.x[p].allFinite() && start[p].allFinite()) {
+      const bool hit = fn(Point{uint32_t(p), uint32_t(p), 0.0}, start[p], ps.x[p]);
+      if (!touched.empty()) touched[p] = hit;
+    }
   for (const auto& seg : segments) {
     const uint32_t i = seg[0], j = seg[1];
+    if (touched[i] || touched[j]) continue;
     if (!ps.x[i].allFinite() || !ps.x[j].allFinite() || !start[i].allFinite() || !start[j].allFinite()) continue;
     const double length = (ps.x[i] - ps.x[j]).norm();
     if (!(length > 0)) continue;
@@ -481,11 +509,25 @@ CouplingReport couple_particles_to_cloth(ParticleState& ps, std::span<const doub
       best_b = bw;
       best_n = n;
     }
-    if (best < 0) return;
-    Vec3 target = now - deepest * best_n;
-    if (!across_segment(ps, pt, now, best_n, deepest, target)) return;
+    if (best < 0) return false;
     const auto& t = triangles[size_t(best)];
+    // A segment through the cloth near its point at the start of the step as at its end is
+    // threaded through it (its particles on either side, each held there by its own contact):
+    // pushing its points out would drag the particles through the cloth every step. Left to its
+    // particles.
+    if (pt.j != pt.i) {
+      const Vec3 &a0 = particle_start[pt.i], &b0 = particle_start[pt.j], &a1 = ps.x[pt.i], &b1 = ps.x[pt.j];
+      for (int32_t k : near) {
+        const auto& q = triangles[size_t(k)];
+        if (pierces(a0, b0, cloth_start[q[0]], cloth_start[q[1]], cloth_start[q[2]]) &&
+            pierces(a1, b1, cs.x[q[0]], cs.x[q[1]], cs.x[q[2]]))
+          return false;
+      }
+    }
+    Vec3 target = now - deepest * best_n;
+    if (!across_segment(ps, pt, now, best_n, deepest, target)) return false;
     exchange<3>(ps, pt, wp, cs, {t[0], t[1], t[2]}, best_b, wc, target, best_n, deepest, s.friction, inv_dt, rep);
+    return true;
   });
   return rep;
 }
@@ -569,14 +611,15 @@ CouplingReport couple_particles_to_rope(ParticleState& ps, std::span<const doubl
         best_q = q1;
       }
     }
-    if (best < 0) return;
+    if (best < 0) return false;
     // As against a cloth, at the radius where it first touched: a particle that hit the rope off
     // its top keeps its tangential speed and slides around it in the next steps.
     Vec3 target = best_q + s.radius * best_n;
-    if (!across_segment(ps, pt, xp, best_n, deepest, target)) return;
+    if (!across_segment(ps, pt, xp, best_n, deepest, target)) return false;
     const size_t ia = size_t(best);
     exchange<2>(ps, pt, wp, rs, {ia, ia + 1}, {1 - best_s, best_s}, wr, target, best_n, deepest, s.friction, inv_dt,
                 rep);
+    return true;
   });
   return rep;
 }
