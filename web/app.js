@@ -398,8 +398,8 @@ function showText() {
     const pct = (v) => `${(100 * v).toFixed(v < 0.001 ? 3 : 2)}%`;
     setCell(b.cells.particles, b.particles);
     if (!s) continue;
-    setCell(b.cells.error, `${pct(s.error)} / ${pct(s.maxError)}`);
-    setCell(b.cells.contacts, s.contacts + s.toolContacts + s.bodyContacts);
+    setCell(b.cells.error, `${pct(s.error)} / ${pct(s.maxError)}${s.selfCollisionSuspended ? ' (self-collision off: over-stretched)' : ''}`);
+    setCell(b.cells.contacts, s.contacts + s.toolContacts + s.bodyContacts + s.softBodyContacts);
     setCell(b.cells.ms, s.stepMs.toFixed(2));
   }
   const g = state.grab;

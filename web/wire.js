@@ -15,7 +15,10 @@ export const BODY_RECORD_BYTES = 20;
 export const FLAG_ROLLED_BACK = 1;
 export const FLAG_BODIES = 2;
 export const FLAG_BODY_STATS = 4;
+export const FLAG_BODY_CONTACTS = 8;
 export const BODY_STATS_BYTES = 32;
+export const BODY_CONTACTS_BYTES = 8;
+export const BODY_SELF_COLLISION_SUSPENDED = 1;
 
 function check(view, kind) {
   if (view.byteLength < 8) throw new Error(`message of ${view.byteLength} bytes is too short`);
@@ -77,11 +80,12 @@ export function decodeTopology(buffer) {
 const positionBytes = (n, encoding) => (encoding === ENCODING_FLOAT32 ? 12 * n : Math.ceil((6 * n) / 4) * 4);
 
 // Bytes of a frame; bodyParticles: the particle count of each body it carries (none: []);
-// bodyStats: whether their statistics follow.
-export function frameBytes(vertices, residuals, encoding, bodyParticles = [], bodyStats = false) {
+// bodyStats: whether their statistics follow; bodyContacts: whether their contacts follow those.
+export function frameBytes(vertices, residuals, encoding, bodyParticles = [], bodyStats = false, bodyContacts = false) {
   let n = FRAME_HEADER_BYTES + 4 * residuals + positionBytes(vertices, encoding);
   if (bodyParticles.length) n += 4 + bodyParticles.reduce((a, p) => a + 4 + positionBytes(p, encoding), 0);
   if (bodyParticles.length && bodyStats) n += 4 + BODY_STATS_BYTES * bodyParticles.length;
+  if (bodyParticles.length && bodyStats && bodyContacts) n += 4 + BODY_CONTACTS_BYTES * bodyParticles.length;
   return n;
 }
 
@@ -134,7 +138,7 @@ export function decodeFrameHeader(buffer) {
     throw new Error(`frame encoding ${h.encoding} unknown`);
   const bodies = frameBodies(v, h);
   const expected = bodies ? frameBytes(h.vertexCount, h.residualCount, h.encoding, bodies.map((b) => b.particles),
-    (h.flags & FLAG_BODY_STATS) !== 0) : -1;
+    (h.flags & FLAG_BODY_STATS) !== 0, (h.flags & FLAG_BODY_CONTACTS) !== 0) : -1;
   if (buffer.byteLength !== expected)
     throw new Error(`frame of ${buffer.byteLength} bytes, its header says ${bodies ? expected : 'more'}`);
   h.bodyCount = bodies.length;
@@ -173,7 +177,17 @@ function readBodyStats(view, h, bodies) {
       contacts: view.getUint32(off + 20, true),
       toolContacts: view.getUint32(off + 24, true),
       bodyContacts: view.getUint32(off + 28, true),
+      softBodyContacts: 0,
+      selfCollisionSuspended: false,
     });
+  }
+  if (h.flags & FLAG_BODY_CONTACTS) {
+    if (view.getUint32(off, true) !== b) throw new Error('frame body contacts and statistics disagree on the bodies');
+    off += 4;
+    for (let i = 0; i < b; ++i, off += BODY_CONTACTS_BYTES) {
+      out[i].softBodyContacts = view.getUint32(off, true);
+      out[i].selfCollisionSuspended = (view.getUint32(off + 4, true) & BODY_SELF_COLLISION_SUSPENDED) !== 0;
+    }
   }
   return out;
 }
@@ -181,7 +195,7 @@ function readBodyStats(view, h, bodies) {
 // A frame: its header, residuals (Float32Array view), the surface positions, each particle
 // body's positions (`bodies`, in the topology's order; [] without bodies) and their step
 // statistics (`bodyStats`: { error, maxError, stepMs, substeps, iterations, contacts,
-// toolContacts, bodyContacts } each; [] without). Float32 positions
+// toolContacts, bodyContacts, softBodyContacts, selfCollisionSuspended } each; [] without). Float32 positions
 // are views over the buffer (no copy); 16-bit ones are dequantised into `scratch` (a
 // Float32Array of 3 x vertices) and `bodyScratch[i]` (one per body), reused between frames,
 // when given, else into new arrays.

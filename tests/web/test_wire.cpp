@@ -237,10 +237,11 @@ v1::Frame sample_frame_with_body_stats() {
     const char* name;
     double error, max_error, ms;
     int substeps, iterations;
-    uint32_t contacts, tools, bodies;
-  } stats[] = {{"rope", 0.0125, 0.05, 0.25, 16, 1, 2, 0, 1},
-               {"sheet", 0.003, 0.0078125, 0.5, 16, 1, 0, 1, 0},
-               {"water", 0.015625, 0.125, 1.75, 2, 4, 7, 0, 3}};
+    uint32_t contacts, tools, bodies, soft_body;
+    bool suspended;
+  } stats[] = {{"rope", 0.0125, 0.05, 0.25, 16, 1, 2, 0, 1, 5, false},
+               {"sheet", 0.003, 0.0078125, 0.5, 16, 1, 0, 1, 0, 0, true},
+               {"water", 0.015625, 0.125, 1.75, 2, 4, 7, 0, 3, 11, false}};
   for (const auto& st : stats) {
     auto* b = f.mutable_solver()->add_bodies();
     b->set_name(st.name);
@@ -252,6 +253,8 @@ v1::Frame sample_frame_with_body_stats() {
     b->set_contacts(st.contacts);
     b->set_tool_contacts(st.tools);
     b->set_body_contacts(st.bodies);
+    b->set_soft_body_contacts(st.soft_body);
+    b->set_self_collision_suspended(st.suspended);
   }
   return f;
 }
@@ -261,11 +264,12 @@ TEST(WebWire, BodyStatisticsFollowTheBodiesAndMatchGoldenBytes) {
   const v1::Frame f = sample_frame_with_body_stats();
   const std::vector<uint32_t> counts{3, 4, 2};
   const std::string bytes = encode_frame(f, 9, Encoding::Float32, 3, s.bodies);
-  ASSERT_EQ(bytes.size(), frame_bytes(3, 2, Encoding::Float32, counts, true));
-  EXPECT_EQ(bytes.size(), frame_bytes(3, 2, Encoding::Float32, counts) + 4 + 3 * kBodyStatsBytes);
+  ASSERT_EQ(bytes.size(), frame_bytes(3, 2, Encoding::Float32, counts, true, true));
+  EXPECT_EQ(bytes.size(),
+            frame_bytes(3, 2, Encoding::Float32, counts) + 4 + 3 * kBodyStatsBytes + 4 + 3 * kBodyContactsBytes);
   EXPECT_EQ(hex(bytes), golden("frame_body_stats_float32.hex", hex(bytes)));
   const FrameHeader h = decode_frame_header(bytes);
-  EXPECT_EQ(h.flags, kFlagRolledBack | kFlagBodies | kFlagBodyStats);
+  EXPECT_EQ(h.flags, kFlagRolledBack | kFlagBodies | kFlagBodyStats | kFlagBodyContacts);
   // The positions read as without the statistics.
   EXPECT_EQ(decode_frame_bodies(bytes), decode_frame_bodies(encode_frame(sample_frame_with_bodies(), 9,
                                                                          Encoding::Float32, 3, s.bodies)));
@@ -279,14 +283,21 @@ TEST(WebWire, BodyStatisticsFollowTheBodiesAndMatchGoldenBytes) {
   EXPECT_EQ(st[2].contacts, 7u);
   EXPECT_EQ(st[1].tool_contacts, 1u);
   EXPECT_EQ(st[2].body_contacts, 3u);
+  EXPECT_EQ(st[0].soft_body_contacts, 5u);
+  EXPECT_EQ(st[2].soft_body_contacts, 11u);
+  EXPECT_FALSE(st[0].self_collision_suspended);
+  EXPECT_TRUE(st[1].self_collision_suspended);
   // Statistics that do not list the topology's bodies (another order) are left out.
   v1::Frame other = f;
   other.mutable_solver()->mutable_bodies(0)->set_name("sheet");
   const std::string without = encode_frame(other, 9, Encoding::Float32, 3, s.bodies);
-  EXPECT_EQ(decode_frame_header(without).flags & kFlagBodyStats, 0u);
+  EXPECT_EQ(decode_frame_header(without).flags & (kFlagBodyStats | kFlagBodyContacts), 0u);
   EXPECT_TRUE(decode_frame_body_stats(without).empty());
-  // Cut short, the frame is refused.
+  // Cut short, the frame is refused; a contacts block for another number of bodies too.
   EXPECT_THROW(decode_frame_header(bytes.substr(0, bytes.size() - 4)), std::invalid_argument);
+  std::string bad = bytes;
+  bad[bytes.size() - 3 * kBodyContactsBytes - 4] = 2;
+  EXPECT_THROW(decode_frame_body_stats(bad), std::invalid_argument);
 }
 
 TEST(WebWire, AFluidWithEmittersMayGrowUpToItsMostAndOthersMayNot) {

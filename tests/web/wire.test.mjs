@@ -6,7 +6,7 @@ import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 import { decodeFrame, decodeFrameHeader, decodeTopology, frameBytes, messageKind, KIND_FRAME, KIND_TOPOLOGY,
-  FLAG_BODIES, FLAG_BODY_STATS }
+  FLAG_BODIES, FLAG_BODY_STATS, FLAG_BODY_CONTACTS }
   from '../../web/wire.js';
 
 function golden(name) {
@@ -157,18 +157,18 @@ test('a frame with bodies cut short is refused', () => {
 
 test('frame with body statistics: after the bodies, one record per body', () => {
   const buf = golden('frame_body_stats_float32.hex');
-  assert.equal(buf.byteLength, frameBytes(3, 2, 0, [3, 4, 2], true));
-  assert.equal(buf.byteLength, frameBytes(3, 2, 0, [3, 4, 2]) + 4 + 3 * 32);
+  assert.equal(buf.byteLength, frameBytes(3, 2, 0, [3, 4, 2], true, true));
+  assert.equal(buf.byteLength, frameBytes(3, 2, 0, [3, 4, 2]) + 4 + 3 * 32 + 4 + 3 * 8);
   const { header, bodies, bodyStats } = decodeFrame(buf);
-  assert.equal(header.flags, FLAG_BODIES | FLAG_BODY_STATS | 1);
+  assert.equal(header.flags, FLAG_BODIES | FLAG_BODY_STATS | FLAG_BODY_CONTACTS | 1);
   for (let b = 0; b < 3; ++b) assert.deepEqual(Array.from(bodies[b]), bodyPositions[b].map(Math.fround));
   assert.deepEqual(bodyStats, [
     { error: Math.fround(0.0125), maxError: 0.05, stepMs: 0.25, substeps: 16, iterations: 1, contacts: 2,
-      toolContacts: 0, bodyContacts: 1 },
+      toolContacts: 0, bodyContacts: 1, softBodyContacts: 5, selfCollisionSuspended: false },
     { error: Math.fround(0.003), maxError: 0.0078125, stepMs: 0.5, substeps: 16, iterations: 1, contacts: 0,
-      toolContacts: 1, bodyContacts: 0 },
+      toolContacts: 1, bodyContacts: 0, softBodyContacts: 0, selfCollisionSuspended: true },
     { error: 0.015625, maxError: 0.125, stepMs: 1.75, substeps: 2, iterations: 4, contacts: 7, toolContacts: 0,
-      bodyContacts: 3 },
+      bodyContacts: 3, softBodyContacts: 11, selfCollisionSuspended: false },
   ].map((s) => ({ ...s, maxError: Math.fround(s.maxError) })));
   assert.deepEqual(decodeFrame(golden('frame_bodies_float32.hex')).bodyStats, []);
   assert.throws(() => decodeFrameHeader(buf.slice(0, buf.byteLength - 4)), /bytes, its header says/);

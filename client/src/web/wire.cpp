@@ -294,12 +294,13 @@ size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding) {
 }
 
 size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding, std::span<const uint32_t> body_particles,
-                   bool body_stats) {
+                   bool body_stats, bool body_contacts) {
   size_t n = frame_bytes(vertices, residuals, encoding);
   if (body_particles.empty()) return n;
   n += 4;
   for (uint32_t p : body_particles) n += 4 + position_bytes(p, encoding);
   if (body_stats) n += 4 + kBodyStatsBytes * body_particles.size();
+  if (body_contacts) n += 4 + kBodyContactsBytes * body_particles.size();
   return n;
 }
 
@@ -358,7 +359,7 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
   if (with_bodies)
     for (const auto& fb : f.bodies()) extend(fb.positions().data(), fb.positions_size());
 
-  Writer w(frame_bytes(n, r, encoding, counts, with_stats));
+  Writer w(frame_bytes(n, r, encoding, counts, with_stats, with_stats));
   w.put<uint8_t>(kKindFrame);
   w.put<uint8_t>(kWireVersion);
   w.put<uint8_t>(static_cast<uint8_t>(encoding));
@@ -379,7 +380,7 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
   w.put<int64_t>(f.published_unix_ns());            // 88
   w.put<uint32_t>(saturate_u32(f.rollbacks()));     // 96
   w.put<uint32_t>((f.rolled_back() ? kFlagRolledBack : 0u) | (with_bodies ? kFlagBodies : 0u) |
-                  (with_stats ? kFlagBodyStats : 0u));  // 100
+                  (with_stats ? kFlagBodyStats | kFlagBodyContacts : 0u));  // 100
   w.put_array(lo.data(), 3);                        // 104
   w.put_array(hi.data(), 3);                        // 116
   for (double res : f.residuals()) w.put<float>(static_cast<float>(res));  // 128
@@ -403,6 +404,11 @@ std::string encode_frame(const v1::Frame& f, uint32_t subscription, Encoding enc
       w.put<uint32_t>(s.contacts());
       w.put<uint32_t>(s.tool_contacts());
       w.put<uint32_t>(s.body_contacts());
+    }
+    w.put<uint32_t>(static_cast<uint32_t>(counts.size()));
+    for (const auto& s : f.solver().bodies()) {
+      w.put<uint32_t>(s.soft_body_contacts());
+      w.put<uint32_t>(s.self_collision_suspended() ? kBodySelfCollisionSuspended : 0u);
     }
   }
   return std::move(w.bytes());
@@ -437,7 +443,8 @@ FrameHeader decode_frame_header(const std::string& bytes) {
     h.bbox_max[k] = r.at<float>(116 + 4 * k);
   }
   const size_t expected =
-      frame_bytes(h.vertex_count, h.residual_count, h.encoding, frame_body_counts(r, h), (h.flags & kFlagBodyStats) != 0);
+      frame_bytes(h.vertex_count, h.residual_count, h.encoding, frame_body_counts(r, h), (h.flags & kFlagBodyStats) != 0,
+                  (h.flags & kFlagBodyStats) != 0 && (h.flags & kFlagBodyContacts) != 0);
   if (bytes.size() != expected)
     throw std::invalid_argument("frame of " + std::to_string(bytes.size()) + " bytes, its header says " +
                                 std::to_string(expected));
@@ -487,6 +494,17 @@ std::vector<BodyStats> decode_frame_body_stats(const std::string& bytes) {
     s.tool_contacts = r.at<uint32_t>(off + 24);
     s.body_contacts = r.at<uint32_t>(off + 28);
     out.push_back(s);
+  }
+  if (h.flags & kFlagBodyContacts) {
+    const uint32_t bc = r.at<uint32_t>(off);
+    if (bc != b)
+      throw std::invalid_argument("frame body contacts for " + std::to_string(bc) + " bodies, statistics for " +
+                                  std::to_string(b));
+    off += 4;
+    for (uint32_t i = 0; i < b; ++i, off += kBodyContactsBytes) {
+      out[i].soft_body_contacts = r.at<uint32_t>(off);
+      out[i].self_collision_suspended = (r.at<uint32_t>(off + 4) & kBodySelfCollisionSuspended) != 0;
+    }
   }
   return out;
 }

@@ -27,6 +27,10 @@ inline constexpr uint32_t kFlagRolledBack = 1u << 0;
 inline constexpr uint32_t kFlagBodies = 1u << 1;  // particle bodies follow the surface positions
 inline constexpr uint32_t kFlagBodyStats = 1u << 2;  // each body's step statistics follow the bodies
 inline constexpr size_t kBodyStatsBytes = 32;         // one body's statistics record
+// Each body's contacts with the soft body and its step's flags follow the statistics.
+inline constexpr uint32_t kFlagBodyContacts = 1u << 3;
+inline constexpr size_t kBodyContactsBytes = 8;  // u32 soft-body contacts, u32 flags
+inline constexpr uint32_t kBodySelfCollisionSuspended = 1u << 0;  // its flags: self-collision left out
 // A particle body's record in the topology: 20 fixed bytes, then its name padded to 4.
 inline constexpr size_t kBodyRecordBytes = 20;
 
@@ -126,15 +130,18 @@ struct BodyStats {
   uint32_t iterations = 0;         // per substep
   uint32_t contacts = 0;           // particle-collider contacts in the last substep
   uint32_t tool_contacts = 0;      // particles the tools pushed
-  uint32_t body_contacts = 0;      // particles the cloths pushed
+  uint32_t body_contacts = 0;      // particles and points along links the cloths and ropes pushed
+  // With kFlagBodyContacts (else 0 / false):
+  uint32_t soft_body_contacts = 0;       // particles and points along links the soft body pushed
+  bool self_collision_suspended = false;  // a cloth's tick left self-collision out (over-stretched)
 };
 // Each body's statistics, in the topology's order; empty when the frame has none.
 std::vector<BodyStats> decode_frame_body_stats(const std::string& bytes);
 
 // Bytes of one frame with n surface vertices and r residuals (and these particle bodies, with
-// their statistics when body_stats).
+// their statistics when body_stats and their contacts when body_contacts).
 size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding);
 size_t frame_bytes(uint32_t vertices, uint32_t residuals, Encoding encoding,
-                   std::span<const uint32_t> body_particles, bool body_stats = false);
+                   std::span<const uint32_t> body_particles, bool body_stats = false, bool body_contacts = false);
 
 }  // namespace pliant::web
