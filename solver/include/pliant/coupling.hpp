@@ -64,8 +64,10 @@ CouplingReport couple_particles_to_body(const BodyModel& model, BodyState& body,
 // `segments` (the first body's links or edges) keep the radius along their length too, as in
 // couple_particles_to_body: their inside points, no farther apart than the radius, are treated as
 // particles moved across their segment, the move and the impulse shared by the segment's two
-// particles (counted in segment_contacts). Throws std::invalid_argument naming the field when
-// sizes disagree or settings are out of range.
+// particles (counted in segment_contacts); a segment one of whose particles touched, or one
+// through the cloth at both the start and the end of the step (threaded), is left to its
+// particles. Throws std::invalid_argument naming the field when sizes disagree or settings are
+// out of range.
 CouplingReport couple_particles_to_cloth(ParticleState& particles, std::span<const double> particle_inv_mass,
                                          std::span<const Vec3> particle_start, ParticleState& cloth,
                                          std::span<const double> cloth_inv_mass,
@@ -84,7 +86,8 @@ CouplingReport couple_particles_to_cloth(ParticleState& particles, std::span<con
 // shared by the segment's ends: momentum is exact. `force_on_body`: the particles' push on the
 // rope over dt (its pinned particles' share included). `*_start`: the positions at the start of
 // the step. `segments`: the first body's links or edges, along their length as against a cloth
-// (a link crossing the rope between its two particles). Throws std::invalid_argument naming the
+// (a link crossing the rope between its two particles; one whose particle touched is left to its
+// particles). Throws std::invalid_argument naming the
 // field when sizes disagree or settings are out of range.
 CouplingReport couple_particles_to_rope(ParticleState& particles, std::span<const double> particle_inv_mass,
                                         std::span<const Vec3> particle_start, ParticleState& rope,
