@@ -1123,7 +1123,7 @@ TEST(Bodies, ARopeUnderAFallingClothStaysWhole) {
   // substeps for it: it stretches, the log says so), falling onto the rope and wrapping it, and a
   // box of water with a tap. The rope and the cloth touch each other along their links and edges.
   // Every tick for 5 s the rope's RMS stretch stays
-  // under 50% (about a quarter at the impact, a few percent after); when a link's points were
+  // under 50% (32% at the impact, a few percent after); when a link's points were
   // pushed out of the cloth while its beads were in contact too, it reached 43 times (the
   // browser's table showed the rope at 517% to 3965%).
   BodiesServer srv;
