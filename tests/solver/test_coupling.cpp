@@ -633,6 +633,20 @@ struct FallingLink {
   Vec3 momentum() const { return ps.v[0] / w[0] + ps.v[1] / w[1]; }
 };
 
+// A still strip of cloth 20 cm along x and 2 x half_width wide (two triangles, corners of 5 g)
+// at y = 0, as the contact sees it: its state, where it started, triangles and inverse masses.
+struct Strip {
+  ParticleState state;
+  std::vector<Vec3> start;
+  std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
+  std::vector<double> w = std::vector<double>(4, 200.0);
+  explicit Strip(double half_width) {
+    state.x = {Vec3(0, 0, -half_width), Vec3(0.2, 0, -half_width), Vec3(0, 0, half_width), Vec3(0.2, 0, half_width)};
+    state.v.assign(4, Vec3::Zero());
+    start = state.x;
+  }
+};
+
 TEST(RopeContact, ALinkCrossingARopeBetweenTheirBeadsIsHeldAlongItsLengthWithMomentumExact) {
   // A free rope of one 10 cm link along x (beads of 10 g), still; the falling link crosses its
   // middle. Bead against link finds nothing; with the falling body's segments the link's inside
@@ -686,34 +700,26 @@ TEST(ClothContact, ALinkFallingAcrossAClothStripBetweenItsBeadsStaysOnItsSide) {
   // link's segments its points over the strip end above it at the radius or more, both beads
   // with them, and the momentum is unchanged; without them the link falls through.
   const double radius = 0.006, dt = 1.0 / 60;
-  auto fresh_strip = [] {
-    ParticleState strip;
-    strip.x = {Vec3(0, 0, -0.01), Vec3(0.2, 0, -0.01), Vec3(0, 0, 0.01), Vec3(0.2, 0, 0.01)};
-    strip.v.assign(4, Vec3::Zero());
-    return strip;
-  };
-  const std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
-  const std::vector<double> wc(4, 200.0);
   CouplingSettings set;
   set.radius = radius;
   {
-    ParticleState strip = fresh_strip();
-    const std::vector<Vec3> strip_start = strip.x;
+    Strip free(0.01);
     FallingLink link(0.1);
-    const CouplingReport rep =
-        couple_particles_to_cloth(link.ps, link.w, link.start, strip, wc, triangles, strip_start, set, dt);
+    const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, free.state, free.w,
+                                                         free.triangles, free.start, set, dt);
     EXPECT_EQ(rep.contacts + rep.segment_contacts, 0u);
     EXPECT_LT(link.ps.x[0].y(), 0) << "without its segments the link falls through the strip";
   }
-  ParticleState strip = fresh_strip();
-  const std::vector<Vec3> strip_start = strip.x;
+  Strip cloth(0.01);
+  ParticleState& strip = cloth.state;
+  const std::vector<double>& wc = cloth.w;
   FallingLink link(0.1);
   Vec3 p0 = link.momentum();
-  const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, strip, wc, triangles, strip_start,
-                                                       set, dt, link.segments);
+  const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, strip, wc, cloth.triangles,
+                                                       cloth.start, set, dt, link.segments);
   EXPECT_EQ(rep.contacts, 0u);
   EXPECT_GT(rep.segment_contacts, 0u);
-  EXPECT_EQ(strip.x, strip_start) << "the cloth takes momentum, not a position correction";
+  EXPECT_EQ(strip.x, cloth.start) << "the cloth takes momentum, not a position correction";
   for (int k = 0; k <= 100; ++k) {
     const Vec3 p = link.ps.x[0] + (link.ps.x[1] - link.ps.x[0]) * (k / 100.0);
     if (std::abs(p.z()) <= 0.01) EXPECT_GT(p.y(), std::sqrt(3.0) / 2 * radius - 1e-12) << "at z = " << p.z();
@@ -732,12 +738,7 @@ TEST(ClothContact, ALinkThreadedThroughTheClothIsLeftToItsParticles) {
   // the radius): threaded through the cloth, as a rope sewn through a drape. Its points near the
   // crossing are within the radius of the strip on both sides; pushing them out would drag the
   // beads, each on its own side, towards the cloth every tick. They are left alone.
-  ParticleState strip;
-  strip.x = {Vec3(0, 0, -0.01), Vec3(0.2, 0, -0.01), Vec3(0, 0, 0.01), Vec3(0.2, 0, 0.01)};
-  strip.v.assign(4, Vec3::Zero());
-  const std::vector<Vec3> strip_start = strip.x;
-  const std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
-  const std::vector<double> wc(4, 200.0);
+  Strip strip(0.01);
   ParticleState link;
   link.x = {Vec3(0.05, 0.02, 0), Vec3(0.15, -0.02, 0)};
   link.v.assign(2, Vec3::Zero());
@@ -746,11 +747,11 @@ TEST(ClothContact, ALinkThreadedThroughTheClothIsLeftToItsParticles) {
   const std::vector<std::array<uint32_t, 2>> segments{{0, 1}};
   CouplingSettings set;
   set.radius = 0.006;
-  const CouplingReport rep =
-      couple_particles_to_cloth(link, wl, link_start, strip, wc, triangles, strip_start, set, 1.0 / 60, segments);
+  const CouplingReport rep = couple_particles_to_cloth(link, wl, link_start, strip.state, strip.w, strip.triangles,
+                                                       strip.start, set, 1.0 / 60, segments);
   EXPECT_EQ(rep.contacts + rep.segment_contacts, 0u);
   EXPECT_EQ(link.x, link_start);
-  EXPECT_EQ(strip.v[0], Vec3::Zero());
+  EXPECT_EQ(strip.state.v[0], Vec3::Zero());
 }
 
 TEST(ClothContact, ALinkWhoseParticleTouchesIsLeftToItsParticles) {
@@ -759,12 +760,7 @@ TEST(ClothContact, ALinkWhoseParticleTouchesIsLeftToItsParticles) {
   // The bead's own contact holds it; the link's points are not pushed as well (where a rope
   // lies in a crumpled cloth that pushed its beads back into triangles their contacts had just
   // cleared).
-  ParticleState strip;
-  strip.x = {Vec3(0, 0, -0.02), Vec3(0.2, 0, -0.02), Vec3(0, 0, 0.02), Vec3(0.2, 0, 0.02)};
-  strip.v.assign(4, Vec3::Zero());
-  const std::vector<Vec3> strip_start = strip.x;
-  const std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
-  const std::vector<double> wc(4, 200.0);
+  Strip strip(0.02);
   ParticleState link;
   link.x = {Vec3(0.1, 0.004, -0.01), Vec3(0.1, 0.004, 0.06)};
   link.v.assign(2, Vec3(0, -0.1, 0));
@@ -773,8 +769,8 @@ TEST(ClothContact, ALinkWhoseParticleTouchesIsLeftToItsParticles) {
   const std::vector<std::array<uint32_t, 2>> segments{{0, 1}};
   CouplingSettings set;
   set.radius = 0.006;
-  const CouplingReport rep =
-      couple_particles_to_cloth(link, wl, link_start, strip, wc, triangles, strip_start, set, 1.0 / 60, segments);
+  const CouplingReport rep = couple_particles_to_cloth(link, wl, link_start, strip.state, strip.w, strip.triangles,
+                                                       strip.start, set, 1.0 / 60, segments);
   EXPECT_EQ(rep.contacts, 1u);
   EXPECT_EQ(rep.segment_contacts, 0u);
   EXPECT_NEAR(link.x[0].y(), 0.006, 1e-12);
@@ -786,13 +782,8 @@ TEST(ClothContact, ATriangleSweptFromFarAwayDoesNotStallTheSearch) {
   // triangle's swept box would span about 1e17 cells of the contact's size. The search grows its
   // cells instead (at most 64 entries a triangle), and a particle falling through the strip's
   // other triangle is still held.
-  ParticleState strip;
-  strip.x = {Vec3(0, 0, -0.01), Vec3(0.2, 0, -0.01), Vec3(0, 0, 0.01), Vec3(0.2, 0, 0.01)};
-  strip.v.assign(4, Vec3::Zero());
-  std::vector<Vec3> strip_start = strip.x;
-  strip_start[0] = Vec3(1e7, 1e7, 1e7);
-  const std::vector<std::array<uint32_t, 3>> triangles{{0, 1, 2}, {1, 3, 2}};
-  const std::vector<double> wc(4, 200.0);
+  Strip strip(0.01);
+  strip.start[0] = Vec3(1e7, 1e7, 1e7);
   ParticleState ps;
   ps.x = {Vec3(0.15, -0.01, 0.005)};
   ps.v = {Vec3(0, -1.2, 0)};
@@ -800,7 +791,8 @@ TEST(ClothContact, ATriangleSweptFromFarAwayDoesNotStallTheSearch) {
   const std::vector<double> wp{100.0};
   CouplingSettings set;
   set.radius = 0.005;
-  const CouplingReport rep = couple_particles_to_cloth(ps, wp, start, strip, wc, triangles, strip_start, set, 1.0 / 60);
+  const CouplingReport rep =
+      couple_particles_to_cloth(ps, wp, start, strip.state, strip.w, strip.triangles, strip.start, set, 1.0 / 60);
   EXPECT_EQ(rep.contacts, 1u);
   EXPECT_NEAR(ps.x[0].y(), 0.005, 1e-12);
 }
