@@ -6,10 +6,12 @@
 // The counter s_per_tet_iter is wall time / (iterations x tets) of one substep solve.
 // step_* (the whole step: prediction, sweeps, floor contacts, inversion floor, velocities) is
 // the armadillo standing on its feet (vertices with y <= -0.040 fixed, as the service's
-// armadillo scene), E 1 MPa, under gravity, above a floor plane, 1 substep of 1/60 s, after
-// kWarmTicks ticks from rest; every timed step starts from that same state. s_per_tet_iter is
-// wall time / (tets x substeps x iterations); floor_corrections the last step's inversion-floor
-// corrections. Public API only (and the flop count where the library has it), so that the
+// armadillo scene), E 1 MPa, under gravity, above a floor plane, one tick of 1/60 s in S
+// substeps x N iterations (step_xpbd_SxN: 1 x N the tangled scene, 64 x 1 the default budget),
+// after kWarmTicks ticks from rest; every timed step starts from that same state. s_per_tet_iter
+// is wall time / (tets x substeps x iterations); floor_corrections the last step's
+// inversion-floor corrections; projection_ms / residual_ms / other_ms the last step's split
+// (other: prediction, contacts, the floor, velocities). Public API only (and the flop count where the library has it), so that the
 // same file builds against an older library for before/after runs.
 // flops_per_tet / flop_per_s (gs_*, jacobi_*): the projection's arithmetic, counted by the
 // kernel itself (detail::mean_projection_flops), and the rate the solve achieved with it.
