@@ -1123,9 +1123,10 @@ TEST(Bodies, ARopeUnderAFallingClothStaysWhole) {
   // substeps for it: it stretches, the log says so), falling onto the rope and wrapping it, and a
   // box of water with a tap. The rope and the cloth touch each other along their links and edges.
   // Every tick for 5 s the rope's RMS stretch stays
-  // under 50% (32% at the impact, a few percent after); when a link's points were
-  // pushed out of the cloth while its beads were in contact too, it reached 43 times (the
-  // browser's table showed the rope at 517% to 3965%).
+  // under 100% (the scene is chaotic: its peak at the impact was 32% in the GCC build and 53% in
+  // the sanitizers' Clang build, a few percent after); when a link's points were pushed out of
+  // the cloth while its beads were in contact too, it reached 43 times (the browser's table
+  // showed the rope at 517% to 3965%).
   BodiesServer srv;
   Client c = srv.client();
   v1::CreateSceneRequest r = beam_scene("wrap");
@@ -1182,7 +1183,7 @@ TEST(Bodies, ARopeUnderAFallingClothStaysWhole) {
     contacts += f.solver().bodies(0).body_contacts() + f.solver().bodies(1).body_contacts();
   }
   EXPECT_GT(contacts, 0u) << "the cloth reaches the rope";
-  EXPECT_LT(worst, 0.5) << "the rope's largest RMS stretch";
+  EXPECT_LT(worst, 1.0) << "the rope's largest RMS stretch";
 }
 
 // beam1 clamped at x <= 0.01, soft (100 kPa) so it sags far, over a drape of two triangles
