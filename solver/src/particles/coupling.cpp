@@ -67,6 +67,23 @@ struct Point {
   Vec3 at(std::span<const Vec3> x) const { return s == 0 ? x[i] : Vec3((1 - s) * x[i] + s * x[j]); }
 };
 
+// The points inside segment i-j of this length, no farther apart than the radius and at most
+// 64: fn(point) for each (none for a segment no longer than the radius).
+template <class Fn>
+void for_each_point_inside(uint32_t i, uint32_t j, double length, double radius, const Fn& fn) {
+  const int inside = std::min(64, int(std::ceil(length / radius)) - 1);
+  for (int k = 1; k <= inside; ++k) fn(Point{i, j, double(k) / double(inside + 1)});
+}
+
+// The move of a segment's point (direction u) out of a contact of normal n and depth -C: across
+// the segment only (a move along it slides the segment without changing its line), scaled so
+// that its step along n is -C; a = |n across u| (kMinAcross bounds it away from 0).
+Vec3 move_across(const Vec3& n, const Vec3& u, double C, double& a) {
+  const Vec3 dir = n - n.dot(u) * u;
+  a = dir.norm();
+  return (-C / (a * a)) * dir;
+}
+
 struct PointContact {
   Point point;
   int32_t triangle;
@@ -237,16 +254,14 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
     const double length = (ps.x[i] - ps.x[j]).norm();
     if (!(length > 0)) continue;
     const Vec3 u = (ps.x[j] - ps.x[i]) / length;
-    const int inside = std::min(64, int(std::ceil(length / s.radius)) - 1);  // interior points
-    for (int k = 1; k <= inside; ++k) {
-      const Point pt{i, j, double(k) / double(inside + 1)};
+    for_each_point_inside(i, j, length, s.radius, [&](const Point& pt) {
       const Vec3 now = pt.at(x), from = pt.at(start);
       PointContact c;
       double depth = 0;
-      if (!find_contact(m, body, grid, pt, from, now, &u, s.radius, swept, c, depth)) continue;
+      if (!find_contact(m, body, grid, pt, from, now, &u, s.radius, swept, c, depth)) return;
       rep.max_depth = std::max(rep.max_depth, depth);
       contacts.push_back(c);
-    }
+    });
   }
   rep.contacts = particle_contacts;
   rep.segment_contacts = contacts.size() - particle_contacts;
@@ -278,10 +293,8 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
       // A segment's point moves across the segment (see `across`): over a body's edge the part
       // of the face normal across the segment is the edge-edge contact's normal (edge x
       // segment); on a face it is the normal itself.
-      const Vec3 u = (ps.x[pt.j] - ps.x[pt.i]).normalized();
-      const Vec3 dir = c.n - c.n.dot(u) * u;
-      const double a = dir.norm();
-      move = (-C / (a * a)) * dir;           // its step along c.n is -C
+      double a;
+      move = move_across(c.n, (ps.x[pt.j] - ps.x[pt.i]).normalized(), C, a);
     }
     if (s.friction > 0) {
       // The point's slip against the surface point over the step, tangential part, taken back
@@ -416,26 +429,21 @@ void for_each_contact_point(const ParticleState& ps, std::span<const Vec3> start
     if (!ps.x[i].allFinite() || !ps.x[j].allFinite() || !start[i].allFinite() || !start[j].allFinite()) continue;
     const double length = (ps.x[i] - ps.x[j]).norm();
     if (!(length > 0)) continue;
-    const int inside = std::min(64, int(std::ceil(length / radius)) - 1);  // interior points
-    for (int k = 1; k <= inside; ++k) {
-      const Point pt{i, j, double(k) / double(inside + 1)};
-      fn(pt, pt.at(start), pt.at(std::span<const Vec3>(ps.x)));
-    }
+    for_each_point_inside(i, j, length, radius,
+                          [&](const Point& pt) { fn(pt, pt.at(start), pt.at(std::span<const Vec3>(ps.x))); });
   }
 }
 
-// A segment's point moves across the segment (as against the soft body: a move along it slides
-// the link without changing its line): the target `now - C n` becomes now + move with move the
-// part of -C n across the segment, scaled so that its step along n is still -C. False when the
-// segment lies within 14 degrees of n (its particles' own contacts are the ones that hold it).
+// A segment's point moves across the segment (move_across, as against the soft body): the
+// target `now - C n` becomes now + that move. False when the segment lies within 14 degrees of n
+// (its particles' own contacts are the ones that hold it).
 bool across_segment(const ParticleState& ps, const Point& pt, const Vec3& now, const Vec3& n, double C,
                     Vec3& target) {
   if (pt.j == pt.i) return true;
-  const Vec3 u = (ps.x[pt.j] - ps.x[pt.i]).normalized();
-  const Vec3 dir = n - n.dot(u) * u;
-  const double a = dir.norm();
+  double a;
+  const Vec3 move = move_across(n, (ps.x[pt.j] - ps.x[pt.i]).normalized(), C, a);
   if (!(a >= kMinAcross)) return false;
-  target = now + (-C / (a * a)) * dir;
+  target = now + move;
   return true;
 }
 
