@@ -617,21 +617,27 @@ TEST(RopeContact, APinnedRopeHoldsATouchingParticleAndBadInputsAreRefused) {
                std::invalid_argument);
 }
 
-// A link of two 10 g beads along z, 10 cm long, falling 3.5 cm in the step across x = x0: its
-// beads pass 5 cm either side of whatever it crosses at its middle, farther than any contact
-// radius here, so only the points along the link can see that.
-struct FallingLink {
+// A link of two 10 g beads (inverse mass 100) that moved from `from` to `to` in a 60 Hz step.
+struct Link {
   ParticleState ps;
   std::vector<Vec3> start;
   std::vector<double> w{100.0, 100.0};
   std::vector<std::array<uint32_t, 2>> segments{{0, 1}};
-  explicit FallingLink(double x0) {
-    start = {Vec3(x0, 0.02, -0.05), Vec3(x0, 0.02, 0.05)};
-    ps.x = {Vec3(x0 + 0.002, -0.015, -0.05), Vec3(x0 + 0.002, -0.015, 0.05)};
-    ps.v = {(ps.x[0] - start[0]) * 60.0, (ps.x[1] - start[1]) * 60.0};
+  Link(const std::array<Vec3, 2>& from, const std::array<Vec3, 2>& to) {
+    start = {from[0], from[1]};
+    ps.x = {to[0], to[1]};
+    ps.v = {(to[0] - from[0]) * 60.0, (to[1] - from[1]) * 60.0};
   }
   Vec3 momentum() const { return ps.v[0] / w[0] + ps.v[1] / w[1]; }
 };
+
+// A link along z, 10 cm long, falling 3.5 cm in the step across x = x0: its beads pass 5 cm
+// either side of whatever it crosses at its middle, farther than any contact radius here, so
+// only the points along the link can see that.
+Link falling_link(double x0) {
+  return Link({Vec3(x0, 0.02, -0.05), Vec3(x0, 0.02, 0.05)},
+              {Vec3(x0 + 0.002, -0.015, -0.05), Vec3(x0 + 0.002, -0.015, 0.05)});
+}
 
 // A still strip of cloth 20 cm along x and 2 x half_width wide (two triangles, corners of 5 g)
 // at y = 0, as the contact sees it: its state, where it started, triangles and inverse masses.
@@ -666,7 +672,7 @@ TEST(RopeContact, ALinkCrossingARopeBetweenTheirBeadsIsHeldAlongItsLengthWithMom
   {
     ParticleState rope = fresh_rope();
     const std::vector<Vec3> rope_start = rope.x;
-    FallingLink link(0.05);
+    Link link = falling_link(0.05);
     const ParticleState before = link.ps;
     const CouplingReport rep = couple_particles_to_rope(link.ps, link.w, link.start, rope, wr, rope_start, set, dt);
     EXPECT_EQ(rep.contacts + rep.segment_contacts, 0u) << "the beads alone pass beside the rope";
@@ -674,7 +680,7 @@ TEST(RopeContact, ALinkCrossingARopeBetweenTheirBeadsIsHeldAlongItsLengthWithMom
   }
   ParticleState rope = fresh_rope();
   const std::vector<Vec3> rope_start = rope.x;
-  FallingLink link(0.05);
+  Link link = falling_link(0.05);
   const Vec3 p0 = link.momentum();
   const CouplingReport rep =
       couple_particles_to_rope(link.ps, link.w, link.start, rope, wr, rope_start, set, dt, link.segments);
@@ -704,7 +710,7 @@ TEST(ClothContact, ALinkFallingAcrossAClothStripBetweenItsBeadsStaysOnItsSide) {
   set.radius = radius;
   {
     Strip free(0.01);
-    FallingLink link(0.1);
+    Link link = falling_link(0.1);
     const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, free.state, free.w,
                                                          free.triangles, free.start, set, dt);
     EXPECT_EQ(rep.contacts + rep.segment_contacts, 0u);
@@ -713,7 +719,7 @@ TEST(ClothContact, ALinkFallingAcrossAClothStripBetweenItsBeadsStaysOnItsSide) {
   Strip cloth(0.01);
   ParticleState& strip = cloth.state;
   const std::vector<double>& wc = cloth.w;
-  FallingLink link(0.1);
+  Link link = falling_link(0.1);
   Vec3 p0 = link.momentum();
   const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, strip, wc, cloth.triangles,
                                                        cloth.start, set, dt, link.segments);
@@ -739,18 +745,14 @@ TEST(ClothContact, ALinkThreadedThroughTheClothIsLeftToItsParticles) {
   // crossing are within the radius of the strip on both sides; pushing them out would drag the
   // beads, each on its own side, towards the cloth every tick. They are left alone.
   Strip strip(0.01);
-  ParticleState link;
-  link.x = {Vec3(0.05, 0.02, 0), Vec3(0.15, -0.02, 0)};
-  link.v.assign(2, Vec3::Zero());
-  const std::vector<Vec3> link_start = link.x;
-  const std::vector<double> wl{100.0, 100.0};
-  const std::vector<std::array<uint32_t, 2>> segments{{0, 1}};
+  const std::array<Vec3, 2> still{Vec3(0.05, 0.02, 0), Vec3(0.15, -0.02, 0)};
+  Link link(still, still);
   CouplingSettings set;
   set.radius = 0.006;
-  const CouplingReport rep = couple_particles_to_cloth(link, wl, link_start, strip.state, strip.w, strip.triangles,
-                                                       strip.start, set, 1.0 / 60, segments);
+  const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, strip.state, strip.w,
+                                                       strip.triangles, strip.start, set, 1.0 / 60, link.segments);
   EXPECT_EQ(rep.contacts + rep.segment_contacts, 0u);
-  EXPECT_EQ(link.x, link_start);
+  EXPECT_EQ(link.ps.x, link.start);
   EXPECT_EQ(strip.state.v[0], Vec3::Zero());
 }
 
@@ -761,20 +763,15 @@ TEST(ClothContact, ALinkWhoseParticleTouchesIsLeftToItsParticles) {
   // lies in a crumpled cloth that pushed its beads back into triangles their contacts had just
   // cleared).
   Strip strip(0.02);
-  ParticleState link;
-  link.x = {Vec3(0.1, 0.004, -0.01), Vec3(0.1, 0.004, 0.06)};
-  link.v.assign(2, Vec3(0, -0.1, 0));
-  const std::vector<Vec3> link_start{Vec3(0.1, 0.006, -0.01), Vec3(0.1, 0.006, 0.06)};
-  const std::vector<double> wl{100.0, 100.0};
-  const std::vector<std::array<uint32_t, 2>> segments{{0, 1}};
+  Link link({Vec3(0.1, 0.006, -0.01), Vec3(0.1, 0.006, 0.06)}, {Vec3(0.1, 0.004, -0.01), Vec3(0.1, 0.004, 0.06)});
   CouplingSettings set;
   set.radius = 0.006;
-  const CouplingReport rep = couple_particles_to_cloth(link, wl, link_start, strip.state, strip.w, strip.triangles,
-                                                       strip.start, set, 1.0 / 60, segments);
+  const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, strip.state, strip.w,
+                                                       strip.triangles, strip.start, set, 1.0 / 60, link.segments);
   EXPECT_EQ(rep.contacts, 1u);
   EXPECT_EQ(rep.segment_contacts, 0u);
-  EXPECT_NEAR(link.x[0].y(), 0.006, 1e-12);
-  EXPECT_EQ(link.x[1], Vec3(0.1, 0.004, 0.06));
+  EXPECT_NEAR(link.ps.x[0].y(), 0.006, 1e-12);
+  EXPECT_EQ(link.ps.x[1], Vec3(0.1, 0.004, 0.06));
 }
 
 TEST(ClothContact, ATriangleSweptFromFarAwayDoesNotStallTheSearch) {
