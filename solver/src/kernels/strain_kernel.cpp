@@ -625,13 +625,13 @@ T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x) {
 }
 
 template <class T>
-int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor) {
+int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor, double trigger) {
   T f[3][3];
   deformation(p, x, f);
   const T J = det3(f);
   int below = 0;
   for (int l = 0; l < p.lanes; ++l)
-    if (get_lane(J, l) < floor) below |= 1 << l;
+    if (get_lane(J, l) < trigger) below |= 1 << l;
   if (!below) return 0;
   // grad_k det F = cof(F) b_k, b_k the rows of D_m^-1 (b_3 = -(b_0 + b_1 + b_2)); the columns of
   // cof(F) are f_1 x f_2, f_2 x f_0, f_0 x f_1.
@@ -685,7 +685,7 @@ double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, 
   template void apply_increment_lanes(const TetLanes<T>&, std::vector<Vec3>&, const std::vector<Vec6>&,            \
                                       ElasticModel);                                                               \
   template T volume_ratio_lanes(const TetLanes<T>&, const std::vector<Vec3>&);                                     \
-  template int volume_floor_pack(const TetLanes<T>&, std::vector<Vec3>&, double);                                \
+  template int volume_floor_pack(const TetLanes<T>&, std::vector<Vec3>&, double, double);                        \
   template double residual_squared_lanes(const TetLanes<T>&, const std::vector<Vec3>&, const std::vector<Vec6>&,   \
                                          const Mat6&, ElasticModel);
 #pragma GCC diagnostic push

@@ -139,10 +139,11 @@ template <class T>
 T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x);
 
 // The inversion floor on the real lanes (tets of one colour) from the pack's own rest data: each
-// lane with det F below the floor takes the linearised correction of enforce_volume_floor
-// (projection.hpp), all lanes at once. Returns the corrected lanes as a bit mask.
+// lane with det F below `trigger` (the floor, or a hair under it) takes the linearised correction
+// of enforce_volume_floor (projection.hpp) towards the floor, all lanes at once. Returns the
+// corrected lanes as a bit mask.
 template <class T>
-int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor);
+int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor, double trigger);
 
 // Sum over the real lanes of ||C + alpha~ lambda||^2 (lambda in slots).
 template <class T>

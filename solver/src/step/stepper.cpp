@@ -28,8 +28,21 @@ namespace {
 
 // End-of-substep passes of the inversion floor: the first visits every tet, the later ones only
 // the tets with a corner that a floor correction has moved since (docs/solver.md, "The floor
-// pass"), until a pass corrects nothing or kVolumePasses have run.
+// pass"), until a pass corrects nothing or kVolumePasses have run. When kSettleAfter passes have
+// not ended it, each later pass is followed by up to kSettlePasses passes over the packs the
+// floor has acted on in this substep: they settle a cluster of neighbouring slivers that the
+// passes alone bring back only slowly. (Settling from the second pass on kept the hippo at 10
+// and 100 kPa from coming to rest: docs/solver.md, "The floor pass".)
 constexpr int kVolumePasses = 40;
+constexpr int kSettleAfter = 16;
+constexpr int kSettlePasses = 100;
+// The settling passes of a substep visit at most this many times the model's pack count in all
+// (a tangled body's floor acts on thousands of packs and does not settle: there they would
+// cost many full passes).
+constexpr double kSettleVisits = 1.0;
+// A tet acts when det F is under the floor by more than this fraction of it: a settled cluster,
+// each tet on the floor to rounding, then stops acting.
+constexpr double kFloorSlack = 1e-6;
 
 // Adds the elapsed time of a scope to a counter.
 struct PhaseTimer {
@@ -80,6 +93,10 @@ struct Stepper::Impl {
   std::vector<int32_t> floor_moved;       // vertices the last floor pass moved
   std::vector<std::vector<int32_t>> floor_moved_chunks;  // per thread
   std::vector<int32_t> floor_queue;                    // packs to correct (a min-heap)
+  std::vector<int32_t> floor_acted;                    // packs the floor acted on in this substep
+  std::vector<char> floor_acted_mark;                  // per pack: in floor_acted
+  std::vector<std::vector<int32_t>> floor_acted_chunks;  // per thread
+  size_t floor_settle_visits = 0;                      // pack visits left to this substep's settling
 
   // The accelerator of the last substep, kept with its buffers while its settings stay.
   std::unique_ptr<detail::Accelerator> accel;
@@ -193,24 +210,32 @@ struct Stepper::Impl {
         floor_serial >= UINT32_MAX - 1) {
       floor_stamp.assign(m.vertex_count(), 0);
       floor_pack_mark.assign(packed.packs.size(), 0);
+      floor_acted_mark.assign(packed.packs.size(), 0);
+      floor_acted.clear();
       floor_serial = 0;
     }
     const uint32_t serial = ++floor_serial;  // stamps >= serial - 1: moved in the last pass or this one
     if (!all && floor_moved.size() * 8 < packed.packs.size()) return volume_pass_from_moved(m, x, floor, serial);
     floor_hits_per_chunk.assign(tp.size(), 0);
     floor_moved_chunks.resize(tp.size());
+    floor_acted_chunks.resize(tp.size());
     for (auto& v : floor_moved_chunks) v.clear();
+    for (auto& v : floor_acted_chunks) v.clear();
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
         const detail::TetPack& p = packed.packs[i];
         if (!all && !pack_moved(p, serial - 1)) continue;
-        hits += correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
+        const int h = correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
+        if (h) floor_acted_chunks[chunk].push_back(int32_t(i));
+        hits += h;
       }
       floor_hits_per_chunk[chunk] += hits;
     });
     floor_moved.clear();
     for (const auto& v : floor_moved_chunks) floor_moved.insert(floor_moved.end(), v.begin(), v.end());
+    for (const auto& v : floor_acted_chunks)
+      for (int32_t q : v) note_acted(q);
     int total = 0;
     for (int h : floor_hits_per_chunk) total += h;
     return total;
@@ -239,17 +264,57 @@ struct Stepper::Impl {
       const int32_t q = floor_queue.back();
       floor_queue.pop_back();
       const size_t before = floor_moved.size();
-      hits += correct_pack(packed.packs[size_t(q)], x, floor, serial, floor_moved);
+      const int h = correct_pack(packed.packs[size_t(q)], x, floor, serial, floor_moved);
+      if (h) note_acted(q);
+      hits += h;
       for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], q);
     }
     return hits;
+  }
+
+  // Passes over the packs the floor has acted on in this substep, in storage order, until one
+  // acts on none, kSettlePasses have run or stop() says to end. A cluster of slivers that invert
+  // each other (typically next to fixed corners) comes back by a small fraction a pass when
+  // each pass reaches it only through the vertices the previous one moved; passes over just the
+  // cluster settle it in a few. Part of the pass made just before (same serial: the vertices
+  // they move are the next pass's to follow). Returns the corrections made.
+  template <class Stop>
+  int settle_acted(const BodyModel& m, std::vector<Vec3>& x, double floor, const Stop& stop) {
+    const detail::PackedModel& packed = detail::packed(m);
+    // A cluster is a small part of the body; a set over a sixteenth of its packs is a tangled
+    // body, which the passes would not settle (docs/solver.md, "The floor pass").
+    if (floor_acted.size() * 16 > packed.packs.size()) return 0;
+    std::sort(floor_acted.begin(), floor_acted.end());
+    int total = 0;
+    for (int pass = 0; pass < kSettlePasses && floor_settle_visits >= floor_acted.size() && !stop(); ++pass) {
+      floor_settle_visits -= floor_acted.size();
+      int hits = 0;
+      for (int32_t q : floor_acted) hits += correct_pack(packed.packs[size_t(q)], x, floor, floor_serial, floor_moved);
+      total += hits;
+      if (!hits) break;
+    }
+    return total;
+  }
+
+  void note_acted(int32_t q) {
+    if (floor_acted_mark[size_t(q)]) return;
+    floor_acted_mark[size_t(q)] = 1;
+    floor_acted.push_back(q);
+  }
+
+  // Empties the set of packs the floor acted on and renews the settling passes' visits (at the
+  // start of a substep's floor).
+  void forget_acted(const BodyModel& m) {
+    for (int32_t q : floor_acted) floor_acted_mark[size_t(q)] = 0;
+    floor_acted.clear();
+    floor_settle_visits = size_t(kSettleVisits * double(detail::packed(m).packs.size()));
   }
 
   // The floor on one pack's lanes; stamps the corners it moved (appending those not yet moved in
   // this pass to moved). Returns the corrections.
   int correct_pack(const detail::TetPack& p, std::vector<Vec3>& x, double floor, uint32_t serial,
                    std::vector<int32_t>& moved) {
-    const int corrected = detail::volume_floor_pack(p, x, floor);
+    const int corrected = detail::volume_floor_pack(p, x, floor, floor * (1 - kFloorSlack));
     int hits = 0;
     for (int l = 0; l < p.lanes; ++l) {
       if (!(corrected & (1 << l))) continue;
@@ -551,19 +616,24 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     // to the step's time: they stop when the budget is spent or the step is cancelled (on a
     // tangled mesh they do not converge, and 40 of them can cost more than the sweeps).
     PhaseTimer t{rep.times.other_ms};
-    int hits = I.volume_pass(m, x, s.inversion_floor, tp);
-    rep.volume_corrections += hits;
-    int pass = 1;
-    for (; pass < kVolumePasses && hits > 0; ++pass) {
+    auto stop = [&] {
       if (inputs.cancel && inputs.cancel->load(std::memory_order_relaxed)) {
         rep.cancelled = true;
-        break;
+        return true;
       }
       if (budget_ms > 0 && ms_since(t_start) - hook_ms >= budget_ms) {
         rep.floor_stopped_by_budget = true;
-        break;
+        return true;
       }
+      return false;
+    };
+    I.forget_acted(m);
+    int hits = I.volume_pass(m, x, s.inversion_floor, tp);
+    rep.volume_corrections += hits;
+    int pass = 1;
+    for (; pass < kVolumePasses && hits > 0 && !stop(); ++pass) {
       hits = I.volume_pass(m, x, s.inversion_floor, tp, false);
+      if (hits > 0 && pass >= kSettleAfter) hits += I.settle_acted(m, x, s.inversion_floor, stop);
       rep.volume_corrections += hits;
     }
     spdlog::trace("inversion floor: {} passes, {} corrections in the last", pass, hits);
