@@ -269,9 +269,7 @@ double VbdFamily::vertex_energy(const BodyModel& m, int32_t i, const std::vector
       const TetRest& t = m.tets[m.vertex_tet_entry[a] >> 2];
       std::array<Vec3, 4> q = gather(x, t.v);
       q[m.vertex_tet_entry[a] & 3] = p;
-      Mat3 ds;
-      for (int c = 0; c < 3; ++c) ds.col(c) = q[c] - q[3];
-      if (!((ds * t.dm_inv).determinant() > 0)) return HUGE_VAL;  // the step would invert a tet
+      if (!(volume_ratio(t, q) > 0)) return HUGE_VAL;  // the step would invert a tet
       e += tet_energy(t, q, m.stiffness, m.material.model);
     }
   }

@@ -37,22 +37,6 @@ Eigen::RowVector3d shape_row(const TetRest& tet, int k) {
   return -(tet.dm_inv.row(0) + tet.dm_inv.row(1) + tet.dm_inv.row(2));
 }
 
-Mat3 deformation(const TetRest& tet, const std::array<Vec3, 4>& p) {
-  Mat3 ds;
-  for (int c = 0; c < 3; ++c) ds.col(c) = p[c] - p[3];
-  return ds * tet.dm_inv;
-}
-
-// Green strain in Voigt order (e_xx, e_yy, e_zz, g_yz, g_xz, g_xy).
-Vec6 green_strain(const Mat3& F) {
-  Vec6 c;
-  for (int i = 0; i < 3; ++i) c[i] = 0.5 * (F.col(i).squaredNorm() - 1.0);
-  c[3] = F.col(1).dot(F.col(2));
-  c[4] = F.col(0).dot(F.col(2));
-  c[5] = F.col(0).dot(F.col(1));
-  return c;
-}
-
 // The symmetric matrix of a Voigt stress vector (shears at (1,2), (0,2), (0,1)).
 Mat3 voigt_matrix(const Vec6& s) {
   Mat3 S;
@@ -71,7 +55,7 @@ Mat3 clamp_psd(const Mat3& H) {
 
 void stvk_vertex(const TetRest& tet, const Eigen::RowVector3d& b, const Mat3& F, const Mat6& K,
                  VbdHessian mode, Vec3& g, Mat3& H) {
-  const Vec6 s = K * green_strain(F);
+  const Vec6 s = K * strain_vector(F);
   const Mat3 S = voigt_matrix(s);
   const Vec3 Sb = S * b.transpose();
   g = tet.volume * (F * Sb);
@@ -104,17 +88,14 @@ void corotated_vertex(const TetRest& tet, const Eigen::RowVector3d& b, const Mat
 
 void tet_vertex_derivatives(const TetRest& tet, int corner, const std::array<Vec3, 4>& p,
                             const Mat6& K, ElasticModel model, VbdHessian mode, Vec3& g, Mat3& H) {
-  const Mat3 F = deformation(tet, p);
+  const Mat3 F = deformation_gradient(tet, p);
   const Eigen::RowVector3d b = shape_row(tet, corner);
   if (model == ElasticModel::Corotated) corotated_vertex(tet, b, F, K, mode, g, H);
   else stvk_vertex(tet, b, F, K, mode, g, H);
 }
 
 double tet_energy(const TetRest& tet, const std::array<Vec3, 4>& p, const Mat6& K, ElasticModel model) {
-  const Mat3 F = deformation(tet, p);
-  Vec6 c;
-  if (model == ElasticModel::Corotated) c = corotated_strain_vector(corotated_stretch(F, polar_rotation(F)));
-  else c = green_strain(F);
+  const Vec6 c = strain_vector(deformation_gradient(tet, p), model);
   return 0.5 * tet.volume * c.dot(K * c);
 }
 
