@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "pliant/colliders.hpp"
 
+#include "step/ball_contact.hpp"
+
 #include <cmath>
 
 namespace pliant {
@@ -39,15 +41,8 @@ bool find_contact(const Collider& c, const Eigen::Vector3d& p, ContactPoint& out
       out.depth = -d;
       return true;
     }
-    case Collider::Shape::Sphere: {
-      Eigen::Vector3d r = p - c.point;
-      double len = r.norm();
-      if (len >= c.radius) return false;
-      out.normal = len > 1e-12 ? Eigen::Vector3d(r / len) : Eigen::Vector3d(0, 1, 0);
-      out.q = c.point + c.radius * out.normal;
-      out.depth = c.radius - len;
-      return true;
-    }
+    case Collider::Shape::Sphere:
+      return detail::ball_contact(c.point, c.radius, p, out.normal, out.q, out.depth);
     case Collider::Shape::Box: {
       Eigen::Vector3d local = p - c.point;
       Eigen::Vector3d gap = c.half_extent - local.cwiseAbs();  // > 0 inside along each axis

@@ -2,6 +2,7 @@
 #include "pliant/interaction.hpp"
 
 #include "pliant/model.hpp"
+#include "step/ball_contact.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -64,13 +65,7 @@ bool tool_contact(const RigidTool& tool, const Eigen::Vector3d& p, Eigen::Vector
     const double s = std::clamp((p - tool.position).dot(axis), -tool.half_length, tool.half_length);
     core = tool.position + s * axis;
   }
-  const Eigen::Vector3d r = p - core;
-  const double len = r.norm();
-  if (len >= tool.radius) return false;
-  normal = len > 1e-12 ? Eigen::Vector3d(r / len) : Eigen::Vector3d(0, 1, 0);
-  q = core + tool.radius * normal;
-  depth = tool.radius - len;
-  return true;
+  return detail::ball_contact(core, tool.radius, p, normal, q, depth);
 }
 
 namespace {
