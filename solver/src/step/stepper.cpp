@@ -35,11 +35,9 @@ namespace {
 // and 100 kPa from coming to rest: docs/solver.md, "The floor pass".)
 constexpr int kVolumePasses = 40;
 constexpr int kSettleAfter = 16;
+// At most kSettlePasses a call, and in all no more pack visits a substep than one pass over
+// the body.
 constexpr int kSettlePasses = 100;
-// The settling passes of a substep visit at most this many times the model's pack count in all
-// (a tangled body's floor acts on thousands of packs and does not settle: there they would
-// cost many full passes).
-constexpr double kSettleVisits = 1.0;
 // A tet acts when det F is under the floor by more than this fraction of it: a settled cluster,
 // each tet on the floor to rounding, then stops acting.
 constexpr double kFloorSlack = 1e-6;
@@ -307,7 +305,7 @@ struct Stepper::Impl {
   void forget_acted(const BodyModel& m) {
     for (int32_t q : floor_acted) floor_acted_mark[size_t(q)] = 0;
     floor_acted.clear();
-    floor_settle_visits = size_t(kSettleVisits * double(detail::packed(m).packs.size()));
+    floor_settle_visits = detail::packed(m).packs.size();
   }
 
   // The floor on one pack's lanes; stamps the corners it moved (appending those not yet moved in
