@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <string>
 
 namespace pliant::detail {
@@ -303,11 +304,53 @@ inline void constraint(const TetLanes<T>& p, const Geometry<T>& g, T C[6]) {
   for (int r = 0; r < 6; ++r) C[r] = p.sqrt_volume * g.c[r];
 }
 
+// A pack's four slots hold 24 doubles, lane after lane (l0r0..l0r5, l1r0, ...); the kernels work
+// on six rows of four lanes. The two layouts, one into the other, in registers.
+inline v4d load4(const double* p) {
+  v4d v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+inline void store4(double* p, const v4d& v) { std::memcpy(p, &v, sizeof v); }
+
+inline void rows_of_slots(const double* s, v4d r[6]) {
+  const v4d m0 = load4(s), m1 = load4(s + 4), m2 = load4(s + 8), m3 = load4(s + 12), m4 = load4(s + 16),
+            m5 = load4(s + 20);
+  const v4d t1 = __builtin_shufflevector(m1, m2, 2, 3, 4, 5), t3 = __builtin_shufflevector(m4, m5, 2, 3, 4, 5);
+  const v4d u0 = __builtin_shufflevector(m1, m2, 0, 1, 6, 7), u1 = __builtin_shufflevector(m4, m5, 0, 1, 6, 7);
+  const v4d a = __builtin_shufflevector(m0, t1, 0, 4, 2, 6), b = __builtin_shufflevector(m0, t1, 1, 5, 3, 7);
+  const v4d c = __builtin_shufflevector(m3, t3, 0, 4, 2, 6), d = __builtin_shufflevector(m3, t3, 1, 5, 3, 7);
+  r[0] = __builtin_shufflevector(a, c, 0, 1, 4, 5);
+  r[1] = __builtin_shufflevector(b, d, 0, 1, 4, 5);
+  r[2] = __builtin_shufflevector(a, c, 2, 3, 6, 7);
+  r[3] = __builtin_shufflevector(b, d, 2, 3, 6, 7);
+  r[4] = __builtin_shufflevector(u0, u1, 0, 2, 4, 6);
+  r[5] = __builtin_shufflevector(u0, u1, 1, 3, 5, 7);
+}
+
+inline void slots_of_rows(const v4d r[6], double* s) {
+  const v4d a = __builtin_shufflevector(r[0], r[1], 0, 4, 2, 6), b = __builtin_shufflevector(r[0], r[1], 1, 5, 3, 7);
+  const v4d c = __builtin_shufflevector(r[2], r[3], 0, 4, 2, 6), d = __builtin_shufflevector(r[2], r[3], 1, 5, 3, 7);
+  const v4d t0 = __builtin_shufflevector(a, c, 0, 1, 4, 5), t2 = __builtin_shufflevector(a, c, 2, 3, 6, 7);
+  const v4d t1 = __builtin_shufflevector(b, d, 0, 1, 4, 5), t3 = __builtin_shufflevector(b, d, 2, 3, 6, 7);
+  const v4d u0 = __builtin_shufflevector(r[4], r[5], 0, 4, 1, 5), u1 = __builtin_shufflevector(r[4], r[5], 2, 6, 3, 7);
+  store4(s, t0);
+  store4(s + 4, __builtin_shufflevector(u0, t1, 0, 1, 4, 5));
+  store4(s + 8, __builtin_shufflevector(t1, u0, 2, 3, 6, 7));
+  store4(s + 12, t2);
+  store4(s + 16, __builtin_shufflevector(u1, t3, 0, 1, 4, 5));
+  store4(s + 20, __builtin_shufflevector(t3, u1, 2, 3, 6, 7));
+}
+
 template <class T>
 inline void gather_slots(const TetLanes<T>& p, const std::vector<Vec6>& lambda, T lam[6]) {
-  for (int l = 0; l < kLanes<T>; ++l) {
-    const Vec6& a = lambda[p.slot + l];
-    for (int r = 0; r < 6; ++r) set_lane(lam[r], l, a[r]);
+  if constexpr (kLanes<T> == 4) {
+    rows_of_slots(lambda[size_t(p.slot)].data(), lam);  // a pack's slots all exist, padding's too
+  } else {
+    for (int l = 0; l < kLanes<T>; ++l) {
+      const Vec6& a = lambda[p.slot + l];
+      for (int r = 0; r < 6; ++r) set_lane(lam[r], l, a[r]);
+    }
   }
 }
 
@@ -556,10 +599,18 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6
   if (line_search) step = residual_decreasing_step(elastic, p, g, C, lam, y, dx, at);
   out.det = det3(g.f);
   out.ok = 0;
-  for (int l = 0; l < p.lanes; ++l) {
-    bool ok = true;
-    for (int r = 0; r < 6; ++r) ok &= std::isfinite(get_lane(y[r], l)) && get_lane(D[r], l) > 0;
-    if (ok) out.ok |= 1 << l;
+  if constexpr (kLanes<T> == 4) {
+    // y - y == 0 exactly when y is finite; all six rows at once, lane by lane.
+    auto good = (y[0] - y[0] == 0) & (D[0] > 0);
+    for (int r = 1; r < 6; ++r) good &= (y[r] - y[r] == 0) & (D[r] > 0);
+    for (int l = 0; l < p.lanes; ++l)
+      if (good[l]) out.ok |= 1 << l;
+  } else {
+    for (int l = 0; l < p.lanes; ++l) {
+      bool ok = true;
+      for (int r = 0; r < 6; ++r) ok &= std::isfinite(get_lane(y[r], l)) && get_lane(D[r], l) > 0;
+      if (ok) out.ok |= 1 << l;
+    }
   }
   for (int r = 0; r < 6; ++r) out.dlambda[r] = step * y[r];
   for (int k = 0; k < 4; ++k)
@@ -574,6 +625,25 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
   StrainStep<T> st;
   strain_step(p, x, lam, model.material.model, at, lambda_scale, line_search, st);
   int floor_hits = 0;
+  if constexpr (kLanes<T> == 4) {
+    if (st.ok == 0xF) {  // a full pack, every lane positive definite: the slots in rows at once
+      T sum[6];
+      for (int r = 0; r < 6; ++r) sum[r] = lam[r] + st.dlambda[r];
+      slots_of_rows(st.dlambda, dlambda[size_t(p.slot)].data());
+      slots_of_rows(sum, lambda[size_t(p.slot)].data());
+      for (int l = 0; l < 4; ++l) {
+        for (int k = 0; k < 4; ++k) {
+          Vec3& q = x[p.v[k][l]];
+          q[0] += st.dx[k][0][l];
+          q[1] += st.dx[k][1][l];
+          q[2] += st.dx[k][2][l];
+        }
+        if (inversion_floor > 0 && st.det[l] < inversion_floor)
+          floor_hits += enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, inversion_floor);
+      }
+      return floor_hits;
+    }
+  }
   for (int l = 0; l < p.lanes; ++l) {
     Vec6& dl = dlambda[p.slot + l];
     if (!(st.ok & (1 << l))) {  // not positive definite (cannot happen with alpha~ > 0): skip the tet

@@ -157,6 +157,32 @@ double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, 
 double mean_projection_flops(const BodyModel& model, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
                              const Mat6& alpha_tilde, bool line_search);
 
+// Ask for a pack's data ahead of its turn: a sweep streams the packs (and the multipliers in
+// their slots) from memory and reads the corners' positions scattered.
+inline void prefetch_pack(const TetPack& p) {
+  const char* a = reinterpret_cast<const char*>(&p);
+  for (size_t o = 0; o < sizeof(TetPack); o += 64) __builtin_prefetch(a + o);
+}
+inline void prefetch_corners(const TetPack& p, const std::vector<Vec3>& x) {
+  for (int k = 0; k < 4; ++k)
+    for (int l = 0; l < 4; ++l) __builtin_prefetch(x[size_t(p.v[k][l])].data(), 1);
+}
+inline void prefetch_slots(const TetPack& p, const std::vector<Vec6>& slots) {
+  const char* a = reinterpret_cast<const char*>(slots[size_t(p.slot)].data());
+  for (size_t o = 0; o < 4 * sizeof(Vec6); o += 64) __builtin_prefetch(a + o, 1);
+}
+// In a loop over packs i < e: the rest data four packs ahead, the corners and the slots of the
+// given multiplier vectors two ahead.
+template <class... Slots>
+inline void prefetch_ahead(const PackedModel& pm, size_t i, size_t e, const std::vector<Vec3>& x,
+                           const Slots&... slots) {
+  if (i + 4 < e) prefetch_pack(pm.packs[i + 4]);
+  if (i + 2 < e) {
+    prefetch_corners(pm.packs[i + 2], x);
+    (prefetch_slots(pm.packs[i + 2], slots), ...);
+  }
+}
+
 // The pack-of-four names the sweeps use.
 inline int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                         std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,

@@ -122,7 +122,10 @@ struct Stepper::Impl {
     partial.assign(tp.size(), 0.0);
     tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
       double s = 0;
-      for (size_t i = b; i < e; ++i) s += detail::residual_squared_lanes(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
+      for (size_t i = b; i < e; ++i) {
+        detail::prefetch_ahead(packed, i, e, x, lambda);
+        s += detail::residual_squared_lanes(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
+      }
       partial[chunk] = s;
     }, 32);
     double sum = 0;
@@ -138,9 +141,11 @@ struct Stepper::Impl {
     std::vector<int> floor_hits(tp.size(), 0);
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
-      for (size_t i = b; i < e; ++i)
+      for (size_t i = b; i < e; ++i) {
+        detail::prefetch_ahead(packed, i, e, x, lambda, dlambda);
         hits += detail::project_pack(packed.packs[i], x, lambda, dlambda, m, params.alpha_tilde, params.lambda_scale,
                                      params.inversion_floor, params.line_search);
+      }
       floor_hits[chunk] += hits;
     });
     int total = 0;
@@ -223,6 +228,7 @@ struct Stepper::Impl {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
         const detail::TetPack& p = packed.packs[i];
+        if (all) detail::prefetch_ahead(packed, i, e, x);  // a later pass reads most packs' corners only
         if (!all && !pack_moved(p, serial - 1)) continue;
         const int h = correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
         if (h) floor_acted_chunks[chunk].push_back(int32_t(i));
@@ -337,7 +343,10 @@ struct Stepper::Impl {
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     for_each_pack(packed, tp, [&](int, size_t b, size_t e) {
-      for (size_t i = b; i < e; ++i) detail::apply_increment_lanes(packed.packs[i], x, dl, m.material.model);
+      for (size_t i = b; i < e; ++i) {
+        detail::prefetch_ahead(packed, i, e, x, dl);
+        detail::apply_increment_lanes(packed.packs[i], x, dl, m.material.model);
+      }
     });
   }
 
