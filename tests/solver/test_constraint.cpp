@@ -285,25 +285,33 @@ TEST(StrainConstraint, FusedKernelMatchesDefinition) {
   }
 }
 
-TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
-  // The SIMD Gauss-Seidel pack (4 tets of one colour) must give each tet the same increment
-  // and corrections as the scalar kernel; padding lanes must not write.
-  std::mt19937 rng(6);
-  // 3 disjoint tets: one pack with a padding lane
-  const TetMesh mesh = disjoint_tets({random_tet(rng), random_tet(rng), random_tet(rng)});
+// One pack of n disjoint random tets (n < 4: padding lanes) projected by the SIMD kernel against
+// each tet by the scalar kernel, from multipliers that differ in every slot and row (a pack's
+// slots are moved into rows and back in registers).
+namespace {
+
+void expect_pack_matches_scalar_kernel(int n) {
+  std::mt19937 rng(6 + n);
+  std::vector<std::array<Vec3, 4>> tets;
+  for (int t = 0; t < n; ++t) tets.push_back(random_tet(rng));
+  const TetMesh mesh = disjoint_tets(tets);
   auto model = build_model(mesh, Material{2e5, 0.35, 900});
   ASSERT_EQ(model->colours.size(), 1u);
   const detail::PackedModel& packed = detail::packed(*model);
   ASSERT_EQ(packed.packs.size(), 1u);
-  EXPECT_EQ(packed.packs[0].lanes, 3);
+  EXPECT_EQ(packed.packs[0].lanes, n);
   std::vector<Vec3> x = mesh.vertices;
   for (auto& p : x) p += 0.05 * Vec3(std::sin(7 * p.x()), std::cos(5 * p.y()), std::sin(3 * p.z()));
-  std::vector<Vec6> lambda(packed.slot_count(), Vec6::Constant(1e-4)), dl(packed.slot_count(), Vec6::Zero());
+  std::uniform_real_distribution<double> u(-2e-4, 2e-4);
+  std::vector<Vec6> lambda(packed.slot_count()), dl(packed.slot_count(), Vec6::Constant(7.0));
+  for (Vec6& l : lambda)
+    for (int r = 0; r < 6; ++r) l[r] = u(rng);
   const Mat6 at = model->compliance * 3600.0;
   std::vector<Vec3> xp = x;
   std::vector<Vec6> lp = lambda;
   detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0, false);
-  for (int t = 0; t < 3; ++t) {
+  for (int t = 0; t < n; ++t) {
+    const int32_t slot = model->tet_slot[t];
     const TetRest& tet = model->tets[t];
     const Vec3* p[4] = {&x[tet.v[0]], &x[tet.v[1]], &x[tet.v[2]], &x[tet.v[3]]};
     const std::array<double, 4> wa = corner_inverse_masses(*model, tet);
@@ -312,12 +320,25 @@ TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
     params.alpha_tilde = at;
     Vec6 expected;
     Vec3 dx[4];
-    detail::strain_increment(tet, p, w, lambda[t], params, expected, dx);
-    EXPECT_LT((dl[t] - expected).norm(), 1e-12 * (1 + expected.norm())) << t;
-    EXPECT_LT((lp[t] - lambda[t] - expected).norm(), 1e-12 * (1 + expected.norm())) << t;
+    detail::strain_increment(tet, p, w, lambda[slot], params, expected, dx);
+    EXPECT_LT((dl[slot] - expected).norm(), 1e-12 * (1 + expected.norm())) << t;
+    EXPECT_LT((lp[slot] - lambda[slot] - expected).norm(), 1e-12 * (1 + expected.norm())) << t;
     for (int k = 0; k < 4; ++k)
       EXPECT_LT((xp[tet.v[k]] - x[tet.v[k]] - dx[k]).norm(), 1e-12 * (1 + dx[k].norm())) << t << "," << k;
   }
+  for (size_t s = size_t(n); s < packed.slot_count(); ++s) {  // padding slots are never written
+    EXPECT_EQ(lp[s], lambda[s]) << s;
+    EXPECT_EQ(dl[s], Vec6::Constant(7.0)) << s;
+  }
+}
+
+}  // namespace
+
+TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
+  // The SIMD Gauss-Seidel pack (4 tets of one colour) must give each tet the same increment
+  // and corrections as the scalar kernel; padding lanes must not write.
+  expect_pack_matches_scalar_kernel(3);
+  expect_pack_matches_scalar_kernel(4);
 }
 
 TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
