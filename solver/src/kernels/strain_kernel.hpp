@@ -165,7 +165,7 @@ inline void prefetch_pack(const TetPack& p) {
 }
 inline void prefetch_corners(const TetPack& p, const std::vector<Vec3>& x) {
   for (int k = 0; k < 4; ++k)
-    for (int l = 0; l < 4; ++l) __builtin_prefetch(x[size_t(p.v[k][l])].data(), 1);
+    for (int l = 0; l < 4; ++l) __builtin_prefetch(x[size_t(p.v[k][l])].data());
 }
 inline void prefetch_slots(const TetPack& p, const std::vector<Vec6>& slots) {
   const char* a = reinterpret_cast<const char*>(slots[size_t(p.slot)].data());
