@@ -285,11 +285,11 @@ TEST(StrainConstraint, FusedKernelMatchesDefinition) {
   }
 }
 
+namespace {
+
 // One pack of n disjoint random tets (n < 4: padding lanes) projected by the SIMD kernel against
 // each tet by the scalar kernel, from multipliers that differ in every slot and row (a pack's
 // slots are moved into rows and back in registers).
-namespace {
-
 void expect_pack_matches_scalar_kernel(int n) {
   std::mt19937 rng(6 + n);
   std::vector<std::array<Vec3, 4>> tets;

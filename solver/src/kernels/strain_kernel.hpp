@@ -159,17 +159,20 @@ double mean_projection_flops(const BodyModel& model, const std::vector<Vec3>& x,
 
 // Ask for a pack's data ahead of its turn: a sweep streams the packs (and the multipliers in
 // their slots) from memory and reads the corners' positions scattered.
-inline void prefetch_pack(const TetPack& p) {
-  const char* a = reinterpret_cast<const char*>(&p);
-  for (size_t o = 0; o < sizeof(TetPack); o += 64) __builtin_prefetch(a + o);
+template <int Write>
+inline void prefetch_bytes(const void* p, size_t n) {  // every 64-byte line of [p, p + n)
+  const char* a = static_cast<const char*>(p);
+  const char* last = a + n - 1;
+  for (; a < last; a += 64) __builtin_prefetch(a, Write);
+  __builtin_prefetch(last, Write);
 }
+inline void prefetch_pack(const TetPack& p) { prefetch_bytes<0>(&p, sizeof p); }
 inline void prefetch_corners(const TetPack& p, const std::vector<Vec3>& x) {
   for (int k = 0; k < 4; ++k)
     for (int l = 0; l < 4; ++l) __builtin_prefetch(x[size_t(p.v[k][l])].data());
 }
 inline void prefetch_slots(const TetPack& p, const std::vector<Vec6>& slots) {
-  const char* a = reinterpret_cast<const char*>(slots[size_t(p.slot)].data());
-  for (size_t o = 0; o < 4 * sizeof(Vec6); o += 64) __builtin_prefetch(a + o, 1);
+  prefetch_bytes<1>(slots[size_t(p.slot)].data(), 4 * sizeof(Vec6));
 }
 // In a loop over packs i < e: the rest data four packs ahead, the corners and the slots of the
 // given multiplier vectors two ahead.

@@ -228,7 +228,7 @@ struct Stepper::Impl {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
         const detail::TetPack& p = packed.packs[i];
-        if (all) detail::prefetch_ahead(packed, i, e, x);  // a later pass reads most packs' corners only
+        if (all) detail::prefetch_ahead(packed, i, e, x);  // (a later pass skips most packs)
         if (!all && !pack_moved(p, serial - 1)) continue;
         const int h = correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
         if (h) floor_acted_chunks[chunk].push_back(int32_t(i));
