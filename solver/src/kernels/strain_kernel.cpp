@@ -624,34 +624,28 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
   gather_slots(p, lambda, lam);
   StrainStep<T> st;
   strain_step(p, x, lam, model.material.model, at, lambda_scale, line_search, st);
-  int floor_hits = 0;
+  // A full pack whose every lane is positive definite writes its slots from the rows at once.
+  bool slots_written = false;
   if constexpr (kLanes<T> == 4) {
-    if (st.ok == 0xF) {  // a full pack, every lane positive definite: the slots in rows at once
+    if (st.ok == 0xF) {
       T sum[6];
       for (int r = 0; r < 6; ++r) sum[r] = lam[r] + st.dlambda[r];
       slots_of_rows(st.dlambda, dlambda[size_t(p.slot)].data());
       slots_of_rows(sum, lambda[size_t(p.slot)].data());
-      for (int l = 0; l < 4; ++l) {
-        for (int k = 0; k < 4; ++k) {
-          Vec3& q = x[p.v[k][l]];
-          q[0] += st.dx[k][0][l];
-          q[1] += st.dx[k][1][l];
-          q[2] += st.dx[k][2][l];
-        }
-        if (inversion_floor > 0 && st.det[l] < inversion_floor)
-          floor_hits += enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, inversion_floor);
-      }
-      return floor_hits;
+      slots_written = true;
     }
   }
+  int floor_hits = 0;
   for (int l = 0; l < p.lanes; ++l) {
-    Vec6& dl = dlambda[p.slot + l];
-    if (!(st.ok & (1 << l))) {  // not positive definite (cannot happen with alpha~ > 0): skip the tet
-      dl.setZero();
-      continue;
+    if (!slots_written) {
+      Vec6& dl = dlambda[p.slot + l];
+      if (!(st.ok & (1 << l))) {  // not positive definite (cannot happen with alpha~ > 0): skip the tet
+        dl.setZero();
+        continue;
+      }
+      for (int r = 0; r < 6; ++r) dl[r] = get_lane(st.dlambda[r], l);
+      lambda[p.slot + l] += dl;
     }
-    for (int r = 0; r < 6; ++r) dl[r] = get_lane(st.dlambda[r], l);
-    lambda[p.slot + l] += dl;
     for (int k = 0; k < 4; ++k) {
       Vec3& q = x[p.v[k][l]];
       q[0] += get_lane(st.dx[k][0], l);
