@@ -14,6 +14,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -86,11 +87,10 @@ struct Stepper::Impl {
   std::vector<double> partial;  // per-thread sums
   std::vector<int> floor_hits_per_chunk;  // per-thread corrections of a floor pass
   std::vector<uint32_t> floor_stamp;      // per vertex: the floor pass (serial) that last moved it
-  std::vector<uint32_t> floor_pack_mark;  // per pack: the floor pass that queued it
   uint32_t floor_serial = 0;              // floor passes made (with this vertex count)
   std::vector<int32_t> floor_moved;       // vertices the last floor pass moved
   std::vector<std::vector<int32_t>> floor_moved_chunks;  // per thread
-  std::vector<int32_t> floor_queue;                    // packs to correct (a min-heap)
+  std::vector<uint64_t> floor_queued;                  // per pack a bit: queued in this pass
   std::vector<int32_t> floor_acted;                    // packs the floor acted on in this substep
   std::vector<char> floor_acted_mark;                  // per pack: in floor_acted
   std::vector<std::vector<int32_t>> floor_acted_chunks;  // per thread
@@ -209,10 +209,10 @@ struct Stepper::Impl {
   // way (docs/solver.md, "The floor pass"). Returns the corrections made.
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp, bool all = true) {
     const detail::PackedModel& packed = detail::packed(m);
-    if (floor_stamp.size() != m.vertex_count() || floor_pack_mark.size() != packed.packs.size() ||
+    if (floor_stamp.size() != m.vertex_count() || floor_acted_mark.size() != packed.packs.size() ||
         floor_serial >= UINT32_MAX - 1) {
       floor_stamp.assign(m.vertex_count(), 0);
-      floor_pack_mark.assign(packed.packs.size(), 0);
+      floor_queued.assign((packed.packs.size() + 63) / 64, 0);
       floor_acted_mark.assign(packed.packs.size(), 0);
       floor_acted.clear();
       floor_serial = 0;
@@ -245,33 +245,33 @@ struct Stepper::Impl {
     return total;
   }
 
-  // A later pass from the vertices the previous one moved: their packs are queued and taken in
-  // storage order (a min-heap), and a correction queues the packs after it around the corners it
-  // moved (those before it are the next pass's).
+  // A later pass from the vertices the previous one moved: their packs are queued as bits and
+  // taken in storage order by a scan forward, and a correction queues the packs after it around
+  // the corners it moved (those before it are the next pass's).
   int volume_pass_from_moved(const BodyModel& m, std::vector<Vec3>& x, double floor, uint32_t serial) {
     const detail::PackedModel& packed = detail::packed(m);
-    floor_queue.clear();
+    size_t first = floor_queued.size();  // the lowest word queued into
     auto queue_around = [&](int32_t v, int64_t after) {
       for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
         const int32_t q = packed.vertex_slot_entry[a] / 16;  // 4 x slot + corner; 4 slots per pack
-        if (floor_pack_mark[size_t(q)] == serial || q <= after) continue;
-        floor_pack_mark[size_t(q)] = serial;
-        floor_queue.push_back(q);
-        std::push_heap(floor_queue.begin(), floor_queue.end(), std::greater<>());
+        if (q <= after) continue;
+        floor_queued[size_t(q) >> 6] |= uint64_t(1) << (q & 63);
+        first = std::min(first, size_t(q) >> 6);
       }
     };
     for (int32_t v : floor_moved) queue_around(v, -1);
     floor_moved.clear();
     int hits = 0;
-    while (!floor_queue.empty()) {
-      std::pop_heap(floor_queue.begin(), floor_queue.end(), std::greater<>());
-      const int32_t q = floor_queue.back();
-      floor_queue.pop_back();
-      const size_t before = floor_moved.size();
-      const int h = correct_pack(packed.packs[size_t(q)], x, floor, serial, floor_moved);
-      if (h) note_acted(q);
-      hits += h;
-      for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], q);
+    for (size_t w = first; w < floor_queued.size(); ++w) {
+      while (floor_queued[w]) {  // a correction may queue packs later in this word
+        const int32_t q = int32_t(w * 64 + size_t(std::countr_zero(floor_queued[w])));
+        floor_queued[w] &= floor_queued[w] - 1;
+        const size_t before = floor_moved.size();
+        const int h = correct_pack(packed.packs[size_t(q)], x, floor, serial, floor_moved);
+        if (h) note_acted(q);
+        hits += h;
+        for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], q);
+      }
     }
     return hits;
   }
