@@ -88,7 +88,8 @@ class ConstraintBody : public ParticleBody {
   // The distance constraints' particle pairs, the grid's shear diagonals left out.
   std::span<const std::array<uint32_t, 2>> segments() const override { return segments_; }
 
-  ParticleStepReport step(double dt, std::span<const Collider> colliders) override;
+  int substeps() const override;
+  ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step) override;
   void set_gravity(const Vec3& gravity) override;
 
   void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;

@@ -115,7 +115,8 @@ class FluidBody final : public ParticleBody {
   std::span<const double> inverse_masses() const override;
   double contact_radius() const override;  // particle_radius x spacing
 
-  ParticleStepReport step(double dt, std::span<const Collider> colliders) override;
+  int substeps() const override;
+  ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step) override;
   void set_gravity(const Vec3& gravity) override;
 
   void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;

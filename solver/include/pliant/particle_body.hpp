@@ -61,6 +61,12 @@ struct ParticleStepReport {
   double wall_ms = 0.0;
 };
 
+// How many parts a step of bodies in contact is cut into, so that their contacts are resolved
+// between the parts and not once per step: the largest count that divides every body's substeps
+// (each part is whole substeps of every body, so a body alone steps as it would in one piece);
+// 1 for no bodies.
+int shared_step_parts(std::span<const int> substeps);
+
 // set_state's common check: throws std::invalid_argument naming `kind` and the field when the
 // state's positions or velocities are not one per particle.
 void check_particle_counts(const ParticleState& state, size_t particles, const std::string& kind);
@@ -88,8 +94,17 @@ class ParticleBody {
   // their particles (a rope's links, a cloth's edges); empty for fluids.
   virtual std::span<const std::array<uint32_t, 2>> segments() const { return {}; }
 
-  // Advances by dt seconds against the colliders.
-  virtual ParticleStepReport step(double dt, std::span<const Collider> colliders) = 0;
+  // Substeps per step (the body's settings).
+  virtual int substeps() const = 0;
+  // Advances by dt seconds in `substeps` substeps of dt / substeps against the colliders: a whole
+  // step, or a part of one when a scene cuts the step to resolve the contacts between its bodies
+  // in between (`ends_step`: the last part, which counts the step in state().steps).
+  virtual ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders,
+                                     bool ends_step) = 0;
+  // Advances by dt seconds against the colliders: one step of substeps() substeps.
+  ParticleStepReport step(double dt, std::span<const Collider> colliders) {
+    return advance(dt, substeps(), colliders, true);
+  }
   // Gravity from the next step on (m/s^2; a scene's UpdateScene changes it for all its bodies).
   // std::invalid_argument when not finite.
   virtual void set_gravity(const Vec3& gravity) = 0;

@@ -630,10 +630,14 @@ size_t ConstraintBody::solve_colliders(std::span<const Collider> colliders) {
   return total;
 }
 
-ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> colliders) {
+int ConstraintBody::substeps() const { return settings_.substeps; }
+
+ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<const Collider> colliders,
+                                           bool ends_step) {
   if (!std::isfinite(dt) || dt <= 0.0) throw std::invalid_argument("step: dt must be > 0 s (got " + fmt::format("{:g}", dt) + ")");
+  if (substeps < 1) throw std::invalid_argument("step: substeps must be >= 1 (got " + std::to_string(substeps) + ")");
   const auto t0 = std::chrono::steady_clock::now();
-  const int ns = settings_.substeps;
+  const int ns = substeps;
   const double h = dt / ns, h2 = h * h;
   h_ = h;
   const size_t n = size();
@@ -690,7 +694,7 @@ ParticleStepReport ConstraintBody::step(double dt, std::span<const Collider> col
   }
   last_self_contacts_ = self ? self_contacts_.size() : 0;
   state_.time += dt;
-  ++state_.steps;
+  if (ends_step) ++state_.steps;
   const Stretch end = stretch();
   report.constraint_error = end.rms;
   report.max_constraint_error = end.max;

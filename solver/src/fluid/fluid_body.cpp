@@ -882,8 +882,11 @@ void FluidBody::set_state(const ParticleState& st) {
   m.sync_state();
 }
 
-ParticleStepReport FluidBody::step(double dt, std::span<const Collider> colliders) {
+int FluidBody::substeps() const { return impl_->s.substeps; }
+
+ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step) {
   require(std::isfinite(dt) && dt > 0, "dt", "must be > 0", dt);
+  require(substeps >= 1, "substeps", "must be >= 1", substeps);
   Impl& m = *impl_;
   const auto t0 = std::chrono::steady_clock::now();
   const double r = m.s.particle_radius * m.s.spacing;
@@ -896,10 +899,10 @@ ParticleStepReport FluidBody::step(double dt, std::span<const Collider> collider
     }
   }
   ParticleStepReport rep;
-  rep.substeps = m.s.substeps;
+  rep.substeps = substeps;
   rep.iterations = m.s.iterations;
-  const double h = dt / m.s.substeps;
-  for (int sub = 0; sub < m.s.substeps; ++sub) m.substep(h, inflated, rep);
+  const double h = dt / substeps;
+  for (int sub = 0; sub < substeps; ++sub) m.substep(h, inflated, rep);
   // Density error at the last iteration (before its correction): compression only.
   double sum = 0.0, mx = 0.0;
   for (size_t i = 0; i < m.n(); ++i) {
@@ -910,7 +913,7 @@ ParticleStepReport FluidBody::step(double dt, std::span<const Collider> collider
   rep.constraint_error = m.n() ? sum / static_cast<double>(m.n()) : 0.0;
   rep.max_constraint_error = mx;
   m.state.time += dt;
-  ++m.state.steps;
+  if (ends_step) ++m.state.steps;
   m.sync_state();
   rep.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return rep;

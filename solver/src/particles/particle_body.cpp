@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "pliant/particle_body.hpp"
 
+#include <algorithm>
+#include <numeric>
 #include <stdexcept>
 
 namespace pliant {
@@ -13,6 +15,12 @@ void check_particle_counts(const ParticleState& state, size_t particles, const s
   };
   check(state.x.size(), "x", "positions");
   check(state.v.size(), "v", "velocities");
+}
+
+int shared_step_parts(std::span<const int> substeps) {
+  int parts = 0;
+  for (int n : substeps) parts = std::gcd(parts, std::max(n, 1));
+  return std::max(parts, 1);
 }
 
 }  // namespace pliant
