@@ -1,9 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
-// Water dropped into a cloth hammock, the two bodies stepped in turn and coupled after each
-// step as a server scene does (couple_particles_to_cloth): how much of the water ends under the
-// cloth, the cloth's push against the water's weight, and how much stayed in the hammock.
-// docs/cloth.md, "Contact between bodies". One JSON line per configuration:
-//   pliant_hammock [TICKS]   (default 600 ticks at 60 Hz)
+// Water dropped into a cloth hammock, the two bodies stepped in turn and coupled as a server
+// scene does: each step in the parts shared_step_parts gives (the fluid's 2 substeps and the
+// cloth's 16: 2 parts), couple_particles_to_cloth after each part. How much of the water ends
+// under the cloth, the cloth's push against the water's weight, and how much stayed in the
+// hammock. docs/cloth.md, "Contact between bodies". One JSON line per configuration:
+//   pliant_hammock [TICKS] [--one-part]   (default 600 ticks at 60 Hz; --one-part: the contact
+//   once per step, after whole steps, as scenes stepped bodies before the parts)
 // The hammock: a 0.6 m, 16 x 16 cloth pinned at its four corners at y = 0, damping 1/s, no
 // self-collision; the water: cubes of 2, 3 and 5 particles a side 2 cm apart, 15 cm above the
 // middle.
@@ -18,12 +20,13 @@
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
+#include <string>
 
 using namespace pliant;
 
 namespace {
 
-nlohmann::json run(double mass_per_area, int water_side, int ticks) {
+nlohmann::json run(double mass_per_area, int water_side, int ticks, bool one_part) {
   ClothGridSpec g;
   g.nx = g.ny = 16;
   g.size_x = g.size_y = 0.6;
@@ -43,19 +46,28 @@ nlohmann::json run(double mass_per_area, int water_side, int ticks) {
   contact.radius = water.contact_radius() + cloth->contact_radius();
   contact.friction = 0.3;
   const int averaged = std::min(ticks, 120);
+  const int substeps[] = {water.substeps(), cloth->substeps()};
+  const int parts = one_part ? 1 : shared_step_parts(substeps);
   Vec3 push = Vec3::Zero();
   size_t most_under = 0;
   for (int k = 0; k < ticks; ++k) {
-    const std::vector<Vec3> water_start = water.state().x, cloth_start = cloth->state().x;
-    water.step(dt, {});
-    cloth->step(dt, {});
-    ParticleState ws = water.state(), cs = cloth->state();
-    const CouplingReport rep = couple_particles_to_cloth(ws, water.inverse_masses(), water_start, cs,
-                                                         cloth->inverse_masses(), cloth->triangles(), cloth_start,
-                                                         contact, dt);
-    water.set_state(ws);
-    cloth->set_state(cs);
-    if (k >= ticks - averaged) push += rep.force_on_body / averaged;
+    // In parts as a scene steps bodies in contact (shared_step_parts), coupled after each.
+    Vec3 force = Vec3::Zero();
+    ParticleState ws, cs;
+    for (int part = 0; part < parts; ++part) {
+      const std::vector<Vec3> water_start = water.state().x, cloth_start = cloth->state().x;
+      water.advance(dt / parts, water.substeps() / parts, {}, part + 1 == parts);
+      cloth->advance(dt / parts, cloth->substeps() / parts, {}, part + 1 == parts);
+      ws = water.state();
+      cs = cloth->state();
+      const CouplingReport rep = couple_particles_to_cloth(ws, water.inverse_masses(), water_start, cs,
+                                                           cloth->inverse_masses(), cloth->triangles(), cloth_start,
+                                                           contact, dt / parts);
+      water.set_state(ws);
+      cloth->set_state(cs);
+      force += rep.force_on_body / parts;
+    }
+    if (k >= ticks - averaged) push += force / averaged;
     double lowest = 1e300;
     for (const Vec3& q : cs.x) lowest = std::min(lowest, q.y());
     size_t under = 0;
@@ -68,6 +80,7 @@ nlohmann::json run(double mass_per_area, int water_side, int ticks) {
   for (const Vec3& p : water.state().x) in_hammock += p.y() > lowest - 0.05 && std::abs(p.x()) < 0.3 && std::abs(p.z()) < 0.3;
   const double weight = water.particle_mass() * double(water.size()) * 9.81;
   return {{"cloth_mass_per_area", mass_per_area},
+          {"step_parts", parts},
           {"cloth_kg", cloth->total_mass()},
           {"water_particles", water.size()},
           {"water_kg", water.particle_mass() * double(water.size())},
@@ -80,12 +93,21 @@ nlohmann::json run(double mass_per_area, int water_side, int ticks) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const int ticks = argc > 1 ? std::atoi(argv[1]) : 600;
-  if (ticks < 1) {
-    std::cerr << "pliant_hammock: TICKS must be >= 1, got " << (argc > 1 ? argv[1] : "") << "\n";
-    return 2;
+  int ticks = 600;
+  bool one_part = false;
+  for (int a = 1; a < argc; ++a) {
+    const std::string arg = argv[a];
+    if (arg == "--one-part") {
+      one_part = true;
+    } else {
+      ticks = std::atoi(arg.c_str());
+      if (ticks < 1) {
+        std::cerr << "pliant_hammock: TICKS must be >= 1, got '" << arg << "' (usage: pliant_hammock [TICKS] [--one-part])\n";
+        return 2;
+      }
+    }
   }
   for (double mpa : {1.0, 0.2})
-    for (int side : {2, 3, 5}) std::cout << run(mpa, side, ticks).dump() << std::endl;
+    for (int side : {2, 3, 5}) std::cout << run(mpa, side, ticks, one_part).dump() << std::endl;
   return 0;
 }

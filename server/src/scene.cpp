@@ -88,6 +88,8 @@ struct Scene::TickState {
   // The cloths with soft_body_contact: obstacles to the tet body's vertices in its step.
   std::vector<size_t> obstacle_bodies;
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
+  std::vector<std::vector<Vec3>> body_part_start;  // scratch: before the part of the step (step_bodies)
+  std::vector<size_t> part_contacts;              // scratch: each body's pair contacts in a part
   std::vector<ParticleStepReport> body_reports;  // each body's step in the tick in progress
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
@@ -169,6 +171,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
     ts_->body_contact.push_back(contact);
     ts_->bodies_initial.push_back(body->state());
     ts_->body_start.emplace_back();
+    ts_->body_part_start.emplace_back();
     body->set_log_name(fmt::format("scene '{}' body '{}' ({})", id_, bc.name, bc.kind));
     ts_->bodies.push_back(std::move(body));
     bodies_info_.push_back(std::move(info));
@@ -825,54 +828,92 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       if (any) cloth.set_state(st);
     });
   }
-  for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
-    if (cancel_tick_.load()) {
-      report.cancelled = true;
-      return;
-    }
-    guarded(b, [&] {
-      // The start positions, for the contacts that read them (none: no copy in the tick).
-      const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || !inputs.tools.empty();
-      if (starts) t.body_start[b] = t.bodies[b]->state().x;
-      const auto t_body = Clock::now();
-      t.body_reports[b] = t.bodies[b]->step(dt, t.colliders);
-      // Particles an emitter added during the step start where they are (no path to cross).
-      if (starts) {
-        std::vector<Vec3>& start = t.body_start[b];
-        const auto& now = t.bodies[b]->state().x;
-        for (size_t i = start.size(); i < now.size(); ++i) start.push_back(now[i]);
-      }
-      if (const auto& contact = t.body_contact[b]) {
-        // Two-way with the soft body: the particles move out, the tet body takes their momentum.
-        ParticleState ps = t.bodies[b]->state();
-        const CouplingReport r = couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(),
-                                                          *contact, dt, t.body_start[b], t.bodies[b]->segments());
-        t.body_reports[b].soft_body_contacts = r.contacts + r.segment_contacts;
-        t.bodies[b]->set_state(ps);
-      }
-      t.body_reports[b].wall_ms = ms_since(t_body);  // its step and its contacts, below
-    });
+  // The bodies in contact with each other step in parts (shared_step_parts of their substeps:
+  // whole substeps each) with their contacts after every part, so that a contact is resolved
+  // within the step as the bodies' own constraints are; the others step in one piece.
+  int parts = 1;
+  if (!t.cloth_pairs.empty()) {
+    std::vector<int> substeps;
+    for (size_t b = 0; b < t.bodies.size(); ++b)
+      if (t.in_cloth_pair[b]) substeps.push_back(t.bodies[b]->substeps());
+    parts = shared_step_parts(substeps);
   }
-  for (const TickState::ClothPair& pair : t.cloth_pairs)
-    guarded(pair.particles, [&] {
-      const auto t_pair = Clock::now();
-      ParticleBody& a = *t.bodies[pair.particles];
-      ParticleBody& c = *t.bodies[pair.cloth];
-      ParticleState ps = a.state(), cs = c.state();
-      const CouplingReport r =
-          pair.rope ? couple_particles_to_rope(ps, a.inverse_masses(), t.body_start[pair.particles], cs,
-                                               c.inverse_masses(), t.body_start[pair.cloth], pair.settings, dt,
-                                               a.segments())
-                    : couple_particles_to_cloth(ps, a.inverse_masses(), t.body_start[pair.particles], cs,
-                                                c.inverse_masses(), c.triangles(), t.body_start[pair.cloth],
-                                                pair.settings, dt, a.segments());
-      if (r.contacts + r.segment_contacts > 0) {
-        a.set_state(ps);
-        c.set_state(cs);
+  for (int part = 0; part < parts && failure.empty(); ++part) {
+    const bool last_part = part + 1 == parts;
+    for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
+      const bool in_parts = parts > 1 && t.in_cloth_pair[b];
+      if (part > 0 && !in_parts) continue;  // stepped whole in the first part
+      if (cancel_tick_.load()) {
+        report.cancelled = true;
+        return;
       }
-      t.body_reports[pair.particles].body_contacts += r.contacts + r.segment_contacts;
-      t.body_reports[pair.particles].wall_ms += ms_since(t_pair);
-    });
+      guarded(b, [&] {
+        // The start positions, for the contacts that read them (none: no copy in the tick): the
+        // tick's for the soft body's and the tools' contacts, the part's for the pairs'.
+        const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || !inputs.tools.empty();
+        if (starts && part == 0) t.body_start[b] = t.bodies[b]->state().x;
+        if (in_parts) t.body_part_start[b] = t.bodies[b]->state().x;
+        const auto t_body = Clock::now();
+        const int n = in_parts ? t.bodies[b]->substeps() / parts : t.bodies[b]->substeps();
+        const ParticleStepReport r =
+            t.bodies[b]->advance(in_parts ? dt / parts : dt, n, t.colliders, !in_parts || last_part);
+        ParticleStepReport& rep = t.body_reports[b];
+        if (part == 0) {
+          rep = r;
+        } else {  // the step's substeps, the end of its last part
+          rep.substeps += r.substeps;
+          rep.constraint_error = r.constraint_error;
+          rep.max_constraint_error = r.max_constraint_error;
+          rep.contacts = r.contacts;
+          rep.self_collision_suspended = rep.self_collision_suspended || r.self_collision_suspended;
+        }
+        // Particles an emitter added during the step start where they are (no path to cross).
+        const auto& now = t.bodies[b]->state().x;
+        auto add_emitted = [&now](std::vector<Vec3>& start) {
+          for (size_t i = start.size(); i < now.size(); ++i) start.push_back(now[i]);
+        };
+        if (starts) add_emitted(t.body_start[b]);
+        if (in_parts) add_emitted(t.body_part_start[b]);
+        if (const auto& contact = t.body_contact[b]; contact && (!in_parts || last_part)) {
+          // Two-way with the soft body: the particles move out, the tet body takes their momentum.
+          ParticleState ps = t.bodies[b]->state();
+          const CouplingReport c = couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(),
+                                                            *contact, dt, t.body_start[b], t.bodies[b]->segments());
+          rep.soft_body_contacts = c.contacts + c.segment_contacts;
+          t.bodies[b]->set_state(ps);
+        }
+        // Its step and its contacts, below.
+        rep.wall_ms = (part == 0 ? 0.0 : rep.wall_ms) + ms_since(t_body);
+      });
+    }
+    t.part_contacts.assign(t.bodies.size(), 0);
+    for (const TickState::ClothPair& pair : t.cloth_pairs)
+      guarded(pair.particles, [&] {
+        const auto t_pair = Clock::now();
+        ParticleBody& a = *t.bodies[pair.particles];
+        ParticleBody& c = *t.bodies[pair.cloth];
+        const auto& starts = parts > 1 ? t.body_part_start : t.body_start;
+        const double h = dt / parts;
+        ParticleState ps = a.state(), cs = c.state();
+        const CouplingReport r =
+            pair.rope ? couple_particles_to_rope(ps, a.inverse_masses(), starts[pair.particles], cs,
+                                                 c.inverse_masses(), starts[pair.cloth], pair.settings, h,
+                                                 a.segments())
+                      : couple_particles_to_cloth(ps, a.inverse_masses(), starts[pair.particles], cs,
+                                                  c.inverse_masses(), c.triangles(), starts[pair.cloth],
+                                                  pair.settings, h, a.segments());
+        if (r.contacts + r.segment_contacts > 0) {
+          a.set_state(ps);
+          c.set_state(cs);
+        }
+        t.part_contacts[pair.particles] += r.contacts + r.segment_contacts;
+        t.body_reports[pair.particles].wall_ms += ms_since(t_pair);
+      });
+    // In parts: the most in one part (a particle held through the step counts once).
+    for (size_t b = 0; b < t.bodies.size(); ++b)
+      if (t.in_cloth_pair[b])
+        t.body_reports[b].body_contacts = std::max(part == 0 ? 0 : t.body_reports[b].body_contacts, t.part_contacts[b]);
+  }
   if (!inputs.tools.empty() && report.tools.size() != inputs.tools.size()) report.tools.resize(inputs.tools.size());
   for (size_t b = 0; b < t.bodies.size() && !inputs.tools.empty(); ++b)
     guarded(b, [&] {
