@@ -728,7 +728,9 @@ TEST(ClothContact, ALinkFallingAcrossAClothStripBetweenItsBeadsStaysOnItsSide) {
   EXPECT_EQ(strip.x, cloth.start) << "the cloth takes momentum, not a position correction";
   for (int k = 0; k <= 100; ++k) {
     const Vec3 p = link.ps.x[0] + (link.ps.x[1] - link.ps.x[0]) * (k / 100.0);
-    if (std::abs(p.z()) <= 0.01) EXPECT_GT(p.y(), std::sqrt(3.0) / 2 * radius - 1e-12) << "at z = " << p.z();
+    if (std::abs(p.z()) <= 0.01) {
+      EXPECT_GT(p.y(), std::sqrt(3.0) / 2 * radius - 1e-12) << "at z = " << p.z();
+    }
   }
   EXPECT_GT(link.ps.x[0].y(), 0);
   EXPECT_GT(link.ps.x[1].y(), 0);
