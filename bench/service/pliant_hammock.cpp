@@ -51,23 +51,9 @@ nlohmann::json run(double mass_per_area, int water_side, int ticks, bool one_par
   Vec3 push = Vec3::Zero();
   size_t most_under = 0;
   for (int k = 0; k < ticks; ++k) {
-    // In parts as a scene steps bodies in contact (shared_step_parts), coupled after each.
-    Vec3 force = Vec3::Zero();
-    ParticleState ws, cs;
-    for (int part = 0; part < parts; ++part) {
-      const std::vector<Vec3> water_start = water.state().x, cloth_start = cloth->state().x;
-      water.advance(dt / parts, water.substeps() / parts, {}, part + 1 == parts);
-      cloth->advance(dt / parts, cloth->substeps() / parts, {}, part + 1 == parts);
-      ws = water.state();
-      cs = cloth->state();
-      const CouplingReport rep = couple_particles_to_cloth(ws, water.inverse_masses(), water_start, cs,
-                                                           cloth->inverse_masses(), cloth->triangles(), cloth_start,
-                                                           contact, dt / parts);
-      water.set_state(ws);
-      cloth->set_state(cs);
-      force += rep.force_on_body / parts;
-    }
-    if (k >= ticks - averaged) push += force / averaged;
+    const CouplingReport rep = step_with_cloth_contact(water, *cloth, contact, dt, {}, parts);
+    const ParticleState &ws = water.state(), &cs = cloth->state();
+    if (k >= ticks - averaged) push += rep.force_on_body / averaged;
     double lowest = 1e300;
     for (const Vec3& q : cs.x) lowest = std::min(lowest, q.y());
     size_t under = 0;

@@ -262,23 +262,11 @@ TEST(ClothPhysics, AHammockHoldsTheWaterPouredIntoIt) {
   const int ticks = 600, averaged = 120;
   size_t through = 0;
   const int substeps[] = {water.substeps(), cloth->substeps()};
-  const int parts = shared_step_parts(substeps);
-  ASSERT_EQ(parts, 2);
+  ASSERT_EQ(shared_step_parts(substeps), 2);
   for (int k = 0; k < ticks; ++k) {
-    ParticleState ws, cs;
-    for (int part = 0; part < parts; ++part) {
-      const std::vector<Vec3> water_start = water.state().x, cloth_start = cloth->state().x;
-      water.advance(dt / parts, water.substeps() / parts, {}, part + 1 == parts);
-      cloth->advance(dt / parts, cloth->substeps() / parts, {}, part + 1 == parts);
-      ws = water.state();
-      cs = cloth->state();
-      const CouplingReport rep = couple_particles_to_cloth(ws, water.inverse_masses(), water_start, cs,
-                                                           cloth->inverse_masses(), cloth->triangles(), cloth_start,
-                                                           contact, dt / parts);
-      water.set_state(ws);
-      cloth->set_state(cs);
-      if (k >= ticks - averaged) push += rep.force_on_body / (averaged * parts);
-    }
+    const CouplingReport rep = step_with_cloth_contact(water, *cloth, contact, dt, {});
+    if (k >= ticks - averaged) push += rep.force_on_body / averaged;
+    const ParticleState &ws = water.state(), &cs = cloth->state();
     for (const Vec3& p : ws.x) {
       // Under the cloth: below its lowest point while over its middle.
       double lowest = 1e300;

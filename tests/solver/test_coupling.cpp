@@ -829,3 +829,26 @@ TEST(ObstacleContact, BadObstaclesAreRefused) {
   in.obstacles[0].triangles.push_back({0, 1, 9});
   EXPECT_THROW(stepper.step(*model, state, SolverSettings{}, in), std::invalid_argument);
 }
+
+// The pair stepped as a scene steps it: in the shared parts, or in a count given that divides
+// both bodies' substeps; another count is refused, naming it.
+TEST(ClothContact, AStepWithTheContactInPartsRefusesPartsThatDoNotDivideTheSubsteps) {
+  ClothGridSpec g;
+  g.nx = g.ny = 4;
+  auto cloth = ConstraintBody::cloth_grid(g, ConstraintBodySettings{});  // 16 substeps
+  FluidSettings fs;
+  fs.spacing = 0.02;  // 2 substeps
+  FluidBody water(fs, {FluidBlock{Vec3(-0.02, 0.1, -0.02), Vec3(0.02, 0.14, 0.02), Vec3::Zero()}});
+  CouplingSettings contact;
+  contact.radius = water.contact_radius() + cloth->contact_radius();
+  EXPECT_NO_THROW(step_with_cloth_contact(water, *cloth, contact, 1.0 / 60, {}));
+  EXPECT_NO_THROW(step_with_cloth_contact(water, *cloth, contact, 1.0 / 60, {}, 1));
+  try {
+    step_with_cloth_contact(water, *cloth, contact, 1.0 / 60, {}, 4);
+    ADD_FAILURE() << "4 parts of 2 substeps accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("parts 4"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(water.state().steps, 2u);
+  EXPECT_EQ(cloth->state().steps, 2u);
+}

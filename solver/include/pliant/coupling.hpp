@@ -75,6 +75,14 @@ CouplingReport couple_particles_to_cloth(ParticleState& particles, std::span<con
                                          std::span<const Vec3> cloth_start, const CouplingSettings& settings,
                                          double dt, std::span<const std::array<uint32_t, 2>> segments = {});
 
+// Steps a particle body and a cloth by dt as a scene steps two bodies in contact: in the parts
+// shared_step_parts gives for their substeps (or `parts`, which must divide both), with
+// couple_particles_to_cloth (the particles' segments included) after each part. Returns the
+// contacts summed over the parts, the deepest, and `force_on_body`, the particles' push on the
+// cloth averaged over dt. std::invalid_argument when `parts` does not divide a body's substeps.
+CouplingReport step_with_cloth_contact(ParticleBody& particles, ParticleBody& cloth, const CouplingSettings& settings,
+                                       double dt, std::span<const Collider> colliders, int parts = 0);
+
 // Two-way contact between a particle body (a fluid, a cloth's particles, another rope) and a
 // rope, after both stepped: each particle stays at least `settings.radius` (the two bodies'
 // contact radii summed) from the rope's segments, the rope being a chain of capsules. A

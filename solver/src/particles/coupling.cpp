@@ -676,4 +676,31 @@ size_t couple_particles_to_tool(ParticleState& ps, std::span<const double> wp, c
   return pushed;
 }
 
+CouplingReport step_with_cloth_contact(ParticleBody& particles, ParticleBody& cloth, const CouplingSettings& settings,
+                                       double dt, std::span<const Collider> colliders, int parts) {
+  const int substeps[] = {particles.substeps(), cloth.substeps()};
+  const int k = parts > 0 ? parts : shared_step_parts(substeps);
+  for (int n : substeps)
+    if (k < 1 || n % k != 0)
+      throw std::invalid_argument(fmt::format("step_with_cloth_contact: parts {} does not divide the bodies' substeps ({} and {})",
+                                              parts, substeps[0], substeps[1]));
+  CouplingReport total;
+  for (int part = 0; part < k; ++part) {
+    const std::vector<Vec3> particle_start = particles.state().x, cloth_start = cloth.state().x;
+    particles.advance(dt / k, particles.substeps() / k, colliders, part + 1 == k);
+    cloth.advance(dt / k, cloth.substeps() / k, colliders, part + 1 == k);
+    ParticleState ps = particles.state(), cs = cloth.state();
+    const CouplingReport r = couple_particles_to_cloth(ps, particles.inverse_masses(), particle_start, cs,
+                                                       cloth.inverse_masses(), cloth.triangles(), cloth_start,
+                                                       settings, dt / k, particles.segments());
+    particles.set_state(ps);
+    cloth.set_state(cs);
+    total.contacts += r.contacts;
+    total.segment_contacts += r.segment_contacts;
+    total.max_depth = std::max(total.max_depth, r.max_depth);
+    total.force_on_body += r.force_on_body / k;
+  }
+  return total;
+}
+
 }  // namespace pliant
