@@ -392,6 +392,16 @@ TEST(Bodies, AHammockHoldsWaterFourteenTimesItsMass) {
   }
   EXPECT_EQ(water, 125u);
   EXPECT_EQ(in_hammock, water) << "all the water in the hammock after 10 s";
+  // In two parts each body still runs its own substeps a tick, and counts one step a tick.
+  const v1::Frame f = latest_frame(c, "heavy");
+  ASSERT_EQ(f.solver().bodies_size(), 2);
+  EXPECT_EQ(f.solver().bodies(0).substeps(), 16);
+  EXPECT_EQ(f.solver().bodies(1).substeps(), 2);
+  EXPECT_GT(f.solver().bodies(1).body_contacts(), 0u);
+  const v1::Snapshot snap = snapshot_of(c, "heavy");
+  EXPECT_EQ(snap.bodies(0).steps(), 600u);
+  EXPECT_EQ(snap.bodies(1).steps(), 600u);
+  EXPECT_NEAR(snap.bodies(1).time(), 10.0, 1e-9);
 }
 
 TEST(Bodies, GrabOnARopeParticleHoldsItsWeightAndMovesIt) {
