@@ -6,6 +6,7 @@
 #include "pliant/coupling.hpp"
 #include "pliant/stepper.hpp"
 
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -85,6 +86,7 @@ struct Scene::TickState {
   };
   std::vector<ClothPair> cloth_pairs;
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
+  int body_parts = 1;  // the parts a tick of the bodies in some ClothPair is cut into (shared_step_parts)
   // The cloths with soft_body_contact: obstacles to the tet body's vertices in its step.
   std::vector<size_t> obstacle_bodies;
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
@@ -193,6 +195,18 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
     if (ts_->body_contact[b] && !ts_->bodies[b]->triangles().empty()) ts_->obstacle_bodies.push_back(b);
   ts_->in_cloth_pair.assign(ts_->bodies.size(), 0);
   for (const TickState::ClothPair& p : ts_->cloth_pairs) ts_->in_cloth_pair[p.particles] = ts_->in_cloth_pair[p.cloth] = 1;
+  std::vector<int> paired_substeps;
+  for (size_t b = 0; b < ts_->bodies.size(); ++b)
+    if (ts_->in_cloth_pair[b]) paired_substeps.push_back(ts_->bodies[b]->substeps());
+  ts_->body_parts = shared_step_parts(paired_substeps);
+  if (ts_->body_parts > 1)
+    spdlog::debug("scene '{}': the bodies in contact step in {} parts a tick (substeps {})", id_, ts_->body_parts,
+                  fmt::join(paired_substeps, ", "));
+  else if (std::any_of(paired_substeps.begin(), paired_substeps.end(), [](int n) { return n > 1; }))
+    spdlog::info("scene '{}': the substeps of the bodies in contact ({}) have no common factor, so their contacts "
+                 "come once per tick; substeps with one (a fluid's 2 and a cloth's 16) let the scene resolve them "
+                 "within the tick",
+                 id_, fmt::join(paired_substeps, ", "));
   config_ = std::move(config);
   model_shared_ = std::move(model);
   publish_status();
@@ -831,13 +845,7 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
   // The bodies in contact with each other step in parts (shared_step_parts of their substeps:
   // whole substeps each) with their contacts after every part, so that a contact is resolved
   // within the step as the bodies' own constraints are; the others step in one piece.
-  int parts = 1;
-  if (!t.cloth_pairs.empty()) {
-    std::vector<int> substeps;
-    for (size_t b = 0; b < t.bodies.size(); ++b)
-      if (t.in_cloth_pair[b]) substeps.push_back(t.bodies[b]->substeps());
-    parts = shared_step_parts(substeps);
-  }
+  const int parts = t.body_parts;
   for (int part = 0; part < parts && failure.empty(); ++part) {
     const bool last_part = part + 1 == parts;
     for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
