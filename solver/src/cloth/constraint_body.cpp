@@ -704,9 +704,9 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
   // "Substeps and stretch"). Said once, and again only after the body has recovered.
   if (worst > kSelfCollisionStretchLimit && !stretch_warned_) {
     stretch_warned_ = true;
-    spdlog::warn("{}: an edge is stretched to {:.1f} times its rest length with {} substeps x {} iterations per step "
-                 "of {:g} s; the budget is too small for stretch compliance {:g} m/N: use more substeps or iterations{}",
-                 log_name(), 1.0 + worst, settings_.substeps, settings_.iterations, dt, settings_.stretch_compliance,
+    spdlog::warn("{}: an edge is stretched to {:.1f} times its rest length with {} substeps x {} iterations in "
+                 "{:g} s; the budget is too small for stretch compliance {:g} m/N: use more substeps or iterations{}",
+                 log_name(), 1.0 + worst, ns, settings_.iterations, dt, settings_.stretch_compliance,
                  wants_self ? " (self-collision is left out while an edge is past twice its rest length)" : "");
   } else if (worst < 0.25) {
     stretch_warned_ = false;
