@@ -282,8 +282,9 @@ TEST(Bodies, TheHapticToolFeelsTheClothItCatches) {
 
 namespace {
 
-// A 0.6 m cloth of 1 kg/m^2 pinned at its corners (y = 2, centred on x = 5) and 27 particles of
-// water (2 cm apart; `side` a side) 15 cm above its middle, away from the clamped beam1; lockstep.
+// A 0.6 m cloth (1 kg/m^2 unless given) pinned at its corners (y = 2, centred on x = 5) and a cube
+// of water particles 2 cm apart (`side` a side: 27 unless given) 15 cm above its middle, away from
+// the clamped beam1; lockstep.
 v1::CreateSceneRequest hammock_request(const std::string& id, bool water_contact, double mass_per_area = 1.0,
                                        int side = 3) {
   v1::CreateSceneRequest r = beam_scene(id);
@@ -368,7 +369,7 @@ TEST(Bodies, WaterPouredIntoAClothHammockStaysInIt) {
 // the contact once per tick the cloth, which learned of the load only after its whole step,
 // dipped and let it spill over its edges and through it: here 5 of 125 were left after 10 s and
 // one was under the cloth after 5 s (checked), in `build/bench/pliant_hammock --one-part` 9 and 2
-// (docs/cloth.md, "Contact between bodies").
+// (docs/cloth.md, "Steps in parts").
 TEST(Bodies, AHammockHoldsWaterFourteenTimesItsMass) {
   BodiesServer srv;
   Client c = srv.client();
