@@ -857,10 +857,12 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       }
       guarded(b, [&] {
         // The start positions, for the contacts that read them (none: no copy in the tick): the
-        // tick's for the soft body's and the tools' contacts, the part's for the pairs'.
+        // tick's for the soft body's and the tools' contacts and the first part's pairs, the
+        // part's for the later parts' pairs.
         const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || !inputs.tools.empty();
+        const bool part_start = in_parts && part > 0;
         if (starts && part == 0) t.body_start[b] = t.bodies[b]->state().x;
-        if (in_parts) t.body_part_start[b] = t.bodies[b]->state().x;
+        if (part_start) t.body_part_start[b] = t.bodies[b]->state().x;
         const auto t_body = Clock::now();
         const int n = in_parts ? t.bodies[b]->substeps() / parts : t.bodies[b]->substeps();
         const ParticleStepReport r =
@@ -881,7 +883,7 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
           for (size_t i = start.size(); i < now.size(); ++i) start.push_back(now[i]);
         };
         if (starts) add_emitted(t.body_start[b]);
-        if (in_parts) add_emitted(t.body_part_start[b]);
+        if (part_start) add_emitted(t.body_part_start[b]);
         if (const auto& contact = t.body_contact[b]; contact && (!in_parts || last_part)) {
           // Two-way with the soft body: the particles move out, the tet body takes their momentum.
           ParticleState ps = t.bodies[b]->state();
@@ -900,7 +902,7 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
         const auto t_pair = Clock::now();
         ParticleBody& a = *t.bodies[pair.particles];
         ParticleBody& c = *t.bodies[pair.cloth];
-        const auto& starts = parts > 1 ? t.body_part_start : t.body_start;
+        const auto& starts = part > 0 ? t.body_part_start : t.body_start;
         const double h = dt / parts;
         ParticleState ps = a.state(), cs = c.state();
         const CouplingReport r =
