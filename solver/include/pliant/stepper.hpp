@@ -100,6 +100,21 @@ class Stepper {
   StepReport step(const BodyModel& model, BodyState& state, const SolverSettings& settings,
                   const StepInputs& inputs = {});
 
+  // The step cut into `parts` steps of settings.dt / parts, of effective_substeps / parts
+  // substeps each (parts must divide them; throws std::invalid_argument naming both), with
+  // after_part(part, part_report, inputs) after each part: a scene steps its other bodies
+  // alongside, and their contacts may change the state's velocities and move the obstacles the
+  // next part sees. A moving tool is posed where it is at each part's end; the time budget is
+  // shared over the parts as over the substeps. The report is the step's: substeps and
+  // iterations summed, tool and grab forces averaged over all its substeps, the last part's
+  // residuals, obstacle_impulses summed over the parts (after_part gets the part's own report). A part
+  // that diverges or is cancelled ends the step without its after_part. With nothing changed
+  // between the parts the state is step()'s to rounding: to the last bit when parts is a power of
+  // two and no tool moves.
+  using AfterPart = std::function<void(int part, const StepReport& part_report, StepInputs& inputs)>;
+  StepReport step_in_parts(const BodyModel& model, BodyState& state, const SolverSettings& settings,
+                           StepInputs inputs, int parts, const AfterPart& after_part);
+
   // One substep of length h from a given predicted start, exposed for the convergence
   // experiment: x = x_pred on entry, runs up to settings.iterations; the report holds the full
   // residual history. `x_prev` is the position at the start of the substep. lambda is in the
