@@ -87,6 +87,11 @@ struct Scene::TickState {
   std::vector<ClothPair> cloth_pairs;
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
   int body_parts = 1;  // the parts a tick of the bodies in some ClothPair is cut into (shared_step_parts)
+  // Per body: its contact with the tet body comes after every part of a tick the tet body steps
+  // in parts (Scene::body_parts): the fluids'. A cloth's or a rope's comes once per tick (the tet
+  // body's vertices meet a cloth's triangles inside its step; a contact pass costs a grid over the
+  // tet body's surface, and their 16 substeps would make 16 of them).
+  std::vector<uint8_t> tet_parts;
   // The cloths with soft_body_contact: obstacles to the tet body's vertices in its step.
   std::vector<size_t> obstacle_bodies;
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
@@ -170,6 +175,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
       contact->radius = contact_radius(bc);
       contact->friction = bc.soft_body_friction;
     }
+    ts_->tet_parts.push_back(contact && body->kind() == "fluid");
     ts_->body_contact.push_back(contact);
     ts_->bodies_initial.push_back(body->state());
     ts_->body_start.emplace_back();
@@ -804,19 +810,62 @@ void Scene::carry_report(StepReport&& report, bool rolled_back, Frame& frame) {
   frame.solver = std::move(report);
 }
 
-// The particle bodies, after the tet body, with the tick's dt against the same colliders, each
-// followed by its contact with the tet body; then the contacts between bodies (particles against
-// cloths) and the tools' (their reactions, the haptic stream's force, add each body's push to
-// the tet body's). A cancelled tick stops between bodies (a body's own step is not interrupted).
-void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::string& failure) {
+namespace {
+
+double ms_since(Clock::time_point from) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - from).count();
+}
+
+}  // namespace
+
+// How a tick cuts the particle bodies' steps (shared_step_parts): the fluids in contact with the
+// tet body step with it in parts of whole substeps of every body, the tet body's and the paired
+// bodies' included, where their substeps share a factor; else the bodies in contact with each
+// other step in parts among themselves (the tet body's whole step first), else every body in one
+// piece.
+Scene::BodyParts Scene::body_parts() const {
+  const TickState& t = *ts_;
+  BodyParts bp;
+  bp.parts = t.body_parts;
+  std::vector<int> substeps;
+  bool touches_tet = false;
+  for (size_t b = 0; b < t.bodies.size(); ++b)
+    if (t.tet_parts[b] || t.in_cloth_pair[b]) {
+      substeps.push_back(t.bodies[b]->substeps());
+      touches_tet = touches_tet || t.tet_parts[b];
+    }
+  if (!touches_tet) return bp;
+  substeps.push_back(effective_substeps(*t.model, t.settings));
+  const int with_tet = shared_step_parts(substeps);
+  if (with_tet > 1) {
+    bp.parts = with_tet;
+    bp.with_tet = true;
+  }
+  return bp;
+}
+
+// The particle bodies' share of a tick before its parts: their reports.
+void Scene::begin_bodies() {
   TickState& t = *ts_;
   t.body_reports.assign(t.bodies.size(), ParticleStepReport{});
-  if (t.bodies.empty()) return;
+}
+
+// One part of the particle bodies' step (the whole step when parts is 1), after the tet body's
+// (its part, with bp.with_tet): the soft body's push on the cloths it touched (`obstacle_impulses`,
+// before they step), each body's step against the scene's colliders followed by its contact with
+// the tet body (a fluid's after every part with bp.with_tet, else after its whole step), then the
+// contacts between bodies (particles against cloths and ropes). Bodies in contact step in parts,
+// whole substeps each, so that a contact is resolved within the step as the bodies' own
+// constraints are; the others step in one piece, after the tet body's whole step. A cancelled
+// tick stops between bodies (a body's own step is not interrupted); a throw or a blow-up names
+// its body in `failure`.
+void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::vector<Vec3>>& obstacle_impulses,
+                        bool tools, bool& cancelled, std::string& failure) {
+  TickState& t = *ts_;
+  if (t.bodies.empty() || !failure.empty() || cancelled) return;
   const double dt = t.settings.dt;
-  auto ms_since = [](Clock::time_point from) {
-    return std::chrono::duration<double, std::milli>(Clock::now() - from).count();
-  };
-  // A throw or a blow-up names its body; the caller rolls the tick back.
+  const int parts = bp.parts;
+  const bool last_part = part + 1 == parts;
   auto guarded = [&](size_t b, auto&& work) {
     if (!failure.empty()) return;
     try {
@@ -825,12 +874,11 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       failure = "body '" + bodies_info_[b].name + "': " + e.what();
     }
   };
-  // The soft body's push on the cloths it touched during its step, before they step.
-  for (size_t k = 0; k < t.obstacle_bodies.size() && k < report.obstacle_impulses.size(); ++k) {
+  for (size_t k = 0; k < t.obstacle_bodies.size() && k < obstacle_impulses.size(); ++k) {
     const size_t b = t.obstacle_bodies[k];
     guarded(b, [&] {
       ParticleBody& cloth = *t.bodies[b];
-      const auto& impulse = report.obstacle_impulses[k];
+      const auto& impulse = obstacle_impulses[k];
       const auto w = cloth.inverse_masses();
       ParticleState st = cloth.state();
       bool any = false;
@@ -842,89 +890,105 @@ void Scene::step_bodies(const StepInputs& inputs, StepReport& report, std::strin
       if (any) cloth.set_state(st);
     });
   }
-  // The bodies in contact with each other step in parts (shared_step_parts of their substeps:
-  // whole substeps each) with their contacts after every part, so that a contact is resolved
-  // within the step as the bodies' own constraints are; the others step in one piece.
-  const int parts = t.body_parts;
-  for (int part = 0; part < parts && failure.empty(); ++part) {
-    const bool last_part = part + 1 == parts;
-    for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
-      const bool in_parts = parts > 1 && t.in_cloth_pair[b];
-      if (part > 0 && !in_parts) continue;  // stepped whole in the first part
-      if (cancel_tick_.load()) {
-        report.cancelled = true;
-        return;
-      }
-      guarded(b, [&] {
-        // The start positions, for the contacts that read them (none: no copy in the tick): the
-        // tick's for the soft body's and the tools' contacts and the first part's pairs, the
-        // part's for the later parts' pairs.
-        const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || !inputs.tools.empty();
-        const bool part_start = in_parts && part > 0;
-        if (starts && part == 0) t.body_start[b] = t.bodies[b]->state().x;
-        if (part_start) t.body_part_start[b] = t.bodies[b]->state().x;
-        const auto t_body = Clock::now();
-        const int n = in_parts ? t.bodies[b]->substeps() / parts : t.bodies[b]->substeps();
-        const ParticleStepReport r =
-            t.bodies[b]->advance(in_parts ? dt / parts : dt, n, t.colliders, !in_parts || last_part);
-        ParticleStepReport& rep = t.body_reports[b];
-        if (part == 0) {
-          rep = r;
-        } else {  // the step's substeps, the end of its last part
-          rep.substeps += r.substeps;
-          rep.constraint_error = r.constraint_error;
-          rep.max_constraint_error = r.max_constraint_error;
-          rep.contacts = r.contacts;
-          rep.self_collision_suspended = rep.self_collision_suspended || r.self_collision_suspended;
-        }
-        // Particles an emitter added during the step start where they are (no path to cross).
-        const auto& now = t.bodies[b]->state().x;
-        auto add_emitted = [&now](std::vector<Vec3>& start) {
-          for (size_t i = start.size(); i < now.size(); ++i) start.push_back(now[i]);
-        };
-        if (starts) add_emitted(t.body_start[b]);
-        if (part_start) add_emitted(t.body_part_start[b]);
-        if (const auto& contact = t.body_contact[b]; contact && (!in_parts || last_part)) {
-          // Two-way with the soft body: the particles move out, the tet body takes their momentum.
-          ParticleState ps = t.bodies[b]->state();
-          const CouplingReport c = couple_particles_to_body(*t.model, t.state, ps, t.bodies[b]->inverse_masses(),
-                                                            *contact, dt, t.body_start[b], t.bodies[b]->segments());
-          rep.soft_body_contacts = c.contacts + c.segment_contacts;
-          t.bodies[b]->set_state(ps);
-        }
-        // Its step and its contacts, below.
-        rep.wall_ms = (part == 0 ? 0.0 : rep.wall_ms) + ms_since(t_body);
-      });
+  for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
+    const bool tet_parts = bp.with_tet && t.tet_parts[b];  // its tet contact after every part
+    const bool in_parts = parts > 1 && (t.in_cloth_pair[b] || tet_parts);
+    // One piece: after the tet body's whole step (its last part, or before the first part here).
+    if (!in_parts && part != (bp.with_tet ? parts - 1 : 0)) continue;
+    const bool first = !in_parts || part == 0;
+    if (cancel_tick_.load()) {
+      cancelled = true;
+      return;
     }
-    t.part_contacts.assign(t.bodies.size(), 0);
-    for (const TickState::ClothPair& pair : t.cloth_pairs)
-      guarded(pair.particles, [&] {
-        const auto t_pair = Clock::now();
-        ParticleBody& a = *t.bodies[pair.particles];
-        ParticleBody& c = *t.bodies[pair.cloth];
-        const auto& starts = part > 0 ? t.body_part_start : t.body_start;
-        const double h = dt / parts;
-        ParticleState ps = a.state(), cs = c.state();
-        const CouplingReport r =
-            pair.rope ? couple_particles_to_rope(ps, a.inverse_masses(), starts[pair.particles], cs,
-                                                 c.inverse_masses(), starts[pair.cloth], pair.settings, h,
-                                                 a.segments())
-                      : couple_particles_to_cloth(ps, a.inverse_masses(), starts[pair.particles], cs,
-                                                  c.inverse_masses(), c.triangles(), starts[pair.cloth],
-                                                  pair.settings, h, a.segments());
-        if (r.contacts + r.segment_contacts > 0) {
-          a.set_state(ps);
-          c.set_state(cs);
-        }
-        t.part_contacts[pair.particles] += r.contacts + r.segment_contacts;
-        t.body_reports[pair.particles].wall_ms += ms_since(t_pair);
-      });
-    // In parts: the most in one part (a particle held through the step counts once).
-    for (size_t b = 0; b < t.bodies.size(); ++b)
-      if (t.in_cloth_pair[b])
-        t.body_reports[b].body_contacts = std::max(part == 0 ? 0 : t.body_reports[b].body_contacts, t.part_contacts[b]);
+    guarded(b, [&] {
+      // The start positions, for the contacts that read them (none: no copy in the tick): the
+      // tick's for the tools' contacts and the first part's, the part's for the later parts'.
+      const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || tools;
+      const bool part_start = in_parts && part > 0;
+      if (starts && first) t.body_start[b] = t.bodies[b]->state().x;
+      if (part_start) t.body_part_start[b] = t.bodies[b]->state().x;
+      const auto t_body = Clock::now();
+      const int n = in_parts ? t.bodies[b]->substeps() / parts : t.bodies[b]->substeps();
+      const double h = in_parts ? dt / parts : dt;
+      const ParticleStepReport r = t.bodies[b]->advance(h, n, t.colliders, !in_parts || last_part);
+      ParticleStepReport& rep = t.body_reports[b];
+      if (first) {
+        rep = r;
+      } else {  // the step's substeps, the end of its last part
+        rep.substeps += r.substeps;
+        rep.constraint_error = r.constraint_error;
+        rep.max_constraint_error = r.max_constraint_error;
+        rep.contacts = r.contacts;
+        rep.self_collision_suspended = rep.self_collision_suspended || r.self_collision_suspended;
+      }
+      // Particles an emitter added during the step start where they are (no path to cross).
+      const auto& now = t.bodies[b]->state().x;
+      auto add_emitted = [&now](std::vector<Vec3>& start) {
+        for (size_t i = start.size(); i < now.size(); ++i) start.push_back(now[i]);
+      };
+      if (starts) add_emitted(t.body_start[b]);
+      if (part_start) add_emitted(t.body_part_start[b]);
+      if (const auto& contact = t.body_contact[b]; contact && (tet_parts || !in_parts || last_part)) {
+        // Two-way with the soft body: the particles move out, the tet body takes their momentum;
+        // over the part with the tet body's parts, else over the whole tick.
+        ParticleState ps = t.bodies[b]->state();
+        const CouplingReport c = couple_particles_to_body(
+            *t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, tet_parts ? h : dt,
+            tet_parts && part_start ? t.body_part_start[b] : t.body_start[b], t.bodies[b]->segments());
+        // In parts: the most in one part, as for the contacts between bodies.
+        const size_t touched = c.contacts + c.segment_contacts;
+        rep.soft_body_contacts = first ? touched : std::max(rep.soft_body_contacts, touched);
+        t.bodies[b]->set_state(ps);
+      }
+      // Its step and its contacts, below.
+      rep.wall_ms = (first ? 0.0 : rep.wall_ms) + ms_since(t_body);
+    });
   }
-  if (!inputs.tools.empty() && report.tools.size() != inputs.tools.size()) report.tools.resize(inputs.tools.size());
+  t.part_contacts.assign(t.bodies.size(), 0);
+  for (const TickState::ClothPair& pair : t.cloth_pairs)
+    guarded(pair.particles, [&] {
+      const auto t_pair = Clock::now();
+      ParticleBody& a = *t.bodies[pair.particles];
+      ParticleBody& c = *t.bodies[pair.cloth];
+      const auto& starts = part > 0 ? t.body_part_start : t.body_start;
+      const double h = dt / parts;
+      ParticleState ps = a.state(), cs = c.state();
+      const CouplingReport r =
+          pair.rope ? couple_particles_to_rope(ps, a.inverse_masses(), starts[pair.particles], cs,
+                                               c.inverse_masses(), starts[pair.cloth], pair.settings, h,
+                                               a.segments())
+                    : couple_particles_to_cloth(ps, a.inverse_masses(), starts[pair.particles], cs,
+                                                c.inverse_masses(), c.triangles(), starts[pair.cloth],
+                                                pair.settings, h, a.segments());
+      if (r.contacts + r.segment_contacts > 0) {
+        a.set_state(ps);
+        c.set_state(cs);
+      }
+      t.part_contacts[pair.particles] += r.contacts + r.segment_contacts;
+      t.body_reports[pair.particles].wall_ms += ms_since(t_pair);
+    });
+  // In parts: the most in one part (a particle held through the step counts once).
+  for (size_t b = 0; b < t.bodies.size(); ++b)
+    if (t.in_cloth_pair[b])
+      t.body_reports[b].body_contacts = std::max(part == 0 ? 0 : t.body_reports[b].body_contacts, t.part_contacts[b]);
+}
+
+// The particle bodies' share of a tick after its last part: the tools' contacts (their
+// reactions, the haptic stream's force, add each body's push to the tet body's), then a check
+// that every body is finite.
+void Scene::finish_bodies(const StepInputs& inputs, StepReport& report, std::string& failure) {
+  TickState& t = *ts_;
+  auto guarded = [&](size_t b, auto&& work) {
+    if (!failure.empty()) return;
+    try {
+      work();
+    } catch (const std::exception& e) {
+      failure = "body '" + bodies_info_[b].name + "': " + e.what();
+    }
+  };
+  const double dt = t.settings.dt;
+  if (!t.bodies.empty() && !inputs.tools.empty() && report.tools.size() != inputs.tools.size())
+    report.tools.resize(inputs.tools.size());
   for (size_t b = 0; b < t.bodies.size() && !inputs.tools.empty(); ++b)
     guarded(b, [&] {
       const auto t_tools = Clock::now();
@@ -991,8 +1055,23 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     abort_reason_.clear();
     tick_started_ns_ = std::chrono::duration_cast<std::chrono::nanoseconds>(start.time_since_epoch()).count();
   }
+  const BodyParts parts = body_parts();
+  bool bodies_cancelled = false;
+  begin_bodies();
   try {
-    report = t.stepper.step(*t.model, t.state, t.settings, inputs);
+    if (parts.with_tet) {
+      // The bodies step with the tet body, part by part; the cloths it touches are its obstacles
+      // where each part starts.
+      report = t.stepper.step_in_parts(
+          *t.model, t.state, t.settings, inputs, parts.parts,
+          [&](int part, const StepReport& r, StepInputs& next) {
+            bodies_part(part, parts, r.obstacle_impulses, !inputs.tools.empty(), bodies_cancelled, failure);
+            for (size_t k = 0; k < t.obstacle_bodies.size() && k < next.obstacles.size(); ++k)
+              next.obstacles[k].x = t.bodies[t.obstacle_bodies[k]]->state().x;
+          });
+    } else {
+      report = t.stepper.step(*t.model, t.state, t.settings, inputs);
+    }
     if (report.diverged)
       failure = "solver diverged (residual " + std::to_string(report.residual_final) +
                 " from " + std::to_string(report.residual_initial) + ")";
@@ -1001,7 +1080,12 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   } catch (const std::exception& e) {
     failure = std::string("solver error: ") + e.what();
   }
-  if (failure.empty() && !report.cancelled) step_bodies(inputs, report, failure);
+  if (!parts.with_tet)
+    for (int part = 0; part < parts.parts && failure.empty() && !report.cancelled && !bodies_cancelled; ++part)
+      bodies_part(part, parts, part == 0 ? report.obstacle_impulses : std::vector<std::vector<Vec3>>{},
+                  !inputs.tools.empty(), bodies_cancelled, failure);
+  report.cancelled = report.cancelled || bodies_cancelled;
+  if (failure.empty() && !report.cancelled) finish_bodies(inputs, report, failure);
   std::string abort_reason;
   {
     std::lock_guard lk(abort_mu_);

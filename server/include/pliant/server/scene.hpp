@@ -291,9 +291,19 @@ class Scene {
   bool post(Command fn);
   void run();
   void tick_once(bool scheduled, std::chrono::steady_clock::time_point due);
-  // The tick's particle bodies and their contacts (scene.cpp); `failure` names a body that threw or
-  // blew up, `report` gets the tools' share of the bodies' pushes and a cancellation.
-  void step_bodies(const StepInputs& inputs, StepReport& report, std::string& failure);
+  // The tick's particle bodies and their contacts (scene.cpp): their parts (with the tet body's
+  // step or among themselves), the bodies' reports, each part of their step, then the tools'
+  // contacts. `failure` names a body that threw or blew up; `report` gets the tools' share of the
+  // bodies' pushes.
+  struct BodyParts {
+    int parts = 1;
+    bool with_tet = false;  // the tet body steps in the same parts (Stepper::step_in_parts)
+  };
+  BodyParts body_parts() const;
+  void begin_bodies();
+  void bodies_part(int part, const BodyParts& parts, const std::vector<std::vector<Vec3>>& obstacle_impulses,
+                   bool tools, bool& cancelled, std::string& failure);
+  void finish_bodies(const StepInputs& inputs, StepReport& report, std::string& failure);
   void carry_report(StepReport&& report, bool rolled_back, Frame& frame);
   // A tick the cancel flag stopped: undone; with a reason from abort_tick, also pauses.
   void cancelled_tick(const std::string& abort_reason);
