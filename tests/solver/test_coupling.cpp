@@ -11,11 +11,13 @@
 #include "pliant/vtu_recording.hpp"
 
 #include "drape_obstacle.hpp"
+#include "particles/triangle_grid.hpp"
 #include "pliant/test/segment_distance.hpp"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 
 using namespace pliant;
 
@@ -851,4 +853,41 @@ TEST(ClothContact, AStepWithTheContactInPartsRefusesPartsThatDoNotDivideTheSubst
   }
   EXPECT_EQ(water.state().steps, 2u);
   EXPECT_EQ(cloth->state().steps, 2u);
+}
+
+TEST(TriangleGrid, ARegionKeepsWhatEveryQueryInsideItFinds) {
+  // beam3's surface, shaken, with a region that holds one end of it and the air beside: every
+  // point and path inside the region gets the same triangles, in the same order, from the grid
+  // binned for the region as from the whole grid; and the region's grid holds fewer entries.
+  auto model = build_model(*builtin_mesh("beam3"), Material{1e6, 0.4, 1000});
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> shake(-4e-4, 4e-4);
+  std::vector<Vec3> x = model->rest_positions;
+  for (Vec3& p : x) p += Vec3(shake(rng), shake(rng), shake(rng));
+  const double reach = 0.002;
+  const std::pair<Vec3, Vec3> region{Vec3(0.07, -0.004, -0.003), Vec3(0.11, 0.006, 0.012)};
+  const detail::TriangleGrid whole(model->surface, std::span<const Vec3>(x), reach);
+  const detail::TriangleGrid near_region(model->surface, std::span<const Vec3>(x), reach, {}, &region);
+  std::uniform_real_distribution<double> u(0, 1);
+  auto inside = [&] {
+    const Vec3 t(u(rng), u(rng), u(rng));
+    return Vec3(region.first.array() + t.array() * (region.second - region.first).array());
+  };
+  std::vector<int32_t> a, b;
+  size_t found = 0;
+  for (int k = 0; k < 2000; ++k) {
+    const Vec3 p = inside(), q = inside();
+    const auto na = whole.near(p), nb = near_region.near(p);
+    ASSERT_EQ(std::vector<int32_t>(na.begin(), na.end()), std::vector<int32_t>(nb.begin(), nb.end())) << k;
+    const Vec3 r = p + 0.1 * (q - p);  // a short path, and a long one
+    whole.near_segment(p, r, 4096, a);
+    near_region.near_segment(p, r, 4096, b);
+    ASSERT_EQ(a, b) << k;
+    whole.near_segment(p, q, 4096, a);
+    near_region.near_segment(p, q, 4096, b);
+    ASSERT_EQ(a, b) << k;
+    found += a.size();
+  }
+  EXPECT_GT(found, 0u);  // the region meets the body
+  EXPECT_LT(near_region.entries(), whole.entries() / 2);
 }

@@ -233,7 +233,20 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   // segment at points no farther apart than the radius (at most 64 a segment), so that a segment
   // longer than the contact's thickness cannot slide over an edge of the body between its two
   // particles.
-  const TriangleGrid grid(m.surface, std::span<const Vec3>(body.x), s.radius);
+  // The grid over the surface near the particles only: the box of every finite particle where
+  // it started and ended (a segment's points lie inside it).
+  std::pair<Vec3, Vec3> region{Vec3::Constant(INFINITY), Vec3::Constant(-INFINITY)};
+  for (size_t p = 0; p < ps.x.size(); ++p) {
+    if (!finite(uint32_t(p))) continue;
+    region.first = region.first.cwiseMin(ps.x[p]);
+    region.second = region.second.cwiseMax(ps.x[p]);
+    if (start[p].allFinite()) {
+      region.first = region.first.cwiseMin(start[p]);
+      region.second = region.second.cwiseMax(start[p]);
+    }
+  }
+  if (!(region.first.array() <= region.second.array()).all()) return rep;  // no finite particle
+  const TriangleGrid grid(m.surface, std::span<const Vec3>(body.x), s.radius, {}, &region);
   std::vector<PointContact> contacts;
   std::vector<int32_t> swept;
   const std::span<const Vec3> x(ps.x);

@@ -23,9 +23,13 @@ namespace pliant::detail {
 class TriangleGrid {
  public:
   // `triangles`: 3-index arrays (the tet body's surface, a cloth's triangles) into x.
+  // `region` (a box), when given: only the triangles that a query inside it can meet are binned
+  // (those whose cells overlap the region's), so a small set of particles beside a large body
+  // costs the triangles near it; every query inside the region finds what the whole grid finds,
+  // in the same order.
   template <class Triangles>
   TriangleGrid(const Triangles& triangles, std::span<const Vec3> x, double reach,
-               std::span<const Vec3> swept_from = {}) {
+               std::span<const Vec3> swept_from = {}, const std::pair<Vec3, Vec3>* region = nullptr) {
     double edge = 0;
     for (const auto& t : triangles) edge += (x[t[1]] - x[t[0]]).norm();
     edge = triangles.empty() ? reach : edge / double(triangles.size());
@@ -71,6 +75,30 @@ class TriangleGrid {
       if (entries <= cap || attempt == 64) break;
       cell_ *= 2 * std::cbrt(entries / cap);
     }
+    const auto r_lo = region ? cell_of(region->first) : all_lo, r_hi = region ? cell_of(region->second) : all_hi;
+    if (r_lo[0] > all_lo[0] || r_lo[1] > all_lo[1] || r_lo[2] > all_lo[2] || r_hi[0] < all_hi[0] ||
+        r_hi[1] < all_hi[1] || r_hi[2] < all_hi[2]) {
+      // The cell size stays the whole set's; the triangles whose cells miss the region's go.
+      all_lo = {INT64_MAX, INT64_MAX, INT64_MAX};
+      all_hi = {INT64_MIN, INT64_MIN, INT64_MIN};
+      entries = 0;
+      for (size_t k = 0; k < triangles.size(); ++k) {
+        if (!binned[k]) continue;
+        double n = 1;
+        for (int c = 0; c < 3 && binned[k]; ++c) {
+          spans[k][0][c] = std::max(spans[k][0][c], r_lo[c]);
+          spans[k][1][c] = std::min(spans[k][1][c], r_hi[c]);
+          binned[k] = spans[k][0][c] <= spans[k][1][c];
+          n *= double(spans[k][1][c] - spans[k][0][c] + 1);
+        }
+        if (!binned[k]) continue;
+        for (int c = 0; c < 3; ++c) {
+          all_lo[c] = std::min(all_lo[c], spans[k][0][c]);
+          all_hi[c] = std::max(all_hi[c], spans[k][1][c]);
+        }
+        entries += n;
+      }
+    }
     if (entries == 0) return;
     // Dense cells over the range when it is not much larger than the entries (a body in one
     // piece), filled by counting in triangle order; a hash of the occupied cells otherwise.
@@ -109,6 +137,7 @@ class TriangleGrid {
   }
 
   std::span<const int32_t> near(const Vec3& p) const { return cell(cell_of(p)); }
+  size_t entries() const { return triangles_.size(); }  // (cell, triangle) entries binned
 
   // The triangles near a segment: those of every cell its box touches (with repeats), or
   // nothing when that box spans more than max_cells cells.
