@@ -816,6 +816,18 @@ double ms_since(Clock::time_point from) {
   return std::chrono::duration<double, std::milli>(Clock::now() - from).count();
 }
 
+// A body's share of the tick, unless the tick has failed already; a throw names the body in
+// `failure` (the caller rolls the tick back).
+template <class Fn>
+void guard_body(const std::string& name, std::string& failure, Fn&& work) {
+  if (!failure.empty()) return;
+  try {
+    work();
+  } catch (const std::exception& e) {
+    failure = "body '" + name + "': " + e.what();
+  }
+}
+
 }  // namespace
 
 // How a tick cuts the particle bodies' steps (shared_step_parts): the fluids in contact with the
@@ -866,14 +878,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
   const double dt = t.settings.dt;
   const int parts = bp.parts;
   const bool last_part = part + 1 == parts;
-  auto guarded = [&](size_t b, auto&& work) {
-    if (!failure.empty()) return;
-    try {
-      work();
-    } catch (const std::exception& e) {
-      failure = "body '" + bodies_info_[b].name + "': " + e.what();
-    }
-  };
+  auto guarded = [&](size_t b, auto&& work) { guard_body(bodies_info_[b].name, failure, work); };
   for (size_t k = 0; k < t.obstacle_bodies.size() && k < obstacle_impulses.size(); ++k) {
     const size_t b = t.obstacle_bodies[k];
     guarded(b, [&] {
@@ -978,14 +983,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
 // that every body is finite.
 void Scene::finish_bodies(const StepInputs& inputs, StepReport& report, std::string& failure) {
   TickState& t = *ts_;
-  auto guarded = [&](size_t b, auto&& work) {
-    if (!failure.empty()) return;
-    try {
-      work();
-    } catch (const std::exception& e) {
-      failure = "body '" + bodies_info_[b].name + "': " + e.what();
-    }
-  };
+  auto guarded = [&](size_t b, auto&& work) { guard_body(bodies_info_[b].name, failure, work); };
   const double dt = t.settings.dt;
   if (!t.bodies.empty() && !inputs.tools.empty() && report.tools.size() != inputs.tools.size())
     report.tools.resize(inputs.tools.size());

@@ -4,6 +4,7 @@
 // steps, the damping that is given per step, the budget, the tools' poses, the report) is shared
 // out here and put together again.
 #include "pliant/stepper.hpp"
+#include "step/stages.hpp"
 
 #include <chrono>
 #include <cmath>
@@ -59,29 +60,11 @@ struct PartForces {
   }
 };
 
+// A part's report into the step's: as a substep's (add_substep), with its substeps, obstacle
+// impulses and wall time added.
 void add_part(StepReport& total, StepReport&& part) {
   total.substeps += part.substeps;
-  total.iterations += part.iterations;
-  total.accelerations_tried += part.accelerations_tried;
-  total.accelerations_accepted += part.accelerations_accepted;
-  total.anderson_columns_dropped += part.anderson_columns_dropped;
-  total.diverged |= part.diverged;
-  total.stopped_by_tolerance |= part.stopped_by_tolerance;
-  total.stopped_by_budget |= part.stopped_by_budget;
-  total.floor_stopped_by_budget |= part.floor_stopped_by_budget;
-  total.cancelled |= part.cancelled;
-  total.contacts = part.contacts;
-  total.volume_corrections = part.volume_corrections;
-  total.linear_iterations += part.linear_iterations;
-  total.hessian_reused += part.hessian_reused;
-  total.times.projection_ms += part.times.projection_ms;
-  total.times.anderson_ms += part.times.anderson_ms;
-  total.times.update_ms += part.times.update_ms;
-  total.times.residual_ms += part.times.residual_ms;
-  total.times.other_ms += part.times.other_ms;
-  total.residuals = std::move(part.residuals);
-  total.residual_initial = part.residual_initial;
-  total.residual_final = part.residual_final;
+  total.wall_ms += part.wall_ms;
   if (total.obstacle_impulses.size() < part.obstacle_impulses.size())
     total.obstacle_impulses.resize(part.obstacle_impulses.size());
   for (size_t o = 0; o < part.obstacle_impulses.size(); ++o) {
@@ -90,7 +73,7 @@ void add_part(StepReport& total, StepReport&& part) {
     if (sum.size() < add.size()) sum.resize(add.size(), Vec3::Zero());
     for (size_t k = 0; k < add.size(); ++k) sum[k] += add[k];
   }
-  total.wall_ms += part.wall_ms;
+  detail::add_substep(total, std::move(part));
 }
 
 }  // namespace
