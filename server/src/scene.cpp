@@ -213,6 +213,11 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
                  "come once per tick; substeps with one (a fluid's 2 and a cloth's 16) let the scene resolve them "
                  "within the tick",
                  id_, fmt::join(paired_substeps, ", "));
+  if (std::any_of(ts_->tet_parts.begin(), ts_->tet_parts.end(), [](uint8_t f) { return f != 0; }) &&
+      !body_parts().with_tet)
+    spdlog::info("scene '{}': the soft body's substeps ({}) share no factor with its fluids' and their partners', so "
+                 "a fluid meets the soft body once per tick (docs/fluids.md, \"In parts with the soft body\")",
+                 id_, effective_substeps(*ts_->model, ts_->settings));
   config_ = std::move(config);
   model_shared_ = std::move(model);
   publish_status();
