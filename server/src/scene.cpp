@@ -924,6 +924,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       ParticleStepReport& rep = t.body_reports[b];
       if (first) {
         rep = r;
+        rep.parts = in_parts ? parts : 1;
       } else {  // the step's substeps, the end of its last part
         rep.substeps += r.substeps;
         rep.constraint_error = r.constraint_error;

@@ -95,6 +95,7 @@ void frame_to_proto(const Frame& f, const FrameSelection& sel, const std::vector
       bs->set_body_contacts(static_cast<uint32_t>(b.report.body_contacts));
       bs->set_soft_body_contacts(static_cast<uint32_t>(b.report.soft_body_contacts));
       bs->set_self_collision_suspended(b.report.self_collision_suspended);
+      bs->set_step_parts(static_cast<uint32_t>(b.report.parts));
     }
   out->set_late_ticks(f.counters.late_ticks);
   out->set_skipped_ticks(f.counters.skipped_ticks);

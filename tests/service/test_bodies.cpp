@@ -400,6 +400,8 @@ TEST(Bodies, AHammockHoldsWaterFourteenTimesItsMass) {
   ASSERT_EQ(f.solver().bodies_size(), 2);
   EXPECT_EQ(f.solver().bodies(0).substeps(), 16);
   EXPECT_EQ(f.solver().bodies(1).substeps(), 2);
+  EXPECT_EQ(f.solver().bodies(0).step_parts(), 2u);
+  EXPECT_EQ(f.solver().bodies(1).step_parts(), 2u);
   EXPECT_GT(f.solver().bodies(1).body_contacts(), 0u);
   const v1::Snapshot snap = snapshot_of(c, "heavy");
   EXPECT_EQ(snap.bodies(0).steps(), 600u);
@@ -1365,6 +1367,8 @@ TEST(Bodies, APoolOnASoftSlabSettlesNearItsDepthOnAFloor) {
       }
       const auto& p = f.bodies(0).positions();
       particles = p.size() / 3;
+      // The water in parts with the slab (its substeps, a factor of the slab's 64), touching or not.
+      EXPECT_EQ(f.solver().bodies(0).step_parts(), uint32_t(substeps));
       if (k >= 60) {
         for (int i = 0; i < p.size(); ++i) sq += std::pow((p[i] - prev[i]) * 60.0, 2);
         for (int i = 0; i < p.size() / 3; ++i) out.depth += p[3 * i + 1] - 0.02;

@@ -58,6 +58,7 @@ struct ParticleStepReport {
   size_t body_contacts = 0;       // particles and points of segments the scene's cloths and ropes pushed after the step (the scene's)
   size_t soft_body_contacts = 0;  // particles and points of segments the soft body pushed after the step (the scene's)
   bool self_collision_suspended = false;  // cloth: the step left self-collision out (an edge past twice its length)
+  int parts = 1;                  // the parts the scene cut the step into, its contacts after each (the scene's)
   double wall_ms = 0.0;
 };
 
