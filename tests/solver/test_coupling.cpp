@@ -17,6 +17,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <memory>
 #include <random>
 
 using namespace pliant;
@@ -221,49 +222,68 @@ TEST(Coupling, RefusesBadSettingsNamingTheField) {
   EXPECT_THROW(couple_particles_to_body(*s.model, s.body, s.particles, s.w, cs, 1.0 / 60), std::invalid_argument);
 }
 
-TEST(Coupling, AFluidThrownAtAFreeBodyPushesItAndTheTotalMomentumStays) {
-  // No gravity, no container, nothing fixed: a 6 x 3 x 3 block of 4 mm fluid particles thrown
-  // down at 0.2 m/s (3.3 mm per tick: less than half the 1 cm beam, which a tick-level contact
-  // needs) onto beam1's top face. Each step: the fluid, the soft body (XPBD, no damping),
-  // then their contact. Every part conserves momentum, so the sum must stay; the body must take
-  // up the fluid's downward momentum.
-  TetMesh mesh = *builtin_mesh("beam1");
-  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+namespace {
+
+// No gravity, no container, nothing fixed, no damping: a 6 x 3 x 3 block of 4 mm fluid particles
+// thrown down at 0.2 m/s (3.3 mm per tick: less than half the 1 cm beam, which a tick-level
+// contact needs) onto beam1's top face.
+struct FluidThrow {
+  std::shared_ptr<const BodyModel> model = build_model(*builtin_mesh("beam1"), Material{1e5, 0.4, 1000});
   BodyState body = rest_state(*model);
   SolverSettings s;
-  s.gravity.setZero();
-  s.damping = Damping::None;
-  FluidSettings fs;
-  fs.spacing = 0.004;
-  fs.gravity.setZero();
-  FluidBody fluid(fs, {FluidBlock{Vec3(0.03, 0.0125, 0.0), Vec3(0.054, 0.0245, 0.012), Vec3(0, -0.2, 0)}});
-  ASSERT_EQ(fluid.size(), 6u * 3u * 3u);
-  const auto w = fluid.inverse_masses();
-  auto total = [&](Vec3* body_part) {
+  std::unique_ptr<FluidBody> fluid;
+  CouplingSettings contact;
+
+  explicit FluidThrow(int fluid_substeps) {
+    s.gravity.setZero();
+    s.damping = Damping::None;
+    FluidSettings fs;
+    fs.spacing = 0.004;
+    fs.gravity.setZero();
+    fs.substeps = fluid_substeps;
+    fluid = std::make_unique<FluidBody>(
+        fs, std::vector<FluidBlock>{FluidBlock{Vec3(0.03, 0.0125, 0.0), Vec3(0.054, 0.0245, 0.012), Vec3(0, -0.2, 0)}});
+    contact.radius = 0.5 * fs.spacing;
+  }
+  // The total momentum; the body's share in *of_body when given.
+  Vec3 momentum(Vec3* of_body = nullptr) const {
     Vec3 pb = Vec3::Zero(), pf = Vec3::Zero();
     for (size_t i = 0; i < body.v.size(); ++i) pb += body.v[i] / model->inv_mass[i];
-    for (size_t i = 0; i < fluid.size(); ++i) pf += fluid.state().v[i] / w[i];
-    if (body_part) *body_part = pb;
-    return Vec3(pb + pf);
-  };
-  const Vec3 p0 = total(nullptr);
+    const auto w = fluid->inverse_masses();
+    for (size_t i = 0; i < fluid->size(); ++i) pf += fluid->state().v[i] / w[i];
+    if (of_body) *of_body = pb;
+    return pb + pf;
+  }
+  // The fluid's contact with the body over a step of length h from `start`.
+  size_t couple(double h, std::span<const Vec3> start = {}) {
+    ParticleState ps = fluid->state();
+    const size_t touched = couple_particles_to_body(*model, body, ps, fluid->inverse_masses(), contact, h, start).contacts;
+    fluid->set_state(ps);
+    return touched;
+  }
+};
+
+}  // namespace
+
+TEST(Coupling, AFluidThrownAtAFreeBodyPushesItAndTheTotalMomentumStays) {
+  // Each step: the fluid, the soft body (XPBD), then their contact. Every part conserves
+  // momentum, so the sum must stay; the body must take up the fluid's downward momentum.
+  FluidThrow t(2);
+  ASSERT_EQ(t.fluid->size(), 6u * 3u * 3u);
+  const Vec3 p0 = t.momentum();
   ASSERT_LT(p0.y(), 0);
   Stepper stepper;
-  CouplingSettings cs;
-  cs.radius = 0.5 * fs.spacing;
   size_t touched = 0;
   for (int k = 0; k < 30; ++k) {
-    const Vec3 before = total(nullptr);
-    fluid.step(s.dt, {});
-    stepper.step(*model, body, s, {});
-    ParticleState ps = fluid.state();
-    touched += couple_particles_to_body(*model, body, ps, w, cs, s.dt).contacts;
-    fluid.set_state(ps);
-    EXPECT_LT((total(nullptr) - before).norm(), 1e-6 * p0.norm()) << "step " << k;
+    const Vec3 before = t.momentum();
+    t.fluid->step(t.s.dt, {});
+    stepper.step(*t.model, t.body, t.s, {});
+    touched += t.couple(t.s.dt);
+    EXPECT_LT((t.momentum() - before).norm(), 1e-6 * p0.norm()) << "step " << k;
   }
   EXPECT_GT(touched, 0u);
   Vec3 pb;
-  total(&pb);
+  t.momentum(&pb);
   EXPECT_LT(pb.y(), 0.1 * p0.y());  // the body carries a good part of the downward momentum
 }
 
@@ -272,41 +292,20 @@ TEST(Coupling, AFluidAndAFreeBodyInPartsKeepTheTotalMomentum) {
   // (Stepper::step_in_parts, the fluid's part and their contact after each of the body's parts):
   // every part conserves momentum, so the sum stays, in 2 parts and in the fluid's 4 substeps'
   // worth of 4; and the contact is met within the tick.
-  TetMesh mesh = *builtin_mesh("beam1");
-  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
   for (int parts : {2, 4}) {
     SCOPED_TRACE(std::to_string(parts) + " parts");
-    BodyState body = rest_state(*model);
-    SolverSettings s;
-    s.gravity.setZero();
-    s.damping = Damping::None;
-    FluidSettings fs;
-    fs.spacing = 0.004;
-    fs.gravity.setZero();
-    fs.substeps = 4;
-    FluidBody fluid(fs, {FluidBlock{Vec3(0.03, 0.0125, 0.0), Vec3(0.054, 0.0245, 0.012), Vec3(0, -0.2, 0)}});
-    const auto w = fluid.inverse_masses();
-    auto total = [&] {
-      Vec3 p = Vec3::Zero();
-      for (size_t i = 0; i < body.v.size(); ++i) p += body.v[i] / model->inv_mass[i];
-      for (size_t i = 0; i < fluid.size(); ++i) p += fluid.state().v[i] / w[i];
-      return p;
-    };
-    const Vec3 p0 = total();
+    FluidThrow t(4);
+    const Vec3 p0 = t.momentum();
     Stepper stepper;
-    CouplingSettings cs;
-    cs.radius = 0.5 * fs.spacing;
     size_t touched = 0;
     for (int k = 0; k < 30; ++k) {
-      const Vec3 before = total();
-      stepper.step_in_parts(*model, body, s, {}, parts, [&](int part, const StepReport&, StepInputs&) {
-        const std::vector<Vec3> start = fluid.state().x;
-        fluid.advance(s.dt / parts, fs.substeps / parts, {}, part + 1 == parts);
-        ParticleState ps = fluid.state();
-        touched += couple_particles_to_body(*model, body, ps, w, cs, s.dt / parts, start).contacts;
-        fluid.set_state(ps);
+      const Vec3 before = t.momentum();
+      stepper.step_in_parts(*t.model, t.body, t.s, {}, parts, [&](int part, const StepReport&, StepInputs&) {
+        const std::vector<Vec3> start = t.fluid->state().x;
+        t.fluid->advance(t.s.dt / parts, 4 / parts, {}, part + 1 == parts);
+        touched += t.couple(t.s.dt / parts, start);
       });
-      EXPECT_LT((total() - before).norm(), 1e-6 * p0.norm()) << "step " << k;
+      EXPECT_LT((t.momentum() - before).norm(), 1e-6 * p0.norm()) << "step " << k;
     }
     EXPECT_GT(touched, 0u);
   }
