@@ -75,6 +75,13 @@ void add_substep(StepReport& total, StepReport&& r) {
   total.residual_final = r.residual_final;
 }
 
+SolverSettings quiet_substep(const SolverSettings& s) {
+  SolverSettings quiet = s;
+  quiet.record_residuals = s.record_residuals && (s.tolerance > 0 || s.method == Method::Anderson ||
+                                                  s.method == Method::AndersonSor || s.method == Method::Extrapolation);
+  return quiet;
+}
+
 void finish_substep(const BodyModel& m, BodyState& state, const std::vector<Vec3>& x_start,
                     const SolverSettings& s, double h) {
   for (size_t i = 0; i < m.vertex_count(); ++i) state.v[i] = (state.x[i] - x_start[i]) / h;

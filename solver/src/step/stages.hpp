@@ -47,6 +47,11 @@ bool resolve_contact(const Collider& collider, Vec3& x, const Vec3& x_start);
 // reactions are the caller's (each family accumulates them its own way).
 void add_substep(StepReport& total, StepReport&& substep);
 
+// The settings of a substep before the step's last: a step reports the residual history of its
+// last substep only, so the earlier ones record residuals only where the method (Anderson,
+// extrapolation) or a tolerance needs them.
+SolverSettings quiet_substep(const SolverSettings& settings);
+
 // v = (x - x_start) / h, then the settings' damping.
 void finish_substep(const BodyModel& model, BodyState& state, const std::vector<Vec3>& x_start,
                     const SolverSettings& settings, double h);

@@ -92,9 +92,7 @@ StepReport Stepper::step_in_parts(const BodyModel& m, BodyState& state, const So
   if (s.damping == Damping::RigidPreserving)
     part.damping_coefficient = 1.0 - std::pow(1.0 - s.damping_coefficient, 1.0 / parts);
   // A step records the residuals of its last substep only; so do the parts together.
-  SolverSettings early = part;
-  early.record_residuals = s.record_residuals && (s.tolerance > 0 || s.method == Method::Anderson ||
-                                                  s.method == Method::AndersonSor || s.method == Method::Extrapolation);
+  SolverSettings early = detail::quiet_substep(part);
   const std::vector<RigidTool> tools = inputs.tools;  // posed at the step's end
   const double time = state.time;
   const uint64_t steps = state.steps;

@@ -669,9 +669,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   const double h = s.dt / n;
   const size_t nv = m.vertex_count();
   StepReport total;
-  SolverSettings quiet = s;
-  quiet.record_residuals = s.record_residuals && (s.tolerance > 0 || s.method == Method::Anderson ||
-                                                  s.method == Method::AndersonSor || s.method == Method::Extrapolation);
+  const SolverSettings quiet = detail::quiet_substep(s);
   const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();
   if (interacting) {
     I.tool_accumulators.resize(inputs.tools.size());
