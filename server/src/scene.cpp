@@ -92,6 +92,9 @@ struct Scene::TickState {
   // body's vertices meet a cloth's triangles inside its step; a contact pass costs a grid over the
   // tet body's surface, and their 16 substeps would make 16 of them).
   std::vector<uint8_t> tet_parts;
+  // The parts the substeps of those fluids and of the paired bodies share (shared_step_parts; 0:
+  // no fluid touches the tet body): with the tet body's substeps, the parts of a tick.
+  int tet_body_parts = 0;
   // The cloths with soft_body_contact: obstacles to the tet body's vertices in its step.
   std::vector<size_t> obstacle_bodies;
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
@@ -201,10 +204,14 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
     if (ts_->body_contact[b] && !ts_->bodies[b]->triangles().empty()) ts_->obstacle_bodies.push_back(b);
   ts_->in_cloth_pair.assign(ts_->bodies.size(), 0);
   for (const TickState::ClothPair& p : ts_->cloth_pairs) ts_->in_cloth_pair[p.particles] = ts_->in_cloth_pair[p.cloth] = 1;
-  std::vector<int> paired_substeps;
-  for (size_t b = 0; b < ts_->bodies.size(); ++b)
+  std::vector<int> paired_substeps, with_fluids;
+  for (size_t b = 0; b < ts_->bodies.size(); ++b) {
     if (ts_->in_cloth_pair[b]) paired_substeps.push_back(ts_->bodies[b]->substeps());
+    if (ts_->in_cloth_pair[b] || ts_->tet_parts[b]) with_fluids.push_back(ts_->bodies[b]->substeps());
+  }
   ts_->body_parts = shared_step_parts(paired_substeps);
+  if (std::any_of(ts_->tet_parts.begin(), ts_->tet_parts.end(), [](uint8_t f) { return f != 0; }))
+    ts_->tet_body_parts = shared_step_parts(with_fluids);
   if (ts_->body_parts > 1)
     spdlog::debug("scene '{}': the bodies in contact step in {} parts a tick (substeps {})", id_, ts_->body_parts,
                   fmt::join(paired_substeps, ", "));
@@ -213,8 +220,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
                  "come once per tick; substeps with one (a fluid's 2 and a cloth's 16) let the scene resolve them "
                  "within the tick",
                  id_, fmt::join(paired_substeps, ", "));
-  if (std::any_of(ts_->tet_parts.begin(), ts_->tet_parts.end(), [](uint8_t f) { return f != 0; }) &&
-      !body_parts().with_tet)
+  if (ts_->tet_body_parts > 0 && !body_parts().with_tet)
     spdlog::info("scene '{}': the soft body's substeps ({}) share no factor with its fluids' and their partners', so "
                  "a fluid meets the soft body once per tick (docs/fluids.md, \"In parts with the soft body\")",
                  id_, effective_substeps(*ts_->model, ts_->settings));
@@ -844,15 +850,8 @@ Scene::BodyParts Scene::body_parts() const {
   const TickState& t = *ts_;
   BodyParts bp;
   bp.parts = t.body_parts;
-  std::vector<int> substeps;
-  bool touches_tet = false;
-  for (size_t b = 0; b < t.bodies.size(); ++b)
-    if (t.tet_parts[b] || t.in_cloth_pair[b]) {
-      substeps.push_back(t.bodies[b]->substeps());
-      touches_tet = touches_tet || t.tet_parts[b];
-    }
-  if (!touches_tet) return bp;
-  substeps.push_back(effective_substeps(*t.model, t.settings));
+  if (t.tet_body_parts == 0) return bp;
+  const int substeps[] = {t.tet_body_parts, effective_substeps(*t.model, t.settings)};
   const int with_tet = shared_step_parts(substeps);
   if (with_tet > 1) {
     bp.parts = with_tet;
