@@ -822,6 +822,39 @@ TEST(ClothContact, ALinkWhoseParticleTouchesIsLeftToItsParticles) {
   EXPECT_EQ(link.ps.x[1], Vec3(0.1, 0.004, 0.06));
 }
 
+TEST(ClothContact, ALinkANarrowFastStripSweptThroughIsNotThrownFartherThanItsLength) {
+  // A still link of 12 mm, 20 degrees off the vertical, and a strip 8 mm wide sweeping up 6 cm
+  // and sideways 20 cm in the step: it passes under the link's middle points as it crosses their
+  // height, but beside either bead when it crosses theirs. Those points end 3.5 cm behind the
+  // strip; across the steep link that is 11 cm (depth / sin 20 degrees), nine times the link's
+  // length, and the link was thrown that far. Such points are left to the beads: neither moves,
+  // and momentum stays exact.
+  Strip strip(0.004);
+  const Vec3 sweep(0, 0.06, 0.2);
+  for (size_t k = 0; k < 4; ++k) {
+    strip.start[k] = strip.state.x[k] + Vec3(0, -0.06, -0.1);
+    strip.state.x[k] = strip.start[k] + sweep;
+    strip.state.v[k] = sweep * 60.0;
+  }
+  const double length = 0.012;
+  const Vec3 top(0.1, -0.029, -0.0167);
+  const Vec3 bottom = top + length * Vec3(std::sin(0.35), -std::cos(0.35), 0);
+  Link link({top, bottom}, {top, bottom});
+  CouplingSettings set;
+  set.radius = 0.002;
+  Vec3 before = link.momentum();
+  for (size_t k = 0; k < 4; ++k) before += strip.state.v[k] / strip.w[k];
+  const CouplingReport rep = couple_particles_to_cloth(link.ps, link.w, link.start, strip.state, strip.w,
+                                                       strip.triangles, strip.start, set, 1.0 / 60, link.segments);
+  EXPECT_EQ(rep.contacts, 0u);
+  EXPECT_EQ(rep.segment_contacts, 0u);
+  EXPECT_EQ(link.ps.x[0], top);
+  EXPECT_EQ(link.ps.x[1], bottom);
+  Vec3 after = link.momentum();
+  for (size_t k = 0; k < 4; ++k) after += strip.state.v[k] / strip.w[k];
+  EXPECT_LT((after - before).norm(), 1e-12 * before.norm());
+}
+
 TEST(ClothContact, ATriangleSweptFromFarAwayDoesNotStallTheSearch) {
   // One corner of a strip starts the step 10,000 km away (a body that jumped; finite): its
   // triangle's swept box would span about 1e17 cells of the contact's size. The search grows its

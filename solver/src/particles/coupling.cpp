@@ -448,14 +448,17 @@ void for_each_contact_point(const ParticleState& ps, std::span<const Vec3> start
 }
 
 // A segment's point moves across the segment (move_across, as against the soft body): the
-// target `now - C n` becomes now + that move. False when the segment lies within 14 degrees of n
-// (its particles' own contacts are the ones that hold it).
+// target `now - C n` becomes now + that move. False when the segment lies within 14 degrees of n,
+// or when the move is longer than the segment (a steep link deep through a face near its edge:
+// thrown sideways by more than its length, by each of its points in turn, a rope's link was
+// flung 2 m in one contact pass); its particles' own contacts are the ones that hold it.
 bool across_segment(const ParticleState& ps, const Point& pt, const Vec3& now, const Vec3& n, double C,
                     Vec3& target) {
   if (pt.j == pt.i) return true;
   double a;
-  const Vec3 move = move_across(n, (ps.x[pt.j] - ps.x[pt.i]).normalized(), C, a);
-  if (!(a >= kMinAcross)) return false;
+  const Vec3 along = ps.x[pt.j] - ps.x[pt.i];
+  const Vec3 move = move_across(n, along.normalized(), C, a);
+  if (!(a >= kMinAcross) || move.squaredNorm() > along.squaredNorm()) return false;
   target = now + move;
   return true;
 }
