@@ -13,9 +13,14 @@
 // apart) against the armadillo (54,990 tets), on its head or 10 cm beside it (argument
 // "beside"), as a scene runs it after every part of a fluid's step. Counters: particles,
 // contacts.
+// BM_WaterOnArmadilloPart: a part of a scene's tick for that water resting on the armadillo's
+// head (one 1/120 s substep of 4 iterations, 1 thread): the water meeting the head inside its
+// substep (argument "inside" 1), or stepping alone with the contact pass after it (0).
+// Counters: particles, contacts.
 #include "pliant/builtin_meshes.hpp"
 #include "pliant/cloth.hpp"
 #include "pliant/coupling.hpp"
+#include "pliant/fluid.hpp"
 #include "pliant/mesh_io.hpp"
 
 #include <benchmark/benchmark.h>
@@ -125,6 +130,49 @@ void BM_WaterOnArmadilloContact(benchmark::State& state) {
   state.counters["contacts"] = double(found);
 }
 
+void BM_WaterOnArmadilloPart(benchmark::State& state) {
+  const auto model = build_model(resolve_mesh("armadillo"), Material{1e6, 0.4, 1000});
+  const BodyState body = rest_state(*model);
+  Vec3 top = body.x[0];
+  for (const Vec3& x : body.x)
+    if (x.y() > top.y()) top = x;
+  FluidSettings fs;
+  fs.spacing = 0.005;
+  fs.substeps = 1;
+  const Vec3 corner = top + Vec3(-0.0175, 0.004, -0.0175);
+  FluidBody water(fs, {FluidBlock{corner, corner + Vec3(0.04, 0.02, 0.04)}});
+  SurfaceBoundary surface;
+  surface.triangles = model->surface;
+  surface.x = body.x;
+  surface.v = body.v;
+  surface.radius = 0.0025;
+  surface.friction = 0.3;
+  const double h = 1.0 / 120;
+  for (int k = 0; k < 60; ++k) water.advance(h, 1, {}, true, &surface);  // resting on the head
+  const ParticleState warm = water.state();
+  const bool inside = state.range(0) != 0;
+  CouplingSettings contact;
+  contact.radius = surface.radius;
+  contact.friction = surface.friction;
+  size_t found = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    water.set_state(warm);
+    BodyState b = body;
+    state.ResumeTiming();
+    if (inside) {
+      found = water.advance(h, 1, {}, true, &surface).soft_body_contacts;
+    } else {
+      water.advance(h, 1, {}, true);
+      ParticleState p = water.state();
+      found = couple_particles_to_body(*model, b, p, water.inverse_masses(), contact, h, warm.x).contacts;
+      water.set_state(p);
+    }
+  }
+  state.counters["particles"] = double(water.size());
+  state.counters["contacts"] = double(found);
+}
+
 // Two 1 m cloths of grid x grid particles (thickness 5 mm each), the upper one 8 mm over the
 // lower, shifted half a cell in x and z and falling at 0.3 m/s: one contact pass of the upper
 // cloth against the lower's triangles (couple_particles_to_cloth, as a scene runs each pair once
@@ -170,6 +218,7 @@ BENCHMARK(BM_ClothOnClothContact)
     ->Unit(benchmark::kMillisecond);
 
 BENCHMARK(BM_WaterOnArmadilloContact)->ArgName("beside")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_WaterOnArmadilloPart)->ArgName("inside")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 BENCHMARK(BM_ClothOnBodyContact)
     ->ArgNames({"grid", "edges"})

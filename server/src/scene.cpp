@@ -87,10 +87,11 @@ struct Scene::TickState {
   std::vector<ClothPair> cloth_pairs;
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
   int body_parts = 1;  // the parts a tick of the bodies in some ClothPair is cut into (shared_step_parts)
-  // Per body: its contact with the tet body comes after every part of a tick the tet body steps
-  // in parts (Scene::body_parts): the fluids'. A cloth's or a rope's comes once per tick (the tet
-  // body's vertices meet a cloth's triangles inside its step; a contact pass costs a grid over the
-  // tet body's surface, and their 16 substeps would make 16 of them).
+  // Per body: it steps with the tet body in parts, meeting its surface where each of the tet
+  // body's parts left it (Scene::body_parts): the fluids, which meet that surface inside their
+  // density iterations. A cloth's or a rope's contact comes once per tick, after its whole step
+  // (the tet body's vertices meet a cloth's triangles inside its step; a contact pass costs a
+  // grid over the tet body's surface, and their 16 substeps would make 16 of them).
   std::vector<uint8_t> tet_parts;
   // The parts the substeps of those fluids and of the paired bodies share (shared_step_parts; 0:
   // no fluid touches the tet body): with the tet body's substeps, the parts of a tick.
@@ -100,6 +101,9 @@ struct Scene::TickState {
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
   std::vector<std::vector<Vec3>> body_part_start;  // scratch: before the part of the step (step_bodies)
   std::vector<size_t> part_contacts;              // scratch: each body's pair contacts in a part
+  // Scratch for the bodies in contact with the tet body: its vertices' mean velocities over the
+  // part (or the tick) and its positions where the part started.
+  std::vector<Vec3> surface_v, surface_part_start;
   std::vector<ParticleStepReport> body_reports;  // each body's step in the tick in progress
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
@@ -222,7 +226,8 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
                  id_, fmt::join(paired_substeps, ", "));
   if (ts_->tet_body_parts > 0 && !body_parts().with_tet)
     spdlog::info("scene '{}': the soft body's substeps ({}) share no factor with its fluids' and their partners', so "
-                 "a fluid meets the soft body once per tick (docs/fluids.md, \"In parts with the soft body\")",
+                 "a fluid meets the soft body's surface where its whole step left it, not part by part (docs/fluids.md, "
+                 "\"In parts with the soft body\")",
                  id_, effective_substeps(*ts_->model, ts_->settings));
   config_ = std::move(config);
   model_shared_ = std::move(model);
@@ -899,8 +904,19 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       if (any) cloth.set_state(st);
     });
   }
+  // The tet body's surface for the bodies that meet it inside their step: where its step (or
+  // part) left it, moving at its mean velocity over the step (or part): a solver's velocities
+  // at its last substep are noisy, and friction would carry that noise into the particles.
+  const bool surface_used =
+      std::any_of(t.body_contact.begin(), t.body_contact.end(), [](const auto& c) { return c.has_value(); });
+  if (surface_used) {
+    const std::vector<Vec3>& from = bp.with_tet && part > 0 ? t.surface_part_start : t.last_good.x;
+    const double span = bp.with_tet ? dt / parts : dt;
+    t.surface_v.resize(t.state.x.size());
+    for (size_t k = 0; k < t.surface_v.size(); ++k) t.surface_v[k] = (t.state.x[k] - from[k]) / span;
+  }
   for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
-    const bool tet_parts = bp.with_tet && t.tet_parts[b];  // its tet contact after every part
+    const bool tet_parts = bp.with_tet && t.tet_parts[b];  // with the tet body, part by part
     const bool in_parts = parts > 1 && (t.in_cloth_pair[b] || tet_parts);
     // One piece: after the tet body's whole step (its last part, or before the first part here).
     if (!in_parts && part != (bp.with_tet ? parts - 1 : 0)) continue;
@@ -919,7 +935,21 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       const auto t_body = Clock::now();
       const int n = in_parts ? t.bodies[b]->substeps() / parts : t.bodies[b]->substeps();
       const double h = in_parts ? dt / parts : dt;
-      const ParticleStepReport r = t.bodies[b]->advance(h, n, t.colliders, !in_parts || last_part);
+      // The soft body's surface where its step (or part) left it, met inside the body's own
+      // substeps by a kind that can (a fluid); its push goes to the soft body's velocities.
+      const auto& contact = t.body_contact[b];
+      std::optional<SurfaceBoundary> surface;
+      if (contact) {
+        surface.emplace();
+        surface->triangles = t.model->surface;
+        surface->x = t.state.x;
+        surface->v = t.surface_v;
+        surface->radius = contact->radius;
+        surface->friction = contact->friction;
+      }
+      const ParticleStepReport r =
+          t.bodies[b]->advance(h, n, t.colliders, !in_parts || last_part, surface ? &*surface : nullptr);
+      if (surface && !surface->impulse.empty()) take_surface_impulse(*t.model, t.state, *surface);
       ParticleStepReport& rep = t.body_reports[b];
       if (first) {
         rep = r;
@@ -938,9 +968,12 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       };
       if (starts) add_emitted(t.body_start[b]);
       if (part_start) add_emitted(t.body_part_start[b]);
-      if (const auto& contact = t.body_contact[b]; contact && (tet_parts || !in_parts || last_part)) {
-        // Two-way with the soft body: the particles move out, the tet body takes their momentum;
-        // over the part with the tet body's parts, else over the whole tick.
+      // A kind that met the surface inside its step needs no contact after it.
+      const bool met = surface && !surface->impulse.empty();
+      if (met) rep.soft_body_contacts = first ? surface->contacts : std::max(rep.soft_body_contacts, surface->contacts);
+      if (contact && !met && (tet_parts || !in_parts || last_part)) {
+        // Two-way with the soft body after the step: the particles move out, the tet body takes
+        // their momentum; over the part with the tet body's parts, else over the whole tick.
         ParticleState ps = t.bodies[b]->state();
         const CouplingReport c = couple_particles_to_body(
             *t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, tet_parts ? h : dt,
@@ -954,6 +987,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       rep.wall_ms = (first ? 0.0 : rep.wall_ms) + ms_since(t_body);
     });
   }
+  if (surface_used && bp.with_tet) t.surface_part_start = t.state.x;
   t.part_contacts.assign(t.bodies.size(), 0);
   for (const TickState::ClothPair& pair : t.cloth_pairs)
     guarded(pair.particles, [&] {

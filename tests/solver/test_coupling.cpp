@@ -17,6 +17,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 #include <memory>
 #include <random>
 
@@ -254,6 +255,19 @@ struct FluidThrow {
     if (of_body) *of_body = pb;
     return pb + pf;
   }
+  // The fluid's step (or part) of length h in n substeps meeting the body's surface inside it,
+  // and the body's side of that contact.
+  size_t advance_meeting(double h, int n, bool ends_step) {
+    SurfaceBoundary surface;
+    surface.triangles = model->surface;
+    surface.x = body.x;
+    surface.v = body.v;
+    surface.radius = contact.radius;
+    const size_t touched = fluid->advance(h, n, {}, ends_step, &surface).soft_body_contacts;
+    EXPECT_EQ(touched, surface.contacts);
+    take_surface_impulse(*model, body, surface);
+    return touched;
+  }
   // The fluid's contact with the body over a step of length h from `start`.
   size_t couple(double h, std::span<const Vec3> start = {}) {
     ParticleState ps = fluid->state();
@@ -308,6 +322,153 @@ TEST(Coupling, AFluidAndAFreeBodyInPartsKeepTheTotalMomentum) {
       EXPECT_LT((t.momentum() - before).norm(), 1e-6 * p0.norm()) << "step " << k;
     }
     EXPECT_GT(touched, 0u);
+  }
+}
+
+namespace {
+
+// Every particle on the outer side of the body's surface face closest to it (within 1e-9 m).
+void expect_outside(const BodyModel& model, std::span<const Vec3> body_x, std::span<const Vec3> particles) {
+  for (const Vec3& x : particles) {
+    double best = INFINITY, side = 0;
+    for (const Triangle& f : model.surface) {
+      const Vec3 &a = body_x[f[0]], &b = body_x[f[1]], &c = body_x[f[2]];
+      std::array<double, 3> w;
+      const Vec3 q = closest_point_on_triangle(x, a, b, c, w);
+      if ((x - q).norm() < best) {
+        best = (x - q).norm();
+        side = (x - q).dot((b - a).cross(c - a).normalized());
+      }
+    }
+    EXPECT_GT(side, -1e-9) << x.transpose();
+  }
+}
+
+}  // namespace
+
+TEST(SurfaceBoundary, AFluidMeetingAFreeBodyInsideItsStepKeepsTheTotalMomentum) {
+  // The throw again, the fluid meeting the body's surface inside its substeps and the body taking
+  // the impulses after: in one piece after the body's step and in 2 and 4 parts, the sum stays,
+  // the water is kept out of the body, and the body takes up the fluid's downward momentum.
+  for (int parts : {1, 2, 4}) {
+    SCOPED_TRACE(std::to_string(parts) + " parts");
+    FluidThrow t(4);
+    const Vec3 p0 = t.momentum();
+    Stepper stepper;
+    size_t touched = 0;
+    for (int k = 0; k < 30; ++k) {
+      const Vec3 before = t.momentum();
+      stepper.step_in_parts(*t.model, t.body, t.s, {}, parts, [&](int part, const StepReport&, StepInputs&) {
+        touched += t.advance_meeting(t.s.dt / parts, 4 / parts, part + 1 == parts);
+      });
+      EXPECT_LT((t.momentum() - before).norm(), 1e-6 * p0.norm()) << "step " << k;
+    }
+    EXPECT_GT(touched, 0u);
+    Vec3 pb;
+    t.momentum(&pb);
+    EXPECT_LT(pb.y(), 0.1 * p0.y());
+    // No particle inside the body (the light beam moved off: measured against where it is now).
+    expect_outside(*t.model, t.body.x, t.fluid->state().x);
+  }
+}
+
+TEST(SurfaceBoundary, WaterPouredOnABodyFromATapStaysOnIt) {
+  // A tap 1 cm over beam1's top (y 1 cm) pours at 1 m/s for half a second, the surface met inside
+  // the water's substeps: its particles (the layers it adds during a step included) land and
+  // spread on the beam, none inside it or through it.
+  const auto model = build_model(*builtin_mesh("beam1"), Material{1e5, 0.4, 1000});
+  const BodyState body = rest_state(*model);
+  FluidSettings fs;
+  fs.spacing = 0.002;
+  FluidEmitter tap;
+  tap.centre = Vec3(0.06, 0.02, 0.005);
+  tap.radius = 0.003;
+  tap.speed = 1.0;
+  FluidBody water(fs, {}, {tap});
+  size_t touching = 0;
+  for (int k = 0; k < 30; ++k) {
+    SurfaceBoundary surface;
+    surface.triangles = model->surface;
+    surface.x = body.x;
+    surface.v = body.v;
+    surface.radius = water.contact_radius();
+    touching = water.advance(1.0 / 60, fs.substeps, {}, true, &surface).soft_body_contacts;
+  }
+  ASSERT_GT(water.size(), 100u);
+  EXPECT_GT(touching, 10u);
+  expect_outside(*model, body.x, water.state().x);
+  // None went through the top to come out below (the beam is 12 x 1 x 1 cm; a particle within
+  // its radius of a side is rounding an edge).
+  for (const Vec3& x : water.state().x)
+    if (x.x() > 0.001 && x.x() < 0.119 && x.z() > 0.001 && x.z() < 0.009) EXPECT_GT(x.y(), 0.01) << x.transpose();
+}
+
+TEST(SurfaceBoundary, RefusesBadSettingsNamingTheField) {
+  const auto model = build_model(*builtin_mesh("beam1"), Material{1e5, 0.4, 1000});
+  const BodyState body = rest_state(*model);
+  FluidSettings fs;
+  fs.spacing = 0.004;
+  FluidBody water(fs, {FluidBlock{Vec3(0.01, 0.010, 0.001), Vec3(0.018, 0.014, 0.009)}});
+  auto refused = [&](const std::function<void(SurfaceBoundary&)>& spoil, const std::string& field) {
+    SurfaceBoundary surface;
+    surface.triangles = model->surface;
+    surface.x = body.x;
+    surface.v = body.v;
+    surface.radius = 0.002;
+    spoil(surface);
+    try {
+      water.advance(1.0 / 60, 2, {}, true, &surface);
+      ADD_FAILURE() << field << " accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+    }
+  };
+  refused([](SurfaceBoundary& s) { s.radius = 0; }, "radius");
+  refused([](SurfaceBoundary& s) { s.friction = NAN; }, "friction");
+  refused([&](SurfaceBoundary& s) { s.v = std::span<const Vec3>(body.v).first(3); }, "velocities");
+  const std::vector<Triangle> bad{{0, 1, int32_t(body.x.size())}};
+  refused([&](SurfaceBoundary& s) { s.triangles = bad; }, "triangle 0");
+  EXPECT_EQ(water.state().steps, 0u);  // nothing stepped
+}
+
+TEST(SurfaceBoundary, FrictionPullsRestingParticlesToTheSurfacesSpeedAtMuG) {
+  // Four particles of water resting on beam1's top (y 1 cm; radius 2 mm) near its end, the surface held in
+  // place but moving at 0.2 m/s along x (`v`): Coulomb friction speeds each up at mu g (the
+  // weight presses it into the surface by g h^2 a substep) until it moves with the surface; the
+  // surface takes exactly the momentum the particles gain along x; without friction they stay.
+  const auto model = build_model(*builtin_mesh("beam1"), Material{1e5, 0.4, 1000});
+  const BodyState body = rest_state(*model);
+  const std::vector<Vec3> moving(body.x.size(), Vec3(0.2, 0, 0));
+  for (double mu : {0.0, 0.1, 1.0}) {
+    SCOPED_TRACE("friction " + std::to_string(mu));
+    FluidSettings fs;
+    fs.spacing = 0.004;
+    fs.substeps = 2;
+    FluidBody water(fs, {FluidBlock{Vec3(0.01, 0.010, 0.001), Vec3(0.018, 0.014, 0.009)}});
+    ASSERT_EQ(water.size(), 4u);
+    Vec3 given = Vec3::Zero();
+    auto mean_vx = [&] {
+      double sum = 0;
+      for (const Vec3& v : water.state().v) sum += v.x();
+      return sum / double(water.size());
+    };
+    for (int k = 0; k < 20; ++k) {
+      SurfaceBoundary surface;
+      surface.triangles = model->surface;
+      surface.x = body.x;
+      surface.v = moving;
+      surface.radius = 0.5 * fs.spacing;
+      surface.friction = mu;
+      water.advance(1.0 / 60, fs.substeps, {}, true, &surface);
+      EXPECT_EQ(surface.contacts, 4u);
+      for (const Vec3& j : surface.impulse) given += j;
+      if (k == 4 && mu == 0.1) EXPECT_NEAR(mean_vx(), 0.1 * 9.81 * 5.0 / 60, 0.03 * 0.0817);
+    }
+    const double m = water.particle_mass();
+    EXPECT_NEAR(given.x(), 4 * m * mean_vx(), 1e-12);  // what the surface gave along x
+    if (mu == 0.0) EXPECT_NEAR(mean_vx(), 0.0, 1e-12);
+    if (mu == 1.0) EXPECT_NEAR(mean_vx(), 0.2, 1e-6);
+    for (const Vec3& x : water.state().x) EXPECT_NEAR(x.y(), 0.012, 1e-6);
   }
 }
 

@@ -89,7 +89,9 @@ class ConstraintBody : public ParticleBody {
   std::span<const std::array<uint32_t, 2>> segments() const override { return segments_; }
 
   int substeps() const override;
-  ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step) override;
+  using ParticleBody::advance;
+  ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
+                             SurfaceBoundary* surface) override;
   void set_gravity(const Vec3& gravity) override;
 
   void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;

@@ -48,6 +48,13 @@ CouplingReport couple_particles_to_body(const BodyModel& model, BodyState& body,
                                         double dt, std::span<const Vec3> particle_start = {},
                                         std::span<const std::array<uint32_t, 2>> segments = {});
 
+// The soft body's side of a particle body's contact with its surface inside the particle body's
+// step (SurfaceBoundary, whose x and triangles are this body's): each free vertex's velocity
+// changes by minus its impulse over its mass (fixed vertices take none), so what the particles
+// gained the body loses. Returns the particles' push on the free vertices, N s. Throws
+// std::invalid_argument when the impulses are not one per vertex.
+Vec3 take_surface_impulse(const BodyModel& model, BodyState& body, const SurfaceBoundary& surface);
+
 // Two-way contact between a particle body (a fluid, a rope, another cloth) and a cloth, after
 // both stepped: each particle stays at least `settings.radius` (the two bodies' contact radii
 // summed) from the cloth's triangles, on the side of the triangle it started the step on

@@ -116,7 +116,9 @@ class FluidBody final : public ParticleBody {
   double contact_radius() const override;  // particle_radius x spacing
 
   int substeps() const override;
-  ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step) override;
+  using ParticleBody::advance;
+  ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
+                             SurfaceBoundary* surface) override;
   void set_gravity(const Vec3& gravity) override;
 
   void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;

@@ -56,10 +56,30 @@ struct ParticleStepReport {
   size_t contacts = 0;            // particle-collider contacts in the last substep
   size_t tool_contacts = 0;       // particles the rigid tools pushed after the step (the scene's)
   size_t body_contacts = 0;       // particles and points of segments the scene's cloths and ropes pushed after the step (the scene's)
-  size_t soft_body_contacts = 0;  // particles and points of segments the soft body pushed after the step (the scene's)
+  // Particles the soft body's surface pushed in the last substep (a kind that meets it inside
+  // its step), plus particles and points of segments it pushed after the step (the scene's).
+  size_t soft_body_contacts = 0;
   bool self_collision_suspended = false;  // cloth: the step left self-collision out (an edge past twice its length)
   int parts = 1;                  // the parts the scene cut the step into, its contacts after each (the scene's)
   double wall_ms = 0.0;
+};
+
+// A soft body's surface that a particle body meets inside its own step, as it meets the
+// colliders: each particle kept `radius` outside the triangles (outward, into `x`), held where
+// they are over the call, with Coulomb friction (`friction`) on its slip against the surface's
+// motion (`v`, the vertices' velocities). What the body does not meet inside its step (a kind
+// that does not take it: cloth and ropes) is left to the contact after the step. The momentum the
+// particles gained from the surface comes back per vertex in `impulse` (N s, sized to x by the
+// call; the soft body takes minus it), and `contacts` counts the particles touching it in the
+// last substep.
+struct SurfaceBoundary {
+  std::span<const Triangle> triangles;
+  std::span<const Vec3> x;
+  std::span<const Vec3> v;
+  double radius = 0.0;    // m, > 0
+  double friction = 0.0;  // >= 0
+  std::vector<Vec3> impulse;
+  size_t contacts = 0;
 };
 
 // How many parts a step of bodies in contact is cut into, so that their contacts are resolved
@@ -97,11 +117,15 @@ class ParticleBody {
 
   // Substeps per step (the body's settings).
   virtual int substeps() const = 0;
-  // Advances by dt seconds in `substeps` substeps of dt / substeps against the colliders: a whole
-  // step, or a part of one when a scene cuts the step to resolve the contacts between its bodies
-  // in between (`ends_step`: the last part, which counts the step in state().steps).
-  virtual ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders,
-                                     bool ends_step) = 0;
+  // Advances by dt seconds in `substeps` substeps of dt / substeps against the colliders (and the
+  // soft body's surface, for a kind that meets it inside its step: a fluid): a whole step, or a
+  // part of one when a scene cuts the step to resolve the contacts between its bodies in between
+  // (`ends_step`: the last part, which counts the step in state().steps).
+  virtual ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
+                                     SurfaceBoundary* surface) = 0;
+  ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step) {
+    return advance(dt, substeps, colliders, ends_step, nullptr);
+  }
   // Advances by dt seconds against the colliders: one step of substeps() substeps.
   ParticleStepReport step(double dt, std::span<const Collider> colliders) {
     return advance(dt, substeps(), colliders, true);

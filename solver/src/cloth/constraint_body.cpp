@@ -632,8 +632,10 @@ size_t ConstraintBody::solve_colliders(std::span<const Collider> colliders) {
 
 int ConstraintBody::substeps() const { return settings_.substeps; }
 
+// The soft body's surface is not met inside the step (the scene's contact after the step or the
+// part keeps the particles and the segments out of it).
 ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<const Collider> colliders,
-                                           bool ends_step) {
+                                           bool ends_step, SurfaceBoundary* /*surface*/) {
   if (!std::isfinite(dt) || dt <= 0.0) throw std::invalid_argument("step: dt must be > 0 s (got " + fmt::format("{:g}", dt) + ")");
   if (substeps < 1) throw std::invalid_argument("step: substeps must be >= 1 (got " + std::to_string(substeps) + ")");
   const auto t0 = std::chrono::steady_clock::now();

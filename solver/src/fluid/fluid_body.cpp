@@ -7,6 +7,7 @@
 
 #include "fluid/neighbour_grid.hpp"
 #include "fluid/sph_kernels.hpp"
+#include "particles/surface_contact.hpp"
 #include "step/thread_pool.hpp"
 
 #include <spdlog/fmt/fmt.h>
@@ -154,6 +155,13 @@ struct FluidBody::Impl {
   std::vector<Vec3> x, v, p, x_prev, dp, omega;
   std::vector<double> lam, lam_sum, ratio, depth, mu_s, mu_k;
   std::vector<Vec3> contact_n;
+  // The soft body's surface over a call that passes one, and per particle within a substep: its
+  // last hit, the moves it gave (their momentum goes to the surface), whether it touched, and
+  // whether the particle's last contact was the surface (friction against its motion).
+  const detail::SurfaceMeeting* surface = nullptr;
+  std::vector<detail::FaceHit> surface_hit;
+  std::vector<Vec3> surface_moved;
+  std::vector<uint8_t> surface_touched, surface_last;
   std::vector<Vec3> wall_grad;       // per particle, within one iteration
   // Per pair, within one iteration: grad W and s_corr, in single precision (half the memory
   // traffic; the pair's two entries stay exactly opposite, so momentum is still conserved).
@@ -418,8 +426,9 @@ struct FluidBody::Impl {
     }
   }
 
-  // Pushes p out of the colliders (inflated by the particle radius) and into the container;
-  // accumulates the depth and keeps the last normal and friction for particle i.
+  // Pushes p out of the colliders (inflated by the particle radius), into the container and out
+  // of the soft body's surface; accumulates the depth and keeps the last normal and friction for
+  // particle i.
   void collide(size_t i, std::span<const Collider> cols) {
     const double r = s.particle_radius * s.spacing;
     Vec3& pi = p[i];
@@ -431,6 +440,7 @@ struct FluidBody::Impl {
       contact_n[i] = cp.normal;
       mu_s[i] = c.static_friction;
       mu_k[i] = c.dynamic_friction;
+      if (surface) surface_last[i] = 0;
     }
     if (s.container) {
       const Collider& c = *s.container;
@@ -453,7 +463,19 @@ struct FluidBody::Impl {
           contact_n[i] = nrm;
           mu_s[i] = c.static_friction;
           mu_k[i] = c.dynamic_friction;
+          if (surface) surface_last[i] = 0;
         }
+      }
+    }
+    if (surface) {
+      const Vec3 before = pi;
+      const double d = surface->push(x_prev[i], pi, surface_hit[i]);
+      if (d > 0) {
+        depth[i] += d;
+        contact_n[i] = surface_hit[i].n;
+        mu_s[i] = mu_k[i] = surface->friction();
+        surface_moved[i] += pi - before;
+        surface_touched[i] = surface_last[i] = 1;
       }
     }
   }
@@ -498,6 +520,12 @@ struct FluidBody::Impl {
     contact_n.resize(N);
     mu_s.resize(N);
     mu_k.resize(N);
+    if (surface) {
+      surface_hit.resize(N);
+      surface_moved.assign(N, Vec3::Zero());
+      surface_touched.assign(N, 0);
+      surface_last.assign(N, 0);
+    }
     const Vec3 g = s.gravity;
     parallel(N, [&](size_t b, size_t e) {
       for (size_t i = b; i < e; ++i) {
@@ -563,20 +591,31 @@ struct FluidBody::Impl {
     parallel(N, [&](size_t b, size_t e) {
       for (size_t i = b; i < e; ++i) {
         if (depth[i] > 0.0) {
+          // The slip against the surface's own motion when that was the last contact.
+          const bool on_surface = surface && surface_last[i];
           const Vec3 nn = contact_n[i];
-          const Vec3 moved = p[i] - x_prev[i];
+          const Vec3 moved = p[i] - x_prev[i] - (on_surface ? Vec3(dt * surface->velocity(surface_hit[i])) : Vec3::Zero());
           const Vec3 tang = moved - moved.dot(nn) * nn;
           const double tl = tang.norm();
           if (tl > 0.0) {
-            if (tl <= mu_s[i] * depth[i])
-              p[i] -= tang;
-            else
-              p[i] -= tang * std::min(mu_k[i] * depth[i] / tl, 1.0);
+            const Vec3 back = tl <= mu_s[i] * depth[i] ? tang : Vec3(tang * std::min(mu_k[i] * depth[i] / tl, 1.0));
+            p[i] -= back;
+            if (on_surface) surface_moved[i] -= back;
           }
         }
         v[i] = (p[i] - x_prev[i]) / dt;
       }
     });
+    if (surface) {
+      // The momentum the surface's moves gave each particle, handed to its corners.
+      size_t touching = 0;
+      for (size_t i = 0; i < N; ++i) {
+        if (!surface_touched[i]) continue;
+        ++touching;
+        surface->give(surface_hit[i], mass * surface_moved[i] / dt);
+      }
+      rep.soft_body_contacts = touching;
+    }
     lap(clock, times.velocity_ms);
     // XSPH viscosity (Jacobi: from the velocities before it), symmetric weights.
     if (s.xsph > 0.0) {
@@ -884,7 +923,8 @@ void FluidBody::set_state(const ParticleState& st) {
 
 int FluidBody::substeps() const { return impl_->s.substeps; }
 
-ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step) {
+ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
+                                      SurfaceBoundary* surface) {
   require(std::isfinite(dt) && dt > 0, "dt", "must be > 0", dt);
   require(substeps >= 1, "substeps", "must be >= 1", substeps);
   Impl& m = *impl_;
@@ -902,7 +942,35 @@ ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const C
   rep.substeps = substeps;
   rep.iterations = m.s.iterations;
   const double h = dt / substeps;
-  for (int sub = 0; sub < substeps; ++sub) m.substep(h, inflated, rep);
+  std::optional<detail::SurfaceMeeting> meeting;
+  if (surface) {
+    // The surface near where the particles can get over the call (the particles and the layers
+    // the emitters may add): as far as their speed and gravity take them over dt, and a kernel
+    // support for the density corrections. A particle that gets farther does not meet it.
+    double fastest = 0.0;
+    for (const Vec3& vi : m.v) fastest = std::max(fastest, vi.norm());
+    std::vector<Vec3> emitted;
+    for (const Impl::Emitter& e : m.emitters) {
+      fastest = std::max(fastest, e.spec.speed);
+      for (const Vec3& q : e.layer) emitted.push_back(e.spec.centre + q);
+    }
+    const double reach = dt * (fastest + m.s.gravity.norm() * dt) + m.h + surface->radius;
+    std::span<const Vec3> near = m.x;
+    if (!emitted.empty()) {
+      emitted.insert(emitted.end(), m.x.begin(), m.x.end());
+      near = emitted;
+    }
+    meeting.emplace(*surface, near, std::isfinite(reach) ? reach : m.h);
+    m.surface = &*meeting;
+  }
+  try {
+    for (int sub = 0; sub < substeps; ++sub) m.substep(h, inflated, rep);
+  } catch (...) {
+    m.surface = nullptr;
+    throw;
+  }
+  m.surface = nullptr;
+  if (surface) surface->contacts = rep.soft_body_contacts;
   // Density error at the last iteration (before its correction): compression only.
   double sum = 0.0, mx = 0.0;
   for (size_t i = 0; i < m.n(); ++i) {

@@ -2,6 +2,7 @@
 #include "pliant/coupling.hpp"
 
 #include "pliant/interaction.hpp"
+#include "particles/surface_contact.hpp"
 #include "particles/triangle_grid.hpp"
 
 #include <fmt/format.h>
@@ -14,31 +15,13 @@
 #include <unordered_map>
 
 namespace pliant {
+using detail::closest_face;
+using detail::FaceHit;
+using detail::first_entered;
+using detail::particle_contact;
 using detail::TriangleGrid;
 using detail::triangle_contact;
 namespace {
-
-// Where segment a -> b enters triangle (p0, p1, p2) from its front (outward) side: the fraction
-// along the segment, or -1.
-double entering_fraction(const Vec3& a, const Vec3& b, const Vec3& p0, const Vec3& p1, const Vec3& p2,
-                         std::array<double, 3>& bary) {
-  const Vec3 e1 = p1 - p0, e2 = p2 - p0, d = b - a;
-  const Vec3 n = e1.cross(e2);
-  if (!(d.dot(n) < 0)) return -1;  // parallel, or leaving through the back
-  const Vec3 pv = d.cross(e2);
-  const double det = e1.dot(pv);
-  if (std::abs(det) < 1e-300) return -1;
-  const Vec3 tv = a - p0;
-  const double u = tv.dot(pv) / det;
-  if (u < 0 || u > 1) return -1;
-  const Vec3 qv = tv.cross(e1);
-  const double v = d.dot(qv) / det;
-  if (v < 0 || u + v > 1) return -1;
-  const double t = e2.dot(qv) / det;
-  if (t < 0 || t > 1) return -1;
-  bary = {1 - u - v, u, v};
-  return t;
-}
 
 // Whether segment a-b passes through triangle (p0, p1, p2), from either side (its edges
 // included, with a margin of 1e-9 in the barycentric weights: a segment through the edge two
@@ -97,100 +80,78 @@ struct PointContact {
 double across(const Vec3& n, const Vec3& u) { return (n - n.dot(u) * u).norm(); }
 constexpr double kMinAcross = 0.25;  // below (within 14 degrees of head-on), a face is not a segment's exit
 
-// The contact of a point that moved from `start` to `now` with the body's surface, if any: the
-// face its path entered first from outside (however deep it got: the closest face of a thin body
-// may be the far one), else the closest face when it is within the radius or inside. A point
-// inside a segment of direction `along` leaves through the near face it needs the least move
-// across the segment to clear (the top of an edge the segment lies over, not the side face that
-// only a slide along the segment would clear), and never through a face the segment pierces
-// head-on.
+// The contact of a point that moved from `start` to `now` with the body's surface, if any: a
+// particle's as particle_contact finds it. A point inside a segment of direction `along` leaves
+// through the near face it needs the least move across the segment to clear (the top of an edge
+// the segment lies over, not the side face that only a slide along the segment would clear), and
+// never through a face the segment pierces head-on.
 bool find_contact(const BodyModel& m, const BodyState& body, const TriangleGrid& grid, const Point& pt,
                   const Vec3& start, const Vec3& now, const Vec3* along, double radius, std::vector<int32_t>& swept,
                   PointContact& out, double& depth) {
+  const std::span<const Triangle> tris(m.surface);
+  const std::span<const Vec3> x(body.x);
+  FaceHit hit;
+  if (!along) {
+    if (!particle_contact(tris, x, grid, start, now, radius, swept, hit, depth)) return false;
+    out = PointContact{pt, hit.triangle, hit.b, hit.n};
+    return true;
+  }
   auto normal_of = [&](const Triangle& t) {
     return Vec3((body.x[t[1]] - body.x[t[0]]).cross(body.x[t[2]] - body.x[t[0]]));
   };
+  auto at = [&](const Triangle& t, const std::array<double, 3>& b) {
+    return Vec3(b[0] * body.x[t[0]] + b[1] * body.x[t[1]] + b[2] * body.x[t[2]]);
+  };
   if (start.allFinite()) grid.near_segment(start, now, 4096, swept);
   else swept.clear();
-  double first = INFINITY;
-  for (int32_t k : swept) {
-    const Triangle& t = m.surface[k];
-    std::array<double, 3> b;
-    const double f = entering_fraction(start, now, body.x[t[0]], body.x[t[1]], body.x[t[2]], b);
-    if (f >= 0 && f < first) {
-      if (along && across(normal_of(t).normalized(), *along) < kMinAcross) continue;
-      first = f;
-      out = PointContact{pt, k, b, Vec3::Zero()};
-    }
-  }
-  if (first < INFINITY) {
-    const Triangle& t = m.surface[out.triangle];
-    out.n = normal_of(t).normalized();
-    const Vec3 q = out.b[0] * body.x[t[0]] + out.b[1] * body.x[t[1]] + out.b[2] * body.x[t[2]];
-    depth = radius - (now - q).dot(out.n);
+  if (first_entered(tris, x, swept, start, now, [&](const Vec3& n) { return across(n, *along) < kMinAcross; },
+                    hit)) {
+    const Triangle& t = m.surface[hit.triangle];
+    out = PointContact{pt, hit.triangle, hit.b, normal_of(t).normalized()};
+    depth = radius - (now - at(t, hit.b)).dot(out.n);
     return true;
   }
-  double best = INFINITY;
-  for (int32_t k : grid.near(now)) {
-    const Triangle& t = m.surface[k];
-    std::array<double, 3> b;
-    const Vec3 q = closest_point_on_triangle(now, body.x[t[0]], body.x[t[1]], body.x[t[2]], b);
-    const double d = (now - q).norm();
-    if (d < best) {
-      best = d;
-      out = PointContact{pt, k, b, Vec3::Zero()};
-    }
-  }
-  if (!(best < INFINITY)) return false;
-  const Triangle& t = m.surface[out.triangle];
+  double distance;
+  if (!closest_face(tris, x, grid.near(now), now, hit, distance)) return false;
+  const Triangle& t = m.surface[hit.triangle];
   const Vec3 face = normal_of(t);
   if (!(face.squaredNorm() > 0)) return false;
-  const Vec3 outward = face.normalized();
-  const Vec3 q = out.b[0] * body.x[t[0]] + out.b[1] * body.x[t[1]] + out.b[2] * body.x[t[2]];
-  const Vec3 d = now - q;
-  const double side = d.dot(outward);
-  if (side >= 0 && d.norm() >= radius) return false;  // outside and clear
-  if (along) {
-    // Faces whose plane the point started outside of come first (it came from that side: a
-    // segment swept over a body's edge goes back over it, not round the far one).
-    double cheapest[2] = {INFINITY, INFINITY};
-    PointContact pick[2];
-    double picked_depth[2] = {0, 0};
-    // The faces along the point's path (its cell included): the face it came over may be
-    // farther than the reach by now.
-    std::vector<int32_t>& candidates = swept;
-    if (candidates.empty()) {
-      const auto near = grid.near(now);
-      candidates.assign(near.begin(), near.end());
-    }
-    for (int32_t k : candidates) {
-      const Triangle& tk = m.surface[k];
-      const Vec3 fk = normal_of(tk);
-      if (!(fk.squaredNorm() > 0)) continue;
-      const Vec3 nk = fk.normalized();
-      const double a = across(nk, *along);
-      if (a < kMinAcross) continue;
-      std::array<double, 3> b;
-      const Vec3 qk = closest_point_on_triangle(now, body.x[tk[0]], body.x[tk[1]], body.x[tk[2]], b);
-      const double need = radius - (now - qk).dot(nk);  // how far along nk the point must go
-      if (need <= 0) continue;
-      const bool started_outside = start.allFinite() && (start - qk).dot(nk) >= 0;
-      const int rank = started_outside ? 0 : 1;
-      if (need / a >= cheapest[rank]) continue;
-      cheapest[rank] = need / a;
-      pick[rank] = PointContact{pt, k, b, nk};
-      picked_depth[rank] = need;
-    }
-    const int use = cheapest[0] < INFINITY ? 0 : 1;
-    if (!(cheapest[use] < INFINITY)) return false;
-    out = pick[use];
-    depth = picked_depth[use];
-    return true;
+  const Vec3 d = now - at(t, hit.b);
+  if (d.dot(face.normalized()) >= 0 && d.norm() >= radius) return false;  // outside and clear
+  // Faces whose plane the point started outside of come first (it came from that side: a
+  // segment swept over a body's edge goes back over it, not round the far one).
+  double cheapest[2] = {INFINITY, INFINITY};
+  PointContact pick[2];
+  double picked_depth[2] = {0, 0};
+  // The faces along the point's path (its cell included): the face it came over may be
+  // farther than the reach by now.
+  std::vector<int32_t>& candidates = swept;
+  if (candidates.empty()) {
+    const auto near = grid.near(now);
+    candidates.assign(near.begin(), near.end());
   }
-  // Outside: apart along the line to the closest point (the face normal when on it); inside:
-  // back out through the closest face.
-  out.n = side >= 0 && d.norm() > 1e-12 * radius ? Vec3(d.normalized()) : outward;
-  depth = radius - d.dot(out.n);
+  for (int32_t k : candidates) {
+    const Triangle& tk = m.surface[k];
+    const Vec3 fk = normal_of(tk);
+    if (!(fk.squaredNorm() > 0)) continue;
+    const Vec3 nk = fk.normalized();
+    const double a = across(nk, *along);
+    if (a < kMinAcross) continue;
+    std::array<double, 3> b;
+    const Vec3 qk = closest_point_on_triangle(now, body.x[tk[0]], body.x[tk[1]], body.x[tk[2]], b);
+    const double need = radius - (now - qk).dot(nk);  // how far along nk the point must go
+    if (need <= 0) continue;
+    const bool started_outside = start.allFinite() && (start - qk).dot(nk) >= 0;
+    const int rank = started_outside ? 0 : 1;
+    if (need / a >= cheapest[rank]) continue;
+    cheapest[rank] = need / a;
+    pick[rank] = PointContact{pt, k, b, nk};
+    picked_depth[rank] = need;
+  }
+  const int use = cheapest[0] < INFINITY ? 0 : 1;
+  if (!(cheapest[use] < INFINITY)) return false;
+  out = pick[use];
+  depth = picked_depth[use];
   return true;
 }
 
@@ -334,6 +295,19 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   }
   for (size_t i = 0; i < body.v.size(); ++i) body.v[i] += body_dv[i];
   return rep;
+}
+
+Vec3 take_surface_impulse(const BodyModel& m, BodyState& body, const SurfaceBoundary& surface) {
+  if (surface.impulse.size() != body.v.size() || body.v.size() != m.vertex_count())
+    throw std::invalid_argument(fmt::format("surface impulse: {} impulses for {} velocities and {} vertices",
+                                            surface.impulse.size(), body.v.size(), m.vertex_count()));
+  Vec3 taken = Vec3::Zero();
+  for (size_t k = 0; k < body.v.size(); ++k)
+    if (m.inv_mass[k] > 0) {
+      body.v[k] -= m.inv_mass[k] * surface.impulse[k];
+      taken += surface.impulse[k];
+    }
+  return taken;
 }
 
 namespace {
