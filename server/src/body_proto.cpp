@@ -142,6 +142,7 @@ Error fluid_from(const v1::FluidSpec& f, const std::string& p, BodyConfig* c, si
   PLIANT_OPT_DOUBLE(f, particle_radius, s.particle_radius, 0.0, 1.0, true, "")
   PLIANT_OPT_INT(f, sort_interval, s.sort_interval, 0, 1000)
   if (f.has_container_density()) s.container_density = f.container_density();
+  if (f.has_surface_density()) s.surface_density = f.surface_density();
   if (f.has_container()) {
     google::protobuf::RepeatedPtrField<v1::Collider> one;
     *one.Add() = f.container();
@@ -362,6 +363,7 @@ void bodies_to_spec(const std::vector<BodyConfig>& bodies, v1::SceneSpec* spec) 
       f->set_support_ratio(s.support_ratio);
       f->set_particle_radius(s.particle_radius);
       f->set_container_density(s.container_density);
+      f->set_surface_density(s.surface_density);
       f->set_sort_interval(s.sort_interval);
       for (const FluidEmitter& e : c.emitters) {
         auto* pe = f->add_emitters();

@@ -1305,7 +1305,8 @@ namespace {
 // A pool of water (5 mm spacing, 4 cm deep) on a 6 x 6 cm slab of soft tissue (E 100 kPa, 2 cm
 // thick, fixed at its bottom, XPBD 64 x 1) in a container over the slab's top; or, for
 // `floor`, the same pool on the container's floor at the slab's top height (the slab out of
-// the way below, the walls not counted as fluid, as the slab is not).
+// the way below). The walls and the slab's surface count as fluid at rest beyond them (the
+// defaults), so the two pools are alike.
 v1::CreateSceneRequest pool_request(const std::string& id, int fluid_substeps, bool floor) {
   v1::CreateSceneRequest r;
   r.set_scene_id(id);
@@ -1330,7 +1331,6 @@ v1::CreateSceneRequest pool_request(const std::string& id, int fluid_substeps, b
   auto* f = b->mutable_fluid();
   f->set_spacing(0.005);
   f->set_substeps(fluid_substeps);
-  f->set_container_density(false);
   auto* blk = f->add_blocks();
   set(blk->mutable_min(), 0.0025, 0.0225, 0.0025);
   set(blk->mutable_max(), 0.0575, 0.0625, 0.0575);
@@ -1345,11 +1345,13 @@ v1::CreateSceneRequest pool_request(const std::string& id, int fluid_substeps, b
 TEST(Bodies, APoolOnASoftSlabSettlesNearItsDepthOnAFloor) {
   // The water and the slab step together in parts (the fluid's substeps, a factor of the slab's
   // 64), the water meeting the slab's surface inside its density iterations as it meets the
-  // floor. The pool settles on the soft slab at the depth it has on a floor and rests nearly as
-  // still: 1.00 of the depth at 0.0054 m/s RMS (0.0046 on the floor) with the default 2 fluid
-  // substeps, 0.99 at 0.014 (0.009) with 8. With the contact after each part instead, the bottom
-  // layer was pressed into the next one: 0.87 and 0.08 m/s with 2; with it once per tick, after
-  // the water's whole step, 0.72 and 0.21 m/s, and boiling at 0.56 m/s, 1.7 times as deep, with 8.
+  // floor, the surface counted as fluid beyond it as the floor is. The pool settles on the soft
+  // slab at the depth it has on the floor and rests as still: 1.00 of the depth at 0.0105 m/s
+  // RMS (0.0104 on the floor) with the default 2 fluid substeps, 0.99 at 0.016 (0.019) with 8.
+  // With the contact after each part instead (and no wall counted), the bottom layer was pressed
+  // into the next one: 0.87 and 0.08 m/s (0.005 on the floor) with 2; with it once per tick,
+  // after the water's whole step, 0.72 and 0.21 m/s, and boiling at 0.56 m/s, 1.7 times as deep,
+  // with 8.
   BodiesServer srv;
   Client c = srv.client();
   struct Pool {

@@ -44,6 +44,9 @@ struct FluidSettings {
   // The container's walls count as fluid at rest beyond them in the density (the kernel's mass
   // fraction beyond each wall plane), so particles along a wall are not under-dense.
   bool container_density = true;
+  // The soft body's surface met inside the step (ParticleBody::advance's SurfaceBoundary) counts
+  // as fluid at rest beyond the plane of the face closest to each particle, as the walls do.
+  bool surface_density = true;
   // Particles allowed in all (blocks + emitters); emitters stop there.
   size_t max_particles = 1000000;
 };

@@ -156,11 +156,13 @@ struct FluidBody::Impl {
   std::vector<double> lam, lam_sum, ratio, depth, mu_s, mu_k;
   std::vector<Vec3> contact_n;
   // The soft body's surface over a call that passes one, and per particle within a substep: its
-  // last hit, the moves it gave (their momentum goes to the surface), whether it touched, and
-  // whether the particle's last contact was the surface (friction against its motion).
+  // last push's hit, the closest face within the kernel's support (the surface's density) and
+  // that density's gradient in the last iteration, the moves the surface gave (their momentum
+  // goes to the surface), whether it pushed the particle, and whether the particle's last
+  // contact was the surface (friction against its motion).
   const detail::SurfaceMeeting* surface = nullptr;
-  std::vector<detail::FaceHit> surface_hit;
-  std::vector<Vec3> surface_moved;
+  std::vector<detail::FaceHit> surface_hit, surface_near;
+  std::vector<Vec3> surface_grad, surface_moved;
   std::vector<uint8_t> surface_touched, surface_last;
   std::vector<Vec3> wall_grad;       // per particle, within one iteration
   // Per pair, within one iteration: grad W and s_corr, in single precision (half the memory
@@ -331,8 +333,10 @@ struct FluidBody::Impl {
         const double gs = sw * gradient_unit();
         const double gx = gs * a_x, gy = gs * a_y, gz = gs * a_z;
         const double sq = gs * gs * a_s;
-        Vec3 gw;
-        const double c = rho / s.rest_density + wall_density(p[i], gw) - 1.0;
+        Vec3 gw, gsurf;
+        const double c = rho / s.rest_density + wall_density(p[i], gw) + surface_density(i, gsurf) - 1.0;
+        if (surface) surface_grad[i] = gsurf;
+        gw += gsurf;
         wall_grad[i] = gw;
         const Vec3 gi = Vec3(gx, gy, gz) + gw;
         ratio[i] = c + 1.0;
@@ -377,6 +381,7 @@ struct FluidBody::Impl {
         dz += c * gzs[q];
       }
       p[i] += gs * Vec3(dx, dy, dz) + li * wall_grad[i];
+      if (surface) surface_moved[i] += li * surface_grad[i];
       lam_sum[i] += li;
       collide(i, inflated);
     }
@@ -502,6 +507,19 @@ struct FluidBody::Impl {
     return f;
   }
 
+  // The soft body's surface as fluid at rest beyond the plane of the face closest to particle i
+  // (within the support; SurfaceBoundary): the density fraction it adds and its gradient.
+  double surface_density(size_t i, Vec3& grad) {
+    grad.setZero();
+    if (!surface || !s.surface_density) return 0.0;
+    double y;
+    detail::FaceHit hit;
+    if (!surface->closest(p[i], hit, y) || !(y < h)) return 0.0;
+    surface_near[i] = hit;
+    grad = fluid::poly6_beyond_slope(k, y) * hit.n;
+    return fluid::poly6_beyond(k, y);
+  }
+
   void substep(double dt, std::span<const Collider> inflated, ParticleStepReport& rep) {
     emit(dt);
     auto clock = std::chrono::steady_clock::now();
@@ -522,6 +540,8 @@ struct FluidBody::Impl {
     mu_k.resize(N);
     if (surface) {
       surface_hit.resize(N);
+      surface_near.assign(N, detail::FaceHit{});
+      surface_grad.assign(N, Vec3::Zero());
       surface_moved.assign(N, Vec3::Zero());
       surface_touched.assign(N, 0);
       surface_last.assign(N, 0);
@@ -607,12 +627,13 @@ struct FluidBody::Impl {
       }
     });
     if (surface) {
-      // The momentum the surface's moves gave each particle, handed to its corners.
+      // The momentum the surface's moves gave each particle (its pushes and its density's),
+      // handed to the corners of the face it last pushed from, else of its closest face.
       size_t touching = 0;
       for (size_t i = 0; i < N; ++i) {
-        if (!surface_touched[i]) continue;
-        ++touching;
-        surface->give(surface_hit[i], mass * surface_moved[i] / dt);
+        touching += surface_touched[i];
+        const detail::FaceHit& at = surface_touched[i] ? surface_hit[i] : surface_near[i];
+        if (at.triangle >= 0 && !surface_moved[i].isZero()) surface->give(at, mass * surface_moved[i] / dt);
       }
       rep.soft_body_contacts = touching;
     }
@@ -960,7 +981,7 @@ ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const C
       emitted.insert(emitted.end(), m.x.begin(), m.x.end());
       near = emitted;
     }
-    meeting.emplace(*surface, near, std::isfinite(reach) ? reach : m.h);
+    meeting.emplace(*surface, near, std::isfinite(reach) ? reach : m.h, m.s.surface_density ? m.h : 0.0);
     m.surface = &*meeting;
   }
   try {

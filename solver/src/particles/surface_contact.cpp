@@ -111,10 +111,31 @@ SurfaceBoundary& checked(SurfaceBoundary& s) {
 
 }  // namespace
 
-SurfaceMeeting::SurfaceMeeting(SurfaceBoundary& boundary, std::span<const Vec3> particles, double reach)
+SurfaceMeeting::SurfaceMeeting(SurfaceBoundary& boundary, std::span<const Vec3> particles, double reach,
+                               double support)
     : boundary_(checked(boundary)),
+      support_(std::max(support, boundary_.radius)),
       region_(reach_box(particles, reach)),
-      grid_(boundary_.triangles, boundary_.x, boundary_.radius, {}, &region_) {}
+      grid_(boundary_.triangles, boundary_.x, support_, {}, &region_) {}
+
+bool SurfaceMeeting::closest(const Vec3& p, FaceHit& hit, double& distance) const {
+  if (!p.allFinite() || !closest_face(boundary_.triangles, boundary_.x, grid_.near(p), p, hit, distance) ||
+      !(distance < support_))
+    return false;
+  const Triangle& t = boundary_.triangles[size_t(hit.triangle)];
+  const std::span<const Vec3> x = boundary_.x;
+  const Vec3 face = (x[t[1]] - x[t[0]]).cross(x[t[2]] - x[t[0]]);
+  if (!(face.squaredNorm() > 0)) return false;
+  const Vec3 outward = face.normalized();
+  const Vec3 d = p - (hit.b[0] * x[t[0]] + hit.b[1] * x[t[1]] + hit.b[2] * x[t[2]]);
+  if (d.dot(outward) < 0) {
+    distance = 0.0;  // inside: the whole half-space beyond
+    hit.n = outward;
+  } else {
+    hit.n = distance > 1e-12 * support_ ? Vec3(d / distance) : outward;
+  }
+  return true;
+}
 
 double SurfaceMeeting::push(const Vec3& from, Vec3& p, FaceHit& hit) const {
   if (!p.allFinite()) return 0.0;

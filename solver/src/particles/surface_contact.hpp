@@ -69,12 +69,16 @@ bool particle_contact(std::span<const Triangle> tris, std::span<const Vec3> x, c
 class SurfaceMeeting {
  public:
   // Checks the boundary (std::invalid_argument naming the field), sizes its impulses to zero and
-  // bins the triangles that a point within `reach` of the particles' box can meet.
-  SurfaceMeeting(SurfaceBoundary& boundary, std::span<const Vec3> particles, double reach);
+  // bins the triangles that a point within `reach` of the particles' box can meet, for pushes
+  // and for closest() up to `support` (at least the boundary's radius).
+  SurfaceMeeting(SurfaceBoundary& boundary, std::span<const Vec3> particles, double reach, double support);
 
   // Moves p (which came from `from` over the substep) to the boundary's radius outside the
   // surface; returns how far it moved along hit.n (0: no contact). Safe from several threads.
   double push(const Vec3& from, Vec3& p, FaceHit& hit) const;
+  // The face closest to p if within the support: its distance (0 inside the body) and hit.n, the
+  // direction from the surface towards p (the outward face normal on it or inside).
+  bool closest(const Vec3& p, FaceHit& hit, double& distance) const;
   // The surface's velocity at a hit.
   Vec3 velocity(const FaceHit& hit) const;
   // Adds the momentum a particle gained from the surface at `hit` to the corners' impulses.
@@ -83,6 +87,7 @@ class SurfaceMeeting {
 
  private:
   SurfaceBoundary& boundary_;
+  double support_;
   std::pair<Vec3, Vec3> region_;
   TriangleGrid grid_;
 };
