@@ -67,11 +67,13 @@ struct ParticleStepReport {
 // A soft body's surface that a particle body meets inside its own step, as it meets the
 // colliders: each particle kept `radius` outside the triangles (outward, into `x`), held where
 // they are over the call, with Coulomb friction (`friction`) on its slip against the surface's
-// motion (`v`, the vertices' velocities). What the body does not meet inside its step (a kind
-// that does not take it: cloth and ropes) is left to the contact after the step. The momentum the
+// motion (`v`, the vertices' velocities over the call: a scene passes their mean over the soft
+// body's step or part); a fluid also counts it as fluid at rest beyond it in its density
+// (FluidSettings::surface_density). What the body does not meet inside its step (a kind that
+// does not take it: cloth and ropes) is left to the contact after the step. The momentum the
 // particles gained from the surface comes back per vertex in `impulse` (N s, sized to x by the
-// call; the soft body takes minus it), and `contacts` counts the particles touching it in the
-// last substep.
+// call; the soft body takes minus it), and `contacts` counts the particles it pushed in the last
+// substep.
 struct SurfaceBoundary {
   std::span<const Triangle> triangles;
   std::span<const Vec3> x;
