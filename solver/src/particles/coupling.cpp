@@ -104,7 +104,7 @@ bool find_contact(const BodyModel& m, const BodyState& body, const TriangleGrid&
   };
   if (start.allFinite()) grid.near_segment(start, now, 4096, swept);
   else swept.clear();
-  if (first_entered(tris, x, swept, start, now, [&](const Vec3& n) { return across(n, *along) < kMinAcross; },
+  if (first_entered(tris, x, grid, swept, start, now, [&](const Vec3& n) { return across(n, *along) < kMinAcross; },
                     hit)) {
     const Triangle& t = m.surface[hit.triangle];
     out = PointContact{pt, hit.triangle, hit.b, normal_of(t).normalized()};
@@ -112,7 +112,7 @@ bool find_contact(const BodyModel& m, const BodyState& body, const TriangleGrid&
     return true;
   }
   double distance;
-  if (!closest_face(tris, x, grid.near(now), now, hit, distance)) return false;
+  if (!closest_face(tris, x, grid, grid.near(now), now, hit, distance)) return false;
   const Triangle& t = m.surface[hit.triangle];
   const Vec3 face = normal_of(t);
   if (!(face.squaredNorm() > 0)) return false;

@@ -28,10 +28,11 @@ double entering_fraction(const Vec3& a, const Vec3& b, const Vec3& p0, const Vec
   return t;
 }
 
-bool closest_face(std::span<const Triangle> tris, std::span<const Vec3> x, std::span<const int32_t> candidates,
-                  const Vec3& p, FaceHit& out, double& distance) {
+bool closest_face(std::span<const Triangle> tris, std::span<const Vec3> x, const TriangleGrid& grid,
+                  std::span<const int32_t> candidates, const Vec3& p, FaceHit& out, double& distance) {
   distance = INFINITY;
   for (int32_t k : candidates) {
+    if (grid.box_distance2(k, p) > distance * distance * (1 + 1e-9)) continue;  // (rounding)
     const Triangle& t = tris[size_t(k)];
     std::array<double, 3> b;
     const double d = (p - closest_point_on_triangle(p, x[t[0]], x[t[1]], x[t[2]], b)).norm();
@@ -56,13 +57,13 @@ bool particle_contact(std::span<const Triangle> tris, std::span<const Vec3> x, c
   };
   if (start.allFinite()) grid.near_segment(start, now, 4096, swept);
   else swept.clear();
-  if (first_entered(tris, x, swept, start, now, [](const Vec3&) { return false; }, out)) {
+  if (first_entered(tris, x, grid, swept, start, now, [](const Vec3&) { return false; }, out)) {
     out.n = face_normal(out).normalized();
     depth = radius - (now - at(out)).dot(out.n);
     return true;
   }
   double distance;
-  if (!closest_face(tris, x, grid.near(now), now, out, distance)) return false;
+  if (!closest_face(tris, x, grid, grid.near(now), now, out, distance)) return false;
   const Vec3 face = face_normal(out);
   if (!(face.squaredNorm() > 0)) return false;
   const Vec3 outward = face.normalized();
@@ -119,7 +120,7 @@ SurfaceMeeting::SurfaceMeeting(SurfaceBoundary& boundary, std::span<const Vec3> 
       grid_(boundary_.triangles, boundary_.x, support_, {}, &region_) {}
 
 bool SurfaceMeeting::closest(const Vec3& p, FaceHit& hit, double& distance) const {
-  if (!p.allFinite() || !closest_face(boundary_.triangles, boundary_.x, grid_.near(p), p, hit, distance) ||
+  if (!p.allFinite() || !closest_face(boundary_.triangles, boundary_.x, grid_, grid_.near(p), p, hit, distance) ||
       !(distance < support_))
     return false;
   const Triangle& t = boundary_.triangles[size_t(hit.triangle)];

@@ -31,13 +31,18 @@ struct FaceHit {
   Vec3 n = Vec3::Zero();
 };
 
-// The face among `candidates` that the path start -> now entered first from outside, skipping
-// those `skip(unit face normal)` rejects; false when none. out.n is left for the caller.
+// The face among `candidates` (of `grid`, whose boxes rule out the faces the path's box misses)
+// that the path start -> now entered first from outside, skipping those `skip(unit face normal)`
+// rejects; false when none. out.n is left for the caller.
 template <class Skip>
-bool first_entered(std::span<const Triangle> tris, std::span<const Vec3> x, std::span<const int32_t> candidates,
-                   const Vec3& start, const Vec3& now, const Skip& skip, FaceHit& out) {
+bool first_entered(std::span<const Triangle> tris, std::span<const Vec3> x, const TriangleGrid& grid,
+                   std::span<const int32_t> candidates, const Vec3& start, const Vec3& now, const Skip& skip,
+                   FaceHit& out) {
   double first = INFINITY;
+  const Vec3 lo = start.cwiseMin(now).array() - 1e-9, hi = start.cwiseMax(now).array() + 1e-9;  // rounding
   for (int32_t k : candidates) {
+    const auto& [blo, bhi] = grid.box(k);
+    if ((blo.array() > hi.array()).any() || (bhi.array() < lo.array()).any()) continue;
     const Triangle& t = tris[size_t(k)];
     std::array<double, 3> b;
     const double f = entering_fraction(start, now, x[t[0]], x[t[1]], x[t[2]], b);
@@ -50,10 +55,10 @@ bool first_entered(std::span<const Triangle> tris, std::span<const Vec3> x, std:
   return first < INFINITY;
 }
 
-// The face among `candidates` closest to p (the first of equals), its distance in `distance`;
-// false when there is none.
-bool closest_face(std::span<const Triangle> tris, std::span<const Vec3> x, std::span<const int32_t> candidates,
-                  const Vec3& p, FaceHit& out, double& distance);
+// The face among `candidates` (of `grid`, whose boxes rule out the faces farther than the best so
+// far) closest to p (the first of equals), its distance in `distance`; false when there is none.
+bool closest_face(std::span<const Triangle> tris, std::span<const Vec3> x, const TriangleGrid& grid,
+                  std::span<const int32_t> candidates, const Vec3& p, FaceHit& out, double& distance);
 
 // A particle's contact with the surface after it moved from `start` (not finite: no path) to
 // `now`: back out through the face its path entered first (however deep it got: the closest face

@@ -138,6 +138,13 @@ class TriangleGrid {
 
   std::span<const int32_t> near(const Vec3& p) const { return cell(cell_of(p)); }
   size_t entries() const { return triangles_.size(); }  // (cell, triangle) entries binned
+  // Triangle k's box (its corners', start and end), not grown: a bound for its points.
+  const std::pair<Vec3, Vec3>& box(int32_t k) const { return boxes_[size_t(k)]; }
+  // The squared distance from p to triangle k's box (0 inside): no point of it is nearer.
+  double box_distance2(int32_t k, const Vec3& p) const {
+    const auto& [lo, hi] = boxes_[size_t(k)];
+    return (lo - p).cwiseMax(p - hi).cwiseMax(0.0).squaredNorm();
+  }
 
   // The triangles near a segment: those of every cell its box touches (with repeats), or
   // nothing when that box spans more than max_cells cells.
