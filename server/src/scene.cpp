@@ -87,9 +87,9 @@ struct Scene::TickState {
   std::vector<ClothPair> cloth_pairs;
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
   int body_parts = 1;  // the parts a tick of the bodies in some ClothPair is cut into (shared_step_parts)
-  // Per body: it steps with the tet body in parts, meeting its surface where each of the tet
-  // body's parts left it (Scene::body_parts): the fluids, which meet that surface inside their
-  // density iterations. A cloth's or a rope's contact comes once per tick, after its whole step
+  // Per body: it meets the tet body's surface inside its own step, and steps with the tet body
+  // in parts where their substeps allow (Scene::body_parts): the fluids with soft_body_contact.
+  // A cloth's or a rope's contact comes once per tick, after its whole step
   // (the tet body's vertices meet a cloth's triangles inside its step; a contact pass costs a
   // grid over the tet body's surface, and their 16 substeps would make 16 of them).
   std::vector<uint8_t> tet_parts;
@@ -101,8 +101,8 @@ struct Scene::TickState {
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
   std::vector<std::vector<Vec3>> body_part_start;  // scratch: before the part of the step (step_bodies)
   std::vector<size_t> part_contacts;              // scratch: each body's pair contacts in a part
-  // Scratch for the bodies in contact with the tet body: its vertices' mean velocities over the
-  // part (or the tick) and its positions where the part started.
+  // Scratch for the bodies that meet the tet body's surface inside their step: its vertices'
+  // mean velocities over the part (or the tick) and its positions where the next part starts.
   std::vector<Vec3> surface_v, surface_part_start;
   std::vector<ParticleStepReport> body_reports;  // each body's step in the tick in progress
   // Realtime schedule: tick k is due at anchor + k * period.
@@ -906,10 +906,10 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
   }
   // The tet body's surface for the bodies that meet it inside their step: where its step (or
   // part) left it, moving at its mean velocity over the step (or part): a solver's velocities
-  // at its last substep are noisy, and friction would carry that noise into the particles.
-  const bool surface_used =
-      std::any_of(t.body_contact.begin(), t.body_contact.end(), [](const auto& c) { return c.has_value(); });
-  if (surface_used) {
+  // at its last substep are noisy, and friction would carry that noise into the particles. After
+  // the tet body's whole step it is the same for every part.
+  const bool surface_used = t.tet_body_parts > 0;  // some body meets it
+  if (surface_used && (bp.with_tet || part == 0)) {
     const std::vector<Vec3>& from = bp.with_tet && part > 0 ? t.surface_part_start : t.last_good.x;
     const double span = bp.with_tet ? dt / parts : dt;
     t.surface_v.resize(t.state.x.size());
@@ -935,11 +935,11 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       const auto t_body = Clock::now();
       const int n = in_parts ? t.bodies[b]->substeps() / parts : t.bodies[b]->substeps();
       const double h = in_parts ? dt / parts : dt;
-      // The soft body's surface where its step (or part) left it, met inside the body's own
-      // substeps by a kind that can (a fluid); its push goes to the soft body's velocities.
+      // The soft body's surface where its step (or part) left it, met inside a fluid's own
+      // substeps; its push goes to the soft body's velocities.
       const auto& contact = t.body_contact[b];
       std::optional<SurfaceBoundary> surface;
-      if (contact) {
+      if (t.tet_parts[b]) {
         surface.emplace();
         surface->triangles = t.model->surface;
         surface->x = t.state.x;
@@ -949,7 +949,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       }
       const ParticleStepReport r =
           t.bodies[b]->advance(h, n, t.colliders, !in_parts || last_part, surface ? &*surface : nullptr);
-      if (surface && !surface->impulse.empty()) take_surface_impulse(*t.model, t.state, *surface);
+      if (surface) take_surface_impulse(*t.model, t.state, *surface);
       ParticleStepReport& rep = t.body_reports[b];
       if (first) {
         rep = r;
@@ -968,10 +968,10 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       };
       if (starts) add_emitted(t.body_start[b]);
       if (part_start) add_emitted(t.body_part_start[b]);
-      // A kind that met the surface inside its step needs no contact after it.
-      const bool met = surface && !surface->impulse.empty();
-      if (met) rep.soft_body_contacts = first ? surface->contacts : std::max(rep.soft_body_contacts, surface->contacts);
-      if (contact && !met && (tet_parts || !in_parts || last_part)) {
+      // A body that met the surface inside its step needs no contact after it (its report counts
+      // the particles the surface pushed in its last substep; in parts, the most in one part).
+      if (surface && !first) rep.soft_body_contacts = std::max(rep.soft_body_contacts, r.soft_body_contacts);
+      if (contact && !surface && (tet_parts || !in_parts || last_part)) {
         // Two-way with the soft body after the step: the particles move out, the tet body takes
         // their momentum; over the part with the tet body's parts, else over the whole tick.
         ParticleState ps = t.bodies[b]->state();
@@ -987,7 +987,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       rep.wall_ms = (first ? 0.0 : rep.wall_ms) + ms_since(t_body);
     });
   }
-  if (surface_used && bp.with_tet) t.surface_part_start = t.state.x;
+  if (surface_used && bp.with_tet && !last_part) t.surface_part_start = t.state.x;
   t.part_contacts.assign(t.bodies.size(), 0);
   for (const TickState::ClothPair& pair : t.cloth_pairs)
     guarded(pair.particles, [&] {

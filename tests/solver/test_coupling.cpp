@@ -264,7 +264,6 @@ struct FluidThrow {
     surface.v = body.v;
     surface.radius = contact.radius;
     const size_t touched = fluid->advance(h, n, {}, ends_step, &surface).soft_body_contacts;
-    EXPECT_EQ(touched, surface.contacts);
     take_surface_impulse(*model, body, surface);
     return touched;
   }
@@ -463,8 +462,7 @@ TEST(SurfaceBoundary, FrictionPullsRestingParticlesToTheSurfacesSpeedAtMuG) {
       surface.v = moving;
       surface.radius = 0.5 * fs.spacing;
       surface.friction = mu;
-      water.advance(1.0 / 60, fs.substeps, {}, true, &surface);
-      EXPECT_EQ(surface.contacts, 4u);
+      EXPECT_EQ(water.advance(1.0 / 60, fs.substeps, {}, true, &surface).soft_body_contacts, 4u);
       for (const Vec3& j : surface.impulse) given += j;
       if (k == 4 && mu == 0.1) EXPECT_NEAR(mean_vx(), 0.1 * 9.81 * 5.0 / 60, 0.03 * 0.0817);
     }

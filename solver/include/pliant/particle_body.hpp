@@ -72,8 +72,8 @@ struct ParticleStepReport {
 // (FluidSettings::surface_density). What the body does not meet inside its step (a kind that
 // does not take it: cloth and ropes) is left to the contact after the step. The momentum the
 // particles gained from the surface comes back per vertex in `impulse` (N s, sized to x by the
-// call; the soft body takes minus it), and `contacts` counts the particles it pushed in the last
-// substep.
+// call; the soft body takes minus it); the step's report counts the particles it pushed in the
+// last substep (soft_body_contacts).
 struct SurfaceBoundary {
   std::span<const Triangle> triangles;
   std::span<const Vec3> x;
@@ -81,7 +81,6 @@ struct SurfaceBoundary {
   double radius = 0.0;    // m, > 0
   double friction = 0.0;  // >= 0
   std::vector<Vec3> impulse;
-  size_t contacts = 0;
 };
 
 // How many parts a step of bodies in contact is cut into, so that their contacts are resolved

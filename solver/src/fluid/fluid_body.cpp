@@ -160,7 +160,7 @@ struct FluidBody::Impl {
   // that density's gradient in the last iteration, the moves the surface gave (their momentum
   // goes to the surface), whether it pushed the particle, and whether the particle's last
   // contact was the surface (friction against its motion).
-  const detail::SurfaceMeeting* surface = nullptr;
+  detail::SurfaceMeeting* surface = nullptr;
   std::vector<detail::FaceHit> surface_hit, surface_near;
   std::vector<Vec3> surface_grad, surface_moved;
   std::vector<uint8_t> surface_touched, surface_last;
@@ -970,17 +970,14 @@ ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const C
     // support for the density corrections. A particle that gets farther does not meet it.
     double fastest = 0.0;
     for (const Vec3& vi : m.v) fastest = std::max(fastest, vi.norm());
-    std::vector<Vec3> emitted;
+    std::vector<Vec3> with_layers;  // the particles and the emitters' layers, when there are emitters
     for (const Impl::Emitter& e : m.emitters) {
       fastest = std::max(fastest, e.spec.speed);
-      for (const Vec3& q : e.layer) emitted.push_back(e.spec.centre + q);
+      for (const Vec3& q : e.layer) with_layers.push_back(e.spec.centre + q);
     }
+    if (!with_layers.empty()) with_layers.insert(with_layers.end(), m.x.begin(), m.x.end());
+    const std::span<const Vec3> near = with_layers.empty() ? std::span<const Vec3>(m.x) : with_layers;
     const double reach = dt * (fastest + m.s.gravity.norm() * dt) + m.h + surface->radius;
-    std::span<const Vec3> near = m.x;
-    if (!emitted.empty()) {
-      emitted.insert(emitted.end(), m.x.begin(), m.x.end());
-      near = emitted;
-    }
     meeting.emplace(*surface, near, std::isfinite(reach) ? reach : m.h, m.s.surface_density ? m.h : 0.0);
     m.surface = &*meeting;
   }
@@ -991,7 +988,6 @@ ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const C
     throw;
   }
   m.surface = nullptr;
-  if (surface) surface->contacts = rep.soft_body_contacts;
   // Density error at the last iteration (before its correction): compression only.
   double sum = 0.0, mx = 0.0;
   for (size_t i = 0; i < m.n(); ++i) {

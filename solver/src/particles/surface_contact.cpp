@@ -106,7 +106,6 @@ SurfaceBoundary& checked(SurfaceBoundary& s) {
         throw std::invalid_argument(
             fmt::format("surface boundary: triangle {} names vertex {} of {}", k, i, s.x.size()));
   s.impulse.assign(s.x.size(), Vec3::Zero());
-  s.contacts = 0;
   return s;
 }
 
@@ -157,7 +156,7 @@ Vec3 SurfaceMeeting::velocity(const FaceHit& hit) const {
   return hit.b[0] * boundary_.v[t[0]] + hit.b[1] * boundary_.v[t[1]] + hit.b[2] * boundary_.v[t[2]];
 }
 
-void SurfaceMeeting::give(const FaceHit& hit, const Vec3& momentum) const {
+void SurfaceMeeting::give(const FaceHit& hit, const Vec3& momentum) {
   const Triangle& t = boundary_.triangles[size_t(hit.triangle)];
   for (int a = 0; a < 3; ++a) boundary_.impulse[t[a]] += hit.b[a] * momentum;
 }

@@ -87,7 +87,7 @@ class SurfaceMeeting {
   // The surface's velocity at a hit.
   Vec3 velocity(const FaceHit& hit) const;
   // Adds the momentum a particle gained from the surface at `hit` to the corners' impulses.
-  void give(const FaceHit& hit, const Vec3& momentum) const;
+  void give(const FaceHit& hit, const Vec3& momentum);
   double friction() const { return boundary_.friction; }
 
  private:
