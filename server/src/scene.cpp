@@ -87,12 +87,13 @@ struct Scene::TickState {
   std::vector<ClothPair> cloth_pairs;
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
   int body_parts = 1;  // the parts a tick of the bodies in some ClothPair is cut into (shared_step_parts)
-  // Per body: it meets the tet body's surface inside its own step, and steps with the tet body
-  // in parts where their substeps allow (Scene::body_parts): the fluids with soft_body_contact.
-  // A cloth's or a rope's contact comes once per tick, after its whole step
-  // (the tet body's vertices meet a cloth's triangles inside its step; a contact pass costs a
-  // grid over the tet body's surface, and their 16 substeps would make 16 of them).
+  // Per body: it steps with the tet body in parts where their substeps allow (Scene::body_parts):
+  // the fluids with soft_body_contact. Every body with soft_body_contact meets the tet body's
+  // surface inside its own step, where the tet body's step (or part) left it; a cloth or a rope
+  // steps once per tick after the tet body's whole step (the tet body's vertices meet a cloth's
+  // triangles inside its step), and its segments meet the surface after its step.
   std::vector<uint8_t> tet_parts;
+  bool surface_used = false;  // some body has soft_body_contact
   // The parts the substeps of those fluids and of the paired bodies share (shared_step_parts; 0:
   // no fluid touches the tet body): with the tet body's substeps, the parts of a tick.
   int tet_body_parts = 0;
@@ -183,6 +184,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
       contact->friction = bc.soft_body_friction;
     }
     ts_->tet_parts.push_back(contact && body->kind() == "fluid");
+    ts_->surface_used = ts_->surface_used || contact.has_value();
     ts_->body_contact.push_back(contact);
     ts_->bodies_initial.push_back(body->state());
     ts_->body_start.emplace_back();
@@ -908,7 +910,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
   // part) left it, moving at its mean velocity over the step (or part): a solver's velocities
   // at its last substep are noisy, and friction would carry that noise into the particles. After
   // the tet body's whole step it is the same for every part.
-  const bool surface_used = t.tet_body_parts > 0;  // some body meets it
+  const bool surface_used = t.surface_used;
   if (surface_used && (bp.with_tet || part == 0)) {
     const std::vector<Vec3>& from = bp.with_tet && part > 0 ? t.surface_part_start : t.last_good.x;
     const double span = bp.with_tet ? dt / parts : dt;
@@ -935,11 +937,11 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       const auto t_body = Clock::now();
       const int n = in_parts ? t.bodies[b]->substeps() / parts : t.bodies[b]->substeps();
       const double h = in_parts ? dt / parts : dt;
-      // The soft body's surface where its step (or part) left it, met inside a fluid's own
+      // The soft body's surface where its step (or part) left it, met inside the body's own
       // substeps; its push goes to the soft body's velocities.
       const auto& contact = t.body_contact[b];
       std::optional<SurfaceBoundary> surface;
-      if (t.tet_parts[b]) {
+      if (contact) {
         surface.emplace();
         surface->triangles = t.model->surface;
         surface->x = t.state.x;
@@ -968,20 +970,21 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       };
       if (starts) add_emitted(t.body_start[b]);
       if (part_start) add_emitted(t.body_part_start[b]);
-      // A body that met the surface inside its step needs no contact after it (its report counts
-      // the particles the surface pushed in its last substep; in parts, the most in one part).
+      // The particles met the surface inside the step (the report counts those it pushed in the
+      // last substep; in parts, the most in one part).
       if (surface && !first) rep.soft_body_contacts = std::max(rep.soft_body_contacts, r.soft_body_contacts);
-      if (contact && !surface && (tet_parts || !in_parts || last_part)) {
-        // Two-way with the soft body after the step: the particles move out, the tet body takes
-        // their momentum; over the part with the tet body's parts, else over the whole tick.
+      if (surface && !t.bodies[b]->segments().empty() && (tet_parts || !in_parts || last_part)) {
+        // A rope's links and a cloth's edges after the step, two-way: their inside points move
+        // out, the tet body takes their momentum; over the part with the tet body's parts, else
+        // over the whole tick.
         ParticleState ps = t.bodies[b]->state();
+        CouplingSettings along = *contact;
+        along.particles = false;
         const CouplingReport c = couple_particles_to_body(
-            *t.model, t.state, ps, t.bodies[b]->inverse_masses(), *contact, tet_parts ? h : dt,
+            *t.model, t.state, ps, t.bodies[b]->inverse_masses(), along, tet_parts ? h : dt,
             tet_parts && part_start ? t.body_part_start[b] : t.body_start[b], t.bodies[b]->segments());
-        // In parts: the most in one part, as for the contacts between bodies.
-        const size_t touched = c.contacts + c.segment_contacts;
-        rep.soft_body_contacts = first ? touched : std::max(rep.soft_body_contacts, touched);
-        t.bodies[b]->set_state(ps);
+        rep.soft_body_contacts += c.segment_contacts;
+        if (c.segment_contacts > 0) t.bodies[b]->set_state(ps);
       }
       // Its step and its contacts, below.
       rep.wall_ms = (first ? 0.0 : rep.wall_ms) + ms_since(t_body);

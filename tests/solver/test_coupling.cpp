@@ -18,6 +18,7 @@
 
 #include <cmath>
 #include <functional>
+#include <iostream>
 #include <memory>
 #include <random>
 
@@ -472,6 +473,33 @@ TEST(SurfaceBoundary, FrictionPullsRestingParticlesToTheSurfacesSpeedAtMuG) {
     if (mu == 1.0) EXPECT_NEAR(mean_vx(), 0.2, 1e-6);
     for (const Vec3& x : water.state().x) EXPECT_NEAR(x.y(), 0.012, 1e-6);
   }
+}
+
+TEST(SurfaceBoundary, ARopeFallingOnABodyIsStoppedOnItInsideItsStep) {
+  // A rope of 1 g falling at 0.5 m/s, gravity off, 1 mm over beam1's top (y 1 cm): its particles
+  // meet the surface inside the substeps of its step (not after it), stop on it 2 mm up, and
+  // the surface takes exactly the momentum they lost (the body takes minus the impulses).
+  const auto model = build_model(*builtin_mesh("beam1"), Material{1e5, 0.4, 1000});
+  const BodyState body = rest_state(*model);
+  ConstraintBodySettings rs;
+  rs.gravity = Vec3::Zero();
+  rs.thickness = 0.002;
+  auto rope = ConstraintBody::rope({Vec3(0.02, 0.013, 0.005), Vec3(0.10, 0.013, 0.005)}, 10, 0.0125, rs);
+  ParticleState st = rope->state();
+  for (Vec3& v : st.v) v = Vec3(0, -0.5, 0);
+  rope->set_state(st);
+  const double mass = rope->total_mass();
+  SurfaceBoundary surface;
+  surface.triangles = model->surface;
+  surface.x = body.x;
+  surface.v = body.v;
+  surface.radius = rs.thickness;
+  rope->advance(1.0 / 60, rs.substeps, {}, true, &surface);
+  for (const Vec3& x : rope->state().x) EXPECT_NEAR(x.y(), 0.012, 1e-9) << x.transpose();
+  for (const Vec3& v : rope->state().v) EXPECT_NEAR(v.y(), 0.0, 1e-9);
+  Vec3 given = Vec3::Zero();
+  for (const Vec3& j : surface.impulse) given += j;
+  EXPECT_NEAR((given - mass * Vec3(0, 0.5, 0)).norm(), 0.0, 1e-12 * mass) << "the surface gave what the rope lost";
 }
 
 TEST(Coupling, LeavesBlownUpParticlesToTheCaller) {

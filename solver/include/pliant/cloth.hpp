@@ -157,6 +157,10 @@ class ConstraintBody : public ParticleBody {
   void find_self_contacts();
   void solve_self_contacts();
   size_t solve_colliders(std::span<const Collider> colliders);
+  // The soft body's surface met inside a step: what each particle met in the substep.
+  struct SurfaceContacts;
+  void meet_surface(SurfaceContacts& sc);
+  size_t leave_surface(SurfaceContacts& sc, double h);
   template <class F>
   void for_colours(const std::vector<size_t>& starts, F&& f);
 

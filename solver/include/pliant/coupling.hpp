@@ -22,6 +22,9 @@ namespace pliant {
 struct CouplingSettings {
   double radius = 0.0;    // m, how far outside the surface a particle's centre stays (> 0)
   double friction = 0.0;  // Coulomb coefficient of the contact, >= 0
+  // couple_particles_to_body: false leaves the particles themselves alone and keeps only the
+  // segments' inside points out (for a body whose particles met the surface in their own step).
+  bool particles = true;
 };
 
 struct CouplingReport {

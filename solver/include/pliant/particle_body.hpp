@@ -69,8 +69,8 @@ struct ParticleStepReport {
 // they are over the call, with Coulomb friction (`friction`) on its slip against the surface's
 // motion (`v`, the vertices' velocities over the call: a scene passes their mean over the soft
 // body's step or part); a fluid also counts it as fluid at rest beyond it in its density
-// (FluidSettings::surface_density). What the body does not meet inside its step (a kind that
-// does not take it: cloth and ropes) is left to the contact after the step. The momentum the
+// (FluidSettings::surface_density). What the body does not meet inside its step (the segments
+// between a cloth's or a rope's particles) is left to the contact after the step. The momentum the
 // particles gained from the surface comes back per vertex in `impulse` (N s, sized to x by the
 // call; the soft body takes minus it); the step's report counts the particles it pushed in the
 // last substep (soft_body_contacts).
@@ -119,7 +119,7 @@ class ParticleBody {
   // Substeps per step (the body's settings).
   virtual int substeps() const = 0;
   // Advances by dt seconds in `substeps` substeps of dt / substeps against the colliders (and the
-  // soft body's surface, for a kind that meets it inside its step: a fluid): a whole step, or a
+  // soft body's surface, when given): a whole step, or a
   // part of one when a scene cuts the step to resolve the contacts between its bodies in between
   // (`ends_step`: the last part, which counts the step in state().steps).
   virtual ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,

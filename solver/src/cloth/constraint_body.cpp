@@ -5,6 +5,7 @@
 // velocities from positions.
 #include "pliant/cloth.hpp"
 
+#include "particles/surface_contact.hpp"
 #include "step/thread_pool.hpp"
 
 #include <spdlog/fmt/fmt.h>
@@ -13,6 +14,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -632,10 +634,75 @@ size_t ConstraintBody::solve_colliders(std::span<const Collider> colliders) {
 
 int ConstraintBody::substeps() const { return settings_.substeps; }
 
-// The soft body's surface is not met inside the step (the scene's contact after the step or the
-// part keeps the particles and the segments out of it).
+struct ConstraintBody::SurfaceContacts {
+  SurfaceContacts(SurfaceBoundary& boundary, std::span<const Vec3> particles, double reach);
+  void begin_substep(size_t n);
+  detail::SurfaceMeeting meeting;
+  std::vector<detail::FaceHit> hit;  // per particle: the face it last pushed from
+  std::vector<Vec3> moved;           // the surface's moves of it in the substep
+  std::vector<double> depth;         // their depths summed (friction's bound)
+};
+
+ConstraintBody::SurfaceContacts::SurfaceContacts(SurfaceBoundary& boundary, std::span<const Vec3> particles,
+                                                 double reach)
+    : meeting(boundary, particles, reach, boundary.radius) {}
+
+void ConstraintBody::SurfaceContacts::begin_substep(size_t n) {
+  hit.assign(n, detail::FaceHit{});
+  moved.assign(n, Vec3::Zero());
+  depth.assign(n, 0.0);
+}
+
+// Every free particle out of the soft body's surface: back through the face its path over the
+// substep entered, else the radius off the closest face (SurfaceMeeting::push).
+void ConstraintBody::meet_surface(SurfaceContacts& sc) {
+  auto work = [&](int, size_t lo, size_t hi) {
+    for (size_t i = lo; i < hi; ++i) {
+      if (w_[i] == 0.0) continue;
+      const Vec3 before = p_[i];
+      detail::FaceHit hit;
+      const double d = sc.meeting.push(x_prev_[i], p_[i], hit);
+      if (!(d > 0)) continue;
+      sc.hit[i] = hit;
+      sc.depth[i] += d;
+      sc.moved[i] += p_[i] - before;
+    }
+  };
+  if (pool_)
+    pool_->parallel_for(size(), work, 256);
+  else
+    work(0, 0, size());
+}
+
+// After a substep's iterations: Coulomb friction on each touching particle's slip against the
+// surface's motion over the substep (held below friction x its pushes, else shortened by that),
+// then the momentum the surface's moves gave it, to the corners of the face it last pushed from.
+// Returns the particles it touched.
+size_t ConstraintBody::leave_surface(SurfaceContacts& sc, double h) {
+  const double mu = sc.meeting.friction();
+  size_t touched = 0;
+  for (size_t i = 0; i < size(); ++i) {
+    if (!(sc.depth[i] > 0)) continue;
+    ++touched;
+    const Vec3 nn = sc.hit[i].n;
+    const Vec3 slip = p_[i] - x_prev_[i] - h * sc.meeting.velocity(sc.hit[i]);
+    const Vec3 tang = slip - slip.dot(nn) * nn;
+    const double tl = tang.norm();
+    if (mu > 0 && tl > 0) {
+      const Vec3 back = tl <= mu * sc.depth[i] ? tang : Vec3(tang * (mu * sc.depth[i] / tl));
+      p_[i] -= back;
+      sc.moved[i] -= back;
+    }
+    sc.meeting.give(sc.hit[i], m_[i] * sc.moved[i] / h);
+  }
+  return touched;
+}
+
+// The soft body's surface (`surface`) is met by the particles inside every iteration, after the
+// colliders, as the fluid meets it; the segments between them are left to the scene's contact
+// after the step.
 ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<const Collider> colliders,
-                                           bool ends_step, SurfaceBoundary* /*surface*/) {
+                                           bool ends_step, SurfaceBoundary* surface) {
   if (!std::isfinite(dt) || dt <= 0.0) throw std::invalid_argument("step: dt must be > 0 s (got " + fmt::format("{:g}", dt) + ")");
   if (substeps < 1) throw std::invalid_argument("step: substeps must be >= 1 (got " + std::to_string(substeps) + ")");
   const auto t0 = std::chrono::steady_clock::now();
@@ -656,6 +723,15 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
   report.substeps = ns;
   report.iterations = settings_.iterations;
   report.self_collision_suspended = over;
+  // The soft body's surface near where the particles can get over the call (their speed and
+  // gravity over dt); a particle that gets farther does not meet it.
+  std::optional<SurfaceContacts> on_surface;
+  if (surface) {
+    double fastest = 0.0;
+    for (const Vec3& v : state_.v) fastest = std::max(fastest, v.norm());
+    const double reach = dt * (fastest + settings_.gravity.norm() * dt) + surface->radius;
+    on_surface.emplace(*surface, state_.x, std::isfinite(reach) ? reach : surface->radius);
+  }
   for (int s = 0; s < ns; ++s) {
     for (size_t i = 0; i < n; ++i) {
       x_prev_[i] = state_.x[i];
@@ -669,6 +745,7 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
     std::fill(state_.lambda.begin(), state_.lambda.end(), 0.0);
     for (auto& [id, g] : grabs_) g.lambda.setZero();
     if (self) find_self_contacts();
+    if (on_surface) on_surface->begin_substep(n);
     size_t contacts = 0;
     for (int it = 0; it < settings_.iterations; ++it) {
       for_colours(dist_colours_, [&](size_t k) { solve_distance(k, h2); });
@@ -680,13 +757,16 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
       solve_grabs(h2);
       if (self) solve_self_contacts();
       contacts = solve_colliders(colliders);
-      if (self && !self_contacts_.empty() && !colliders.empty()) {
+      if (on_surface) meet_surface(*on_surface);
+      if (self && !self_contacts_.empty() && (!colliders.empty() || on_surface)) {
         // a layer pressed onto a collider by another: once more, so that neither the
         // layers nor the collider end the substep violated by the other's last correction
         solve_self_contacts();
         contacts = solve_colliders(colliders);
+        if (on_surface) meet_surface(*on_surface);
       }
     }
+    if (on_surface) report.soft_body_contacts = leave_surface(*on_surface, h);
     for (size_t i = 0; i < n; ++i) {
       state_.v[i] = (p_[i] - x_prev_[i]) / h;
       state_.x[i] = p_[i];

@@ -190,10 +190,10 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   }
   auto finite = [&](uint32_t p) { return ps.x[p].allFinite() && ps.v[p].allFinite(); };
 
-  // Contacts at the positions the step reached: every particle, then the inside of every
-  // segment at points no farther apart than the radius (at most 64 a segment), so that a segment
-  // longer than the contact's thickness cannot slide over an edge of the body between its two
-  // particles.
+  // Contacts at the positions the step reached: every particle (unless s.particles is off), then
+  // the inside of every segment at points no farther apart than the radius (at most 64 a
+  // segment), so that a segment longer than the contact's thickness cannot slide over an edge of
+  // the body between its two particles.
   // The grid over the surface near the particles only: the box of every finite particle where
   // it started and ended (a segment's points lie inside it).
   std::pair<Vec3, Vec3> region{Vec3::Constant(INFINITY), Vec3::Constant(-INFINITY)};
@@ -211,7 +211,7 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   std::vector<PointContact> contacts;
   std::vector<int32_t> swept;
   const std::span<const Vec3> x(ps.x);
-  for (size_t p = 0; p < ps.x.size(); ++p) {
+  for (size_t p = 0; p < ps.x.size() && s.particles; ++p) {
     if (!finite(uint32_t(p))) continue;  // a blown-up body: the caller rolls it back
     if (!(wp[p] > 0)) continue;           // a pinned particle stays where its pin holds it
     const Point pt{uint32_t(p), uint32_t(p), 0.0};
