@@ -8,6 +8,9 @@
 // BM_ClothOnBodyContact: one contact pass of a cloth hung over beam3 against the tet body
 // (couple_particles_to_body, as a scene runs it once per tick), its particles alone or with its
 // edges. Arguments: grid resolution, edges (0/1). Counters: particles, segments, contacts.
+// BM_ClothOnBodyStep: a whole step of that cloth, its particles meeting the beam inside the
+// substeps and its edges after (argument "inside" 1), or the step and then the contact pass of
+// its particles and edges (0). Arguments: grid resolution, inside. Counters: particles, contacts.
 // BM_ClothOnClothContact: the same for one cloth falling onto another (couple_particles_to_cloth).
 // BM_WaterOnArmadilloContact: one contact pass of a block of water (8 x 4 x 8 particles, 5 mm
 // apart) against the armadillo (54,990 tets), on its head or 10 cm beside it (argument
@@ -94,6 +97,60 @@ void BM_ClothOnBodyContact(benchmark::State& state) {
   }
   state.counters["particles"] = double(cloth->size());
   state.counters["segments"] = edges ? double(cloth->segments().size()) : 0.0;
+  state.counters["contacts"] = double(found);
+}
+
+// The cloth of BM_ClothOnBodyContact, 3.5 mm over beam3's top and falling at 0.3 m/s, one whole
+// step (16 substeps): its particles meeting the beam's surface inside the substeps and its
+// edges after the step (argument "inside" 1), or the step alone followed by the contact pass
+// of its particles and edges (0), as a scene runs them.
+void BM_ClothOnBodyStep(benchmark::State& state) {
+  const TetMesh mesh = *builtin_mesh("beam3");
+  const auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+  const BodyState body = rest_state(*model);
+  ClothGridSpec g;
+  g.nx = g.ny = int(state.range(0));
+  g.size_x = g.size_y = 0.12;
+  g.origin = Vec3(-0.01, 0.0135, -0.055);
+  ConstraintBodySettings cs;
+  cs.thickness = 0.002;
+  const auto cloth = ConstraintBody::cloth_grid(g, cs);
+  ParticleState hung = cloth->state();
+  for (Vec3& x : hung.x)
+    if (x.z() < 0.0 || x.z() > 0.01) x.y() -= 0.02 * std::min(1.0, std::abs(x.z() - 0.005) / 0.03);
+  for (Vec3& v : hung.v) v = Vec3(0, -0.3, 0);
+  const bool inside = state.range(1) != 0;
+  CouplingSettings contact;
+  contact.radius = cs.thickness;
+  contact.friction = 0.3;
+  size_t found = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    cloth->set_state(hung);
+    BodyState b = body;
+    state.ResumeTiming();
+    CouplingSettings after = contact;
+    if (inside) {
+      SurfaceBoundary surface;
+      surface.triangles = model->surface;
+      surface.x = b.x;
+      surface.v = b.v;
+      surface.radius = contact.radius;
+      surface.friction = contact.friction;
+      found = cloth->advance(1.0 / 60, cs.substeps, {}, true, &surface).soft_body_contacts;
+      take_surface_impulse(*model, b, surface);
+      after.particles = false;
+    } else {
+      cloth->step(1.0 / 60, {});
+    }
+    ParticleState p = cloth->state();
+    const CouplingReport r =
+        couple_particles_to_body(*model, b, p, cloth->inverse_masses(), after, 1.0 / 60, hung.x, cloth->segments());
+    cloth->set_state(p);
+    found += r.contacts + r.segment_contacts;
+    benchmark::DoNotOptimize(b.v.data());
+  }
+  state.counters["particles"] = double(cloth->size());
   state.counters["contacts"] = double(found);
 }
 
@@ -217,6 +274,10 @@ BENCHMARK(BM_ClothOnClothContact)
     ->Args({64, 1})
     ->Unit(benchmark::kMillisecond);
 
+BENCHMARK(BM_ClothOnBodyStep)
+    ->ArgNames({"grid", "inside"})
+    ->ArgsProduct({{32, 64}, {0, 1}})
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_WaterOnArmadilloContact)->ArgName("beside")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_WaterOnArmadilloPart)->ArgName("inside")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
