@@ -157,6 +157,7 @@ class ConstraintBody : public ParticleBody {
   void find_self_contacts();
   void solve_self_contacts();
   size_t solve_colliders(std::span<const Collider> colliders);
+  double self_thickness() const;
   // The soft body's surface met inside a step: what each particle met in the substep.
   struct SurfaceContacts;
   void meet_surface(SurfaceContacts& sc);
@@ -177,6 +178,8 @@ class ConstraintBody : public ParticleBody {
   // colour k of a group is [starts[k], starts[k+1])
   std::vector<size_t> dist_colours_, bend_colours_, rope_bend_colours_;
   double rest_volume_ = 0.0;
+  double shortest_edge_ = 0.0;  // the shortest stretch constraint's rest length (self_thickness)
+  bool self_thickness_said_ = false;  // logged that self-collision keeps less than the thickness
   std::unique_ptr<ThreadPool> pool_;
 
   struct Grab {
