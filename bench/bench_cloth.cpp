@@ -30,6 +30,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <vector>
 
 using namespace pliant;
@@ -63,23 +64,32 @@ void BM_ClothDrapeStep(benchmark::State& state) {
       double(cloth->size()) * s.substeps, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
 }
 
-// A cloth 3.5 mm over beam3's top (0.12 m square), beside the beam up to 2 cm lower, falling
-// at 0.3 m/s: its edges cross the beam's top edges.
+// A grid x grid cloth (0.12 m square, 2 mm thick) 3.5 mm over beam3's top, beside the beam up to
+// 2 cm lower, falling at 0.3 m/s: its edges cross the beam's top edges.
+struct ClothOverBeam3 {
+  explicit ClothOverBeam3(int grid) : model(build_model(*builtin_mesh("beam3"), Material{1e5, 0.4, 1000})) {
+    body = rest_state(*model);
+    ClothGridSpec g;
+    g.nx = g.ny = grid;
+    g.size_x = g.size_y = 0.12;
+    g.origin = Vec3(-0.01, 0.0135, -0.055);
+    settings.thickness = 0.002;
+    cloth = ConstraintBody::cloth_grid(g, settings);
+    hung = cloth->state();
+    for (Vec3& x : hung.x)
+      if (x.z() < 0.0 || x.z() > 0.01) x.y() -= 0.02 * std::min(1.0, std::abs(x.z() - 0.005) / 0.03);
+    for (Vec3& v : hung.v) v = Vec3(0, -0.3, 0);
+  }
+  std::shared_ptr<const BodyModel> model;
+  BodyState body;
+  ConstraintBodySettings settings;
+  std::unique_ptr<ConstraintBody> cloth;
+  ParticleState hung;
+};
+
 void BM_ClothOnBodyContact(benchmark::State& state) {
-  const TetMesh mesh = *builtin_mesh("beam3");
-  const auto model = build_model(mesh, Material{1e5, 0.4, 1000});
-  const BodyState body = rest_state(*model);
-  ClothGridSpec g;
-  g.nx = g.ny = int(state.range(0));
-  g.size_x = g.size_y = 0.12;
-  g.origin = Vec3(-0.01, 0.0135, -0.055);
-  ConstraintBodySettings cs;
-  cs.thickness = 0.002;
-  const auto cloth = ConstraintBody::cloth_grid(g, cs);
-  ParticleState hung = cloth->state();
-  for (Vec3& x : hung.x)
-    if (x.z() < 0.0 || x.z() > 0.01) x.y() -= 0.02 * std::min(1.0, std::abs(x.z() - 0.005) / 0.03);
-  for (Vec3& v : hung.v) v = Vec3(0, -0.3, 0);
+  const ClothOverBeam3 scene(int(state.range(0)));
+  const auto& [model, body, cs, cloth, hung] = scene;
   const std::vector<Vec3> start = hung.x;
   CouplingSettings contact;
   contact.radius = cs.thickness;
@@ -105,20 +115,8 @@ void BM_ClothOnBodyContact(benchmark::State& state) {
 // edges after the step (argument "inside" 1), or the step alone followed by the contact pass
 // of its particles and edges (0), as a scene runs them.
 void BM_ClothOnBodyStep(benchmark::State& state) {
-  const TetMesh mesh = *builtin_mesh("beam3");
-  const auto model = build_model(mesh, Material{1e5, 0.4, 1000});
-  const BodyState body = rest_state(*model);
-  ClothGridSpec g;
-  g.nx = g.ny = int(state.range(0));
-  g.size_x = g.size_y = 0.12;
-  g.origin = Vec3(-0.01, 0.0135, -0.055);
-  ConstraintBodySettings cs;
-  cs.thickness = 0.002;
-  const auto cloth = ConstraintBody::cloth_grid(g, cs);
-  ParticleState hung = cloth->state();
-  for (Vec3& x : hung.x)
-    if (x.z() < 0.0 || x.z() > 0.01) x.y() -= 0.02 * std::min(1.0, std::abs(x.z() - 0.005) / 0.03);
-  for (Vec3& v : hung.v) v = Vec3(0, -0.3, 0);
+  const ClothOverBeam3 scene(int(state.range(0)));
+  const auto& [model, body, cs, cloth, hung] = scene;
   const bool inside = state.range(1) != 0;
   CouplingSettings contact;
   contact.radius = cs.thickness;
@@ -142,6 +140,7 @@ void BM_ClothOnBodyStep(benchmark::State& state) {
       after.particles = false;
     } else {
       cloth->step(1.0 / 60, {});
+      found = 0;
     }
     ParticleState p = cloth->state();
     const CouplingReport r =
