@@ -208,6 +208,7 @@ CouplingReport couple_particles_to_body(const BodyModel& m, BodyState& body, Par
   }
   if (!(region.first.array() <= region.second.array()).all()) return rep;  // no finite particle
   const TriangleGrid grid(m.surface, std::span<const Vec3>(body.x), s.radius, {}, &region);
+  if (grid.entries() == 0) return rep;  // no face within reach of the particles' region
   std::vector<PointContact> contacts;
   std::vector<int32_t> swept;
   const std::span<const Vec3> x(ps.x);
