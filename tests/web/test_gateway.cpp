@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <csignal>
@@ -342,26 +343,31 @@ TEST_F(WebGateway, ParticleBodiesTravelInTheTopologyAndEveryFrame) {
   EXPECT_NEAR(end_rest_x, 0.33f, 1e-4f);
 
   constexpr int kTicks = 30;
-  for (int i = 0; i < kTicks; ++i) ASSERT_TRUE(client_->step("bodies", 1).ok());
   std::vector<std::vector<float>> last;
   uint64_t tick = 0, frames = 0;
-  while (tick < kTicks) {
-    auto m = ws.next();
-    ASSERT_TRUE(m) << "no frame for tick " << kTicks << " (last " << tick << ")";
-    if (!m->binary) continue;
-    const auto h = pliant::web::decode_frame_header(m->data);
-    EXPECT_TRUE(h.flags & pliant::web::kFlagBodies);
-    tick = h.tick;
-    last = pliant::web::decode_frame_bodies(m->data);
-    ASSERT_EQ(last.size(), 2u);
-    ASSERT_EQ(last[0].size(), 33u);
-    ASSERT_EQ(last[1].size(), 60u);
-    ++frames;
+  float lowest_end = end_rest_y;  // the rope's free end, over the frames
+  for (uint64_t i = 1; i <= kTicks; ++i) {
+    ASSERT_TRUE(client_->step("bodies", 1).ok());
+    while (tick < i) {  // this tick's frame (a slow reader may be sent only the latest)
+      auto m = ws.next();
+      ASSERT_TRUE(m) << "no frame for tick " << i << " (last " << tick << ")";
+      if (!m->binary) continue;
+      const auto h = pliant::web::decode_frame_header(m->data);
+      EXPECT_TRUE(h.flags & pliant::web::kFlagBodies);
+      tick = h.tick;
+      last = pliant::web::decode_frame_bodies(m->data);
+      ASSERT_EQ(last.size(), 2u);
+      ASSERT_EQ(last[0].size(), 33u);
+      ASSERT_EQ(last[1].size(), 60u);
+      lowest_end = std::min(lowest_end, last[0][3 * 10 + 1]);
+      ++frames;
+    }
   }
   EXPECT_GT(frames, 0u);
   // 30 ticks at 60 Hz (0.5 s): the free end falls (about g t^2 / 2 if the rope did not
-  // hold it; the pinned end holds it to a swing, but it must be well below its start).
-  EXPECT_LT(last[0][3 * 10 + 1], end_rest_y - 0.02f) << "the rope's free end falls under gravity";
+  // hold it; the pinned end holds it to a swing, which passes the beam's tip, so it is well
+  // below its start at the bottom of the swing, not at every tick).
+  EXPECT_LT(lowest_end, end_rest_y - 0.02f) << "the rope's free end falls under gravity";
   EXPECT_NEAR(last[0][1], r.rest_positions[1], 1e-3f) << "the pinned end stays";
   EXPECT_NEAR(last[1][1], c.rest_positions[1], 1e-3f) << "the cloth's pinned row stays";
   EXPECT_LT(last[1][3 * 19 + 1], c.rest_positions[3 * 19 + 1] - 0.01f) << "the cloth's free corner falls";
