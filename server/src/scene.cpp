@@ -88,14 +88,14 @@ struct Scene::TickState {
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
   int body_parts = 1;  // the parts a tick of the bodies in some ClothPair is cut into (shared_step_parts)
   // Per body: it steps with the tet body in parts where their substeps allow (Scene::body_parts):
-  // every body with soft_body_contact. It meets the tet body's surface inside its own step, where
-  // the tet body's part (or, with no shared factor, its whole step) left it; the tet body's
-  // vertices meet a cloth's triangles inside its step, where the cloth's last part left them; a
-  // cloth's or a rope's segments meet the surface after its part.
+  // the fluids with soft_body_contact. Every body with soft_body_contact meets the tet body's
+  // surface inside its own step, where the tet body's step (or part) left it; a cloth or a rope
+  // steps once per tick after the tet body's whole step (the tet body's vertices meet a cloth's
+  // triangles inside its step), and its segments meet the surface after its step.
   std::vector<uint8_t> tet_parts;
   bool surface_used = false;  // some body has soft_body_contact
-  // The parts the substeps of those bodies and of the paired bodies share (shared_step_parts; 0:
-  // no body touches the tet body): with the tet body's substeps, the parts of a tick.
+  // The parts the substeps of those fluids and of the paired bodies share (shared_step_parts; 0:
+  // no fluid touches the tet body): with the tet body's substeps, the parts of a tick.
   int tet_body_parts = 0;
   // The cloths with soft_body_contact: obstacles to the tet body's vertices in its step.
   std::vector<size_t> obstacle_bodies;
@@ -183,7 +183,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
       contact->radius = contact_radius(bc);
       contact->friction = bc.soft_body_friction;
     }
-    ts_->tet_parts.push_back(contact.has_value());
+    ts_->tet_parts.push_back(contact && body->kind() == "fluid");
     ts_->surface_used = ts_->surface_used || contact.has_value();
     ts_->body_contact.push_back(contact);
     ts_->bodies_initial.push_back(body->state());
@@ -227,9 +227,9 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
                  "within the tick",
                  id_, fmt::join(paired_substeps, ", "));
   if (ts_->tet_body_parts > 0 && !body_parts().with_tet)
-    spdlog::info("scene '{}': the soft body's substeps ({}) share no factor with those of the bodies that touch it "
-                 "(fluids, cloths, ropes) and their partners', so they meet the soft body's surface where its whole "
-                 "step left it, not part by part (docs/fluids.md, \"In parts with the soft body\")",
+    spdlog::info("scene '{}': the soft body's substeps ({}) share no factor with its fluids' and their partners', so "
+                 "a fluid meets the soft body's surface where its whole step left it, not part by part (docs/fluids.md, "
+                 "\"In parts with the soft body\")",
                  id_, effective_substeps(*ts_->model, ts_->settings));
   config_ = std::move(config);
   model_shared_ = std::move(model);
@@ -848,28 +848,18 @@ void guard_body(const std::string& name, std::string& failure, Fn&& work) {
 
 }  // namespace
 
-// How a tick cuts the particle bodies' steps (shared_step_parts): the bodies in contact with the
-// tet body (fluids, cloths, ropes) step with it in parts of whole substeps of every body, the tet
-// body's and the paired bodies' included, where their substeps share a factor (at most
-// kMaxPartsWithTet parts); else the bodies in contact with each other step in parts among
-// themselves (the tet body's whole step first), else every body in one piece.
-constexpr int kMaxPartsWithTet = 16;
-
+// How a tick cuts the particle bodies' steps (shared_step_parts): the fluids in contact with the
+// tet body step with it in parts of whole substeps of every body, the tet body's and the paired
+// bodies' included, where their substeps share a factor; else the bodies in contact with each
+// other step in parts among themselves (the tet body's whole step first), else every body in one
+// piece.
 Scene::BodyParts Scene::body_parts() const {
   const TickState& t = *ts_;
   BodyParts bp;
   bp.parts = t.body_parts;
   if (t.tet_body_parts == 0) return bp;
   const int substeps[] = {t.tet_body_parts, effective_substeps(*t.model, t.settings)};
-  int with_tet = shared_step_parts(substeps);
-  // Each part costs the contact passes and the grids they build (the cloths' triangles as the
-  // tet body's obstacles, a cloth's self-collision candidates): at most kMaxPartsWithTet parts,
-  // the most that divides the shared substeps.
-  for (int p = kMaxPartsWithTet; p >= 1; --p)
-    if (with_tet % p == 0) {
-      with_tet = p;
-      break;
-    }
+  const int with_tet = shared_step_parts(substeps);
   if (with_tet > 1) {
     bp.parts = with_tet;
     bp.with_tet = true;

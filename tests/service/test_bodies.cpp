@@ -1254,10 +1254,9 @@ TEST(Bodies, ASaggingBeamPressingOnAFineClothDoesNotBlowItUp) {
   // under it (64 substeps, no self-collision). When the cloth met the beam only after its step,
   // once per tick, the beam pressed its particles in between and the contact threw them out:
   // the cloth blew up within 9 ticks (particles at 276 m/s, edges 58 times their length). Its
-  // particles now meet the beam's surface inside their substeps, the two bodies stepping in 16
-  // parts of the tick: over 30 ticks the fastest moves at 1.7 m/s (4.4 m/s when the cloth stepped
-  // after the beam's whole step; the fabric is still under-resolved where the beam presses, which
-  // the log says).
+  // particles now meet the beam's surface inside their substeps: over 30 ticks the fastest moves
+  // at 4.4 m/s (the fabric is still under-resolved where the beam presses: an edge reaches 2.6
+  // times its length, which the log says).
   BodiesServer srv;
   Client c = srv.client();
   v1::CreateSceneRequest r = beam_scene("press");
@@ -1445,52 +1444,3 @@ TEST(Bodies, APoolOnASoftSlabSettlesNearItsDepthOnAFloor) {
   }
 }
 
-
-TEST(Bodies, ARopeDrapedAcrossTheBeamStaysOnIt) {
-  // beam1 (10 MPa, the default budget of 64 substeps, clamped at x <= 1 cm; top face y = 1 cm,
-  // z in [0, 1 cm]) with a 7 cm rope of 1.4 g laid across its top at x = 7 cm, 1.5 mm above it:
-  // the rope falls onto the beam and hangs over both sides. It meets the beam's surface in each
-  // of the parts the tick is cut into (16, the rope's substeps): over 60 ticks its particles over
-  // the top stay on it, at about its thickness. When the rope stepped after the beam's whole step
-  // against the surface held where that step left it, the beam's motion over a tick came in one
-  // substep and the rope left the beam within the first half second.
-  BodiesServer srv;
-  Client c = srv.client();
-  v1::CreateSceneRequest r = beam_scene("drape");
-  r.mutable_spec()->mutable_material()->set_young_modulus(1e7);
-  auto* body = r.mutable_spec()->add_bodies();
-  body->set_name("rope");
-  body->set_soft_body_friction(1.0);
-  auto* rs = body->mutable_rope();
-  set(rs->add_points(), 0.07, 0.0115, -0.03);
-  set(rs->add_points(), 0.07, 0.0115, 0.04);
-  rs->set_linear_density(0.02);
-  rs->set_segments(28);
-  rs->set_thickness(0.001);
-  ASSERT_TRUE(c.create_scene(r).ok());
-  auto topo = c.topology("drape");
-  ASSERT_TRUE(topo.ok());
-  const auto& rest = topo->rest_positions();
-  std::vector<int> top;  // the beam's top vertices under the rope
-  for (uint32_t i = 0; i < topo->vertex_count(); ++i)
-    if (rest[3 * i + 1] > 0.01 - 1e-9 && rest[3 * i] > 0.065 && rest[3 * i] < 0.075) top.push_back(int(i));
-  ASSERT_FALSE(top.empty());
-  int off_at = -1;
-  double highest = 0;
-  for (int k = 0; k < 60; ++k) {
-    ASSERT_TRUE(c.step("drape", 1).ok());
-    const v1::Frame f = latest_frame(c, "drape");
-    ASSERT_EQ(f.bodies_size(), 1);
-    const auto& x = f.bodies(0).positions();
-    double beam_top = -1e9, rope_top = -1e9;
-    for (int v : top) beam_top = std::max<double>(beam_top, f.positions(3 * v + 1));
-    for (int i = 0; i + 2 < x.size(); i += 3)
-      if (x[i + 2] > 0 && x[i + 2] < 0.01) rope_top = std::max<double>(rope_top, x[i + 1]);
-    const double gap = rope_top - beam_top;  // no particle over the top: far below
-    if (k >= 10) highest = std::max(highest, gap);
-    if (off_at < 0 && (gap < -0.002 || gap > 0.005)) off_at = k;
-  }
-  std::cout << "[ drape ] the rope over the beam's top: off at tick " << off_at << ", highest above it after tick 10 "
-            << highest * 1e3 << " mm\n";
-  EXPECT_EQ(off_at, -1) << "the rope left the beam's top";
-}
