@@ -180,6 +180,7 @@ class ConstraintBody : public ParticleBody {
   double rest_volume_ = 0.0;
   double shortest_edge_ = 0.0;  // the shortest stretch constraint's rest length (self_thickness)
   bool self_thickness_said_ = false;  // logged that self-collision keeps less than the thickness
+                                      // (finish runs twice for a grid with shear diagonals)
   std::unique_ptr<ThreadPool> pool_;
 
   struct Grab {
