@@ -190,11 +190,15 @@ struct FluidBody::Impl {
 
   explicit Impl(const FluidSettings& settings) : s(settings), k(settings.spacing * settings.support_ratio) {}
 
+  // With one thread too, `fn` runs through its out-of-line copy, as the pool's threads run it: a
+  // copy the compiler inlined here could contract its products into FMAs otherwise and round a
+  // few results differently, and then results would depend on the thread count.
+  [[gnu::noinline]] static void run_whole(const std::function<void(size_t, size_t)>& fn, size_t n) { fn(0, n); }
   void parallel(size_t n, const std::function<void(size_t, size_t)>& fn) {
     if (pool)
       pool->parallel_for(n, [&](int, size_t b, size_t e) { fn(b, e); }, 256);
     else
-      fn(0, n);
+      run_whole(fn, n);
   }
 
   size_t n() const { return x.size(); }
