@@ -10,6 +10,8 @@
 // step_60hz: one 1/60 s step of 4 substeps x 4 iterations (the real-time target) from the same
 // state, with the split of its wall time by phase in ms per step (FluidBody::phase_times):
 // sort, predict, neighbours, density, correction, grabs, velocity, xsph.
+// step_60hz_tool: the same with a 5 cm haptic sphere in the water moving at 0.5 m/s along x, met
+// inside the substeps (ToolBoundary); tool_contacts: the particles it pushed in the last substep.
 #include "fluid/neighbour_grid.hpp"
 #include "pliant/fluid.hpp"
 #include "step/thread_pool.hpp"
@@ -76,19 +78,25 @@ void BM_FluidStep(benchmark::State& state) {
       n * iterations * 1e-9, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
 }
 
-void BM_FluidStep60Hz(benchmark::State& state) {
+void step_60hz(benchmark::State& state, bool with_tool) {
   const int threads = static_cast<int>(state.range(0));
   FluidSettings s = dam_settings(threads, 4);
   s.substeps = 4;
   FluidBody f(s, {FluidBlock{Vec3(0, 0, 0), Vec3(0.34, 0.68, 0.34)}});
   const ParticleState& st = disordered_state();
+  RigidTool tool = RigidTool::sphere(Vec3(0.3, 0.1, 0.17), 0.05);
+  tool.velocity = Vec3(0.5, 0, 0);
+  const RigidTool tools[] = {tool};
+  ToolBoundary tb;
+  tb.tools = tools;
   f.reset_phase_times();
   for (auto _ : state) {
     state.PauseTiming();
     f.set_state(st);
     state.ResumeTiming();
-    benchmark::DoNotOptimize(f.step(1.0 / 60.0, {}));
+    benchmark::DoNotOptimize(f.advance(1.0 / 60.0, s.substeps, {}, true, nullptr, with_tool ? &tb : nullptr));
   }
+  if (with_tool) state.counters["tool_contacts"] = static_cast<double>(tb.pushed);
   const FluidPhaseTimes& t = f.phase_times();
   const double steps = static_cast<double>(state.iterations());
   state.counters["particles"] = static_cast<double>(f.size());
@@ -102,11 +110,15 @@ void BM_FluidStep60Hz(benchmark::State& state) {
   state.counters["xsph"] = t.xsph_ms / steps;
 }
 
+void BM_FluidStep60Hz(benchmark::State& state) { step_60hz(state, false); }
+void BM_FluidStep60HzTool(benchmark::State& state) { step_60hz(state, true); }
+
 }  // namespace
 
 BENCHMARK(BM_FluidNeighbourSearch)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_FluidStep)->ArgNames({"threads", "iterations"})->Args({1, 1})->Args({1, 4})->Args({2, 1})->Args({2, 4})
     ->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_FluidStep60Hz)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_FluidStep60HzTool)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 BENCHMARK_MAIN();

@@ -106,6 +106,9 @@ struct Scene::TickState {
   // mean velocities over the part (or the tick) and its positions where the next part starts.
   std::vector<Vec3> surface_v, surface_part_start;
   std::vector<ParticleStepReport> body_reports;  // each body's step in the tick in progress
+  // The momentum and angular momentum the particle bodies gained from each tool inside their
+  // substeps over the tick in progress (the tools take minus them).
+  std::vector<Vec3> tool_impulse, tool_angular_impulse;
   // Realtime schedule: tick k is due at anchor + k * period.
   bool schedule_valid = false;
   Clock::time_point anchor;
@@ -871,6 +874,8 @@ Scene::BodyParts Scene::body_parts() const {
 void Scene::begin_bodies() {
   TickState& t = *ts_;
   t.body_reports.assign(t.bodies.size(), ParticleStepReport{});
+  t.tool_impulse.clear();
+  t.tool_angular_impulse.clear();
 }
 
 // One part of the particle bodies' step (the whole step when parts is 1), after the tet body's
@@ -883,7 +888,7 @@ void Scene::begin_bodies() {
 // tick stops between bodies (a body's own step is not interrupted); a throw or a blow-up names
 // its body in `failure`.
 void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::vector<Vec3>>& obstacle_impulses,
-                        bool tools, bool& cancelled, std::string& failure) {
+                        std::span<const RigidTool> tools, bool& cancelled, std::string& failure) {
   TickState& t = *ts_;
   if (t.bodies.empty() || !failure.empty() || cancelled) return;
   const double dt = t.settings.dt;
@@ -930,7 +935,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
     guarded(b, [&] {
       // The start positions, for the contacts that read them (none: no copy in the tick): the
       // tick's for the tools' contacts and the first part's, the part's for the later parts'.
-      const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || tools;
+      const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || !tools.empty();
       const bool part_start = in_parts && part > 0;
       if (starts && first) t.body_start[b] = t.bodies[b]->state().x;
       if (part_start) t.body_part_start[b] = t.bodies[b]->state().x;
@@ -949,9 +954,26 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
         surface->radius = contact->radius;
         surface->friction = contact->friction;
       }
-      const ParticleStepReport r =
-          t.bodies[b]->advance(h, n, t.colliders, !in_parts || last_part, surface ? &*surface : nullptr);
+      // The tools where they are at the end of this call, moving at their velocities over the tick.
+      std::vector<RigidTool> posed;
+      ToolBoundary on_tools;
+      if (!tools.empty()) {
+        const double before_end = in_parts ? dt - (part + 1) * h : 0.0;
+        posed.assign(tools.begin(), tools.end());
+        for (RigidTool& tool : posed) tool.position -= tool.velocity * before_end;
+        on_tools.tools = posed;
+      }
+      const ParticleStepReport r = t.bodies[b]->advance(h, n, t.colliders, !in_parts || last_part,
+                                                        surface ? &*surface : nullptr, tools.empty() ? nullptr : &on_tools);
       if (surface) take_surface_impulse(*t.model, t.state, *surface);
+      if (!tools.empty()) {
+        t.tool_impulse.resize(tools.size(), Vec3::Zero());
+        t.tool_angular_impulse.resize(tools.size(), Vec3::Zero());
+        for (size_t k = 0; k < tools.size() && k < on_tools.impulse.size(); ++k) {
+          t.tool_impulse[k] += on_tools.impulse[k];
+          t.tool_angular_impulse[k] += on_tools.angular_impulse[k];
+        }
+      }
       ParticleStepReport& rep = t.body_reports[b];
       if (first) {
         rep = r;
@@ -961,6 +983,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
         rep.constraint_error = r.constraint_error;
         rep.max_constraint_error = r.max_constraint_error;
         rep.contacts = r.contacts;
+        rep.tool_contacts = std::max(rep.tool_contacts, r.tool_contacts);
         rep.self_collision_suspended = rep.self_collision_suspended || r.self_collision_suspended;
       }
       // Particles an emitter added during the step start where they are (no path to cross).
@@ -1020,8 +1043,9 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       t.body_reports[b].body_contacts = std::max(part == 0 ? 0 : t.body_reports[b].body_contacts, t.part_contacts[b]);
 }
 
-// The particle bodies' share of a tick after its last part: the tools' contacts (their
-// reactions, the haptic stream's force, add each body's push to the tet body's), then a check
+// The particle bodies' share of a tick after its last part: the tools' reactions (the haptic
+// stream's force) take the momentum the bodies gained from them inside their substeps, and a last
+// contact catches what the contacts between bodies pushed into a tool after that; then a check
 // that every body is finite.
 void Scene::finish_bodies(const StepInputs& inputs, StepReport& report, std::string& failure) {
   TickState& t = *ts_;
@@ -1029,6 +1053,10 @@ void Scene::finish_bodies(const StepInputs& inputs, StepReport& report, std::str
   const double dt = t.settings.dt;
   if (!t.bodies.empty() && !inputs.tools.empty() && report.tools.size() != inputs.tools.size())
     report.tools.resize(inputs.tools.size());
+  for (size_t k = 0; k < t.tool_impulse.size() && k < report.tools.size(); ++k) {
+    report.tools[k].force -= t.tool_impulse[k] / dt;
+    report.tools[k].torque -= t.tool_angular_impulse[k] / dt;
+  }
   for (size_t b = 0; b < t.bodies.size() && !inputs.tools.empty(); ++b)
     guarded(b, [&] {
       const auto t_tools = Clock::now();
@@ -1038,7 +1066,7 @@ void Scene::finish_bodies(const StepInputs& inputs, StepReport& report, std::str
         pushed += couple_particles_to_tool(ps, t.bodies[b]->inverse_masses(), inputs.tools[k],
                                            t.bodies[b]->contact_radius(), dt, t.body_start[b], report.tools[k]);
       if (pushed > 0) t.bodies[b]->set_state(ps);
-      t.body_reports[b].tool_contacts = pushed;
+      t.body_reports[b].tool_contacts += pushed;
       t.body_reports[b].wall_ms += ms_since(t_tools);
     });
   for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
@@ -1105,7 +1133,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
       report = t.stepper.step_in_parts(
           *t.model, t.state, t.settings, inputs, parts.parts,
           [&](int part, const StepReport& r, StepInputs& next) {
-            bodies_part(part, parts, r.obstacle_impulses, !inputs.tools.empty(), bodies_cancelled, failure);
+            bodies_part(part, parts, r.obstacle_impulses, inputs.tools, bodies_cancelled, failure);
             for (size_t k = 0; k < t.obstacle_bodies.size() && k < next.obstacles.size(); ++k)
               next.obstacles[k].x = t.bodies[t.obstacle_bodies[k]]->state().x;
           });
@@ -1123,7 +1151,7 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   if (!parts.with_tet)
     for (int part = 0; part < parts.parts && failure.empty() && !report.cancelled && !bodies_cancelled; ++part)
       bodies_part(part, parts, part == 0 ? report.obstacle_impulses : std::vector<std::vector<Vec3>>{},
-                  !inputs.tools.empty(), bodies_cancelled, failure);
+                  inputs.tools, bodies_cancelled, failure);
   report.cancelled = report.cancelled || bodies_cancelled;
   if (failure.empty() && !report.cancelled) finish_bodies(inputs, report, failure);
   std::string abort_reason;

@@ -232,35 +232,47 @@ TEST(ClothPhysics, AFineClothKeepsSelfCollisionWithinItsEdgesAndStaysWhole) {
 
 TEST(ClothPhysics, AClothRestingOnAToolWeighsOnIt) {
   // A 0.4 m cloth dropped on a 0.3 m sphere tool and nothing else (no collider, no pin), the tool
-  // coupled after each step as the scene does: once the cloth rests on it, the force on the tool
-  // averaged over a second is the cloth's weight, straight down.
-  ClothGridSpec g;
-  g.nx = g.ny = 16;
-  g.size_x = g.size_y = 0.4;
-  g.origin = Vec3(-0.2, 0.32, -0.2);
-  ConstraintBodySettings s;
-  s.damping = 0.0;  // damping is a drag against the world: the tool would carry less than the weight
-  auto cloth = ConstraintBody::cloth_grid(g, s);
-  const RigidTool tool = RigidTool::sphere(Vec3(0, 0, 0), 0.3);
-  const double dt = 1.0 / 60;
-  Vec3 felt = Vec3::Zero();
-  size_t touching = 0;
-  for (int k = 0; k < 300; ++k) {
-    const std::vector<Vec3> start = cloth->state().x;
-    cloth->step(dt, {});
-    ParticleState ps = cloth->state();
-    ToolReaction r;
-    touching = couple_particles_to_tool(ps, cloth->inverse_masses(), tool, cloth->contact_radius(), dt, start, r);
-    cloth->set_state(ps);
-    if (k >= 240) felt += r.force / 60;
+  // met inside the cloth's substeps as the scene does (ToolBoundary), and coupled after each step
+  // only: once the cloth rests on it, the force on the tool averaged over a second is the cloth's
+  // weight, straight down.
+  for (bool in_substeps : {true, false}) {
+    SCOPED_TRACE(in_substeps ? "inside the substeps" : "after each step");
+    ClothGridSpec g;
+    g.nx = g.ny = 16;
+    g.size_x = g.size_y = 0.4;
+    g.origin = Vec3(-0.2, 0.32, -0.2);
+    ConstraintBodySettings s;
+    s.damping = 0.0;  // damping is a drag against the world: the tool would carry less than the weight
+    auto cloth = ConstraintBody::cloth_grid(g, s);
+    const RigidTool tool = RigidTool::sphere(Vec3(0, 0, 0), 0.3);
+    const double dt = 1.0 / 60;
+    Vec3 felt = Vec3::Zero();
+    size_t touching = 0;
+    for (int k = 0; k < 300; ++k) {
+      ToolReaction r;
+      if (in_substeps) {
+        ToolBoundary tb;
+        const RigidTool tools[] = {tool};
+        tb.tools = tools;
+        touching = cloth->advance(dt, cloth->substeps(), {}, true, nullptr, &tb).tool_contacts;
+        r.force = -tb.impulse[0] / dt;
+      } else {
+        const std::vector<Vec3> start = cloth->state().x;
+        cloth->step(dt, {});
+        ParticleState ps = cloth->state();
+        touching = couple_particles_to_tool(ps, cloth->inverse_masses(), tool, cloth->contact_radius(), dt, start, r);
+        cloth->set_state(ps);
+      }
+      if (k >= 240) felt += r.force / 60;
+    }
+    const double weight = cloth->total_mass() * 9.81;
+    EXPECT_GT(touching, 20u);
+    double lowest = 1e300;
+    for (const Vec3& p : cloth->state().x) lowest = std::min(lowest, p.y());
+    EXPECT_GT(lowest, -0.3) << "the cloth slid off the tool";
+    EXPECT_NEAR(felt.y(), -weight, 1e-3 * weight) << "felt " << felt.transpose() << " N, weight " << weight << " N";
+    EXPECT_LT(std::hypot(felt.x(), felt.z()), 0.02 * weight);
   }
-  const double weight = cloth->total_mass() * 9.81;
-  EXPECT_GT(touching, 20u);
-  double lowest = 1e300;
-  for (const Vec3& p : cloth->state().x) lowest = std::min(lowest, p.y());
-  EXPECT_GT(lowest, -0.3) << "the cloth slid off the tool";
-  EXPECT_NEAR(felt.y(), -weight, 1e-3 * weight) << "felt " << felt.transpose() << " N, weight " << weight << " N";
-  EXPECT_LT(std::hypot(felt.x(), felt.z()), 0.02 * weight);
 }
 
 TEST(ClothPhysics, AHammockHoldsTheWaterPouredIntoIt) {

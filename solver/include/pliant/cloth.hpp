@@ -24,6 +24,9 @@
 namespace pliant {
 
 class ThreadPool;
+namespace detail {
+class ToolMeeting;
+}
 
 struct ConstraintBodySettings {
   // XPBD compliances (inverse stiffnesses); 0 = rigid.
@@ -91,7 +94,7 @@ class ConstraintBody : public ParticleBody {
   int substeps() const override;
   using ParticleBody::advance;
   ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
-                             SurfaceBoundary* surface) override;
+                             SurfaceBoundary* surface, ToolBoundary* tools) override;
   void set_gravity(const Vec3& gravity) override;
 
   void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;
@@ -162,6 +165,7 @@ class ConstraintBody : public ParticleBody {
   struct SurfaceContacts;
   void meet_surface(SurfaceContacts& sc);
   size_t leave_surface(SurfaceContacts& sc, double h);
+  void meet_tools(detail::ToolMeeting& tm);
   template <class F>
   void for_colours(const std::vector<size_t>& starts, F&& f);
 

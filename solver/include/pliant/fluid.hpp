@@ -121,7 +121,7 @@ class FluidBody final : public ParticleBody {
   int substeps() const override;
   using ParticleBody::advance;
   ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
-                             SurfaceBoundary* surface) override;
+                             SurfaceBoundary* surface, ToolBoundary* tools) override;
   void set_gravity(const Vec3& gravity) override;
 
   void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;

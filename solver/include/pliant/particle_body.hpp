@@ -7,6 +7,7 @@
 #pragma once
 
 #include "pliant/colliders.hpp"
+#include "pliant/interaction.hpp"
 #include "pliant/mesh.hpp"
 
 #include <array>
@@ -54,7 +55,9 @@ struct ParticleStepReport {
                                   // error; cloth/rope: RMS relative stretch)
   double max_constraint_error = 0.0;
   size_t contacts = 0;            // particle-collider contacts in the last substep
-  size_t tool_contacts = 0;       // particles the rigid tools pushed after the step (the scene's)
+  // Particles the scene's tools pushed in the last substep (ToolBoundary), plus those they pushed
+  // after the step (the scene's).
+  size_t tool_contacts = 0;
   size_t body_contacts = 0;       // particles and points of segments the scene's cloths and ropes pushed after the step (the scene's)
   // Particles the soft body's surface pushed in the last substep (a kind that meets it inside
   // its step), plus particles and points of segments it pushed after the step (the scene's).
@@ -81,6 +84,21 @@ struct SurfaceBoundary {
   double radius = 0.0;    // m, > 0
   double friction = 0.0;  // >= 0
   std::vector<Vec3> impulse;
+};
+
+// The scene's rigid tools (the haptic bridge's spheres and capsules), met by a particle body inside
+// its substeps as it meets the colliders: each tool is where `tools` says at the end of the call
+// and moves at its velocity over it (at the end of substep s of n, position - velocity x (dt -
+// (s + 1) dt / n)), grown by the body's contact_radius(). A particle inside is put back on its
+// surface, with the tool's Coulomb friction on its slip against the tool's motion over the
+// substep. What the particles gained comes back per tool, summed over the call: momentum (N s)
+// and angular momentum about the tool's centre where it was at each push (N m s); the tool takes
+// minus them. `pushed`: the particles a tool pushed in the call's last substep.
+struct ToolBoundary {
+  std::span<const RigidTool> tools;
+  std::vector<Vec3> impulse;          // per tool, sized and zeroed by the call
+  std::vector<Vec3> angular_impulse;  // per tool, sized and zeroed by the call
+  size_t pushed = 0;
 };
 
 // How many parts a step of bodies in contact is cut into, so that their contacts are resolved
@@ -119,13 +137,17 @@ class ParticleBody {
   // Substeps per step (the body's settings).
   virtual int substeps() const = 0;
   // Advances by dt seconds in `substeps` substeps of dt / substeps against the colliders (and the
-  // soft body's surface, when given): a whole step, or a
+  // soft body's surface and the scene's tools, when given): a whole step, or a
   // part of one when a scene cuts the step to resolve the contacts between its bodies in between
   // (`ends_step`: the last part, which counts the step in state().steps).
   virtual ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
-                                     SurfaceBoundary* surface) = 0;
+                                     SurfaceBoundary* surface, ToolBoundary* tools) = 0;
+  ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
+                             SurfaceBoundary* surface) {
+    return advance(dt, substeps, colliders, ends_step, surface, nullptr);
+  }
   ParticleStepReport advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step) {
-    return advance(dt, substeps, colliders, ends_step, nullptr);
+    return advance(dt, substeps, colliders, ends_step, nullptr, nullptr);
   }
   // Advances by dt seconds against the colliders: one step of substeps() substeps.
   ParticleStepReport step(double dt, std::span<const Collider> colliders) {

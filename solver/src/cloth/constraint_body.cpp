@@ -6,6 +6,7 @@
 #include "pliant/cloth.hpp"
 
 #include "particles/surface_contact.hpp"
+#include "particles/tool_meeting.hpp"
 #include "step/thread_pool.hpp"
 
 #include <spdlog/fmt/fmt.h>
@@ -715,11 +716,27 @@ size_t ConstraintBody::leave_surface(SurfaceContacts& sc, double h) {
   return touched;
 }
 
-// The soft body's surface (`surface`) is met by the particles inside every iteration, after the
-// colliders, as the fluid meets it; the segments between them are left to the scene's contact
-// after the step.
+// Every free particle out of the scene's tools where they are in the substep, each push with its
+// tool's friction against the tool's motion, as against the colliders.
+void ConstraintBody::meet_tools(detail::ToolMeeting& tm) {
+  auto work = [&](int, size_t lo, size_t hi) {
+    for (size_t i = lo; i < hi; ++i) {
+      if (w_[i] == 0.0) continue;
+      const detail::ToolMeeting::Push pr = tm.push(i, p_[i]);
+      if (pr.tool >= 0) tm.friction(i, pr.tool, pr.normal, pr.depth, p_[i] - x_prev_[i], p_[i]);
+    }
+  };
+  if (pool_)
+    pool_->parallel_for(size(), work, 256);
+  else
+    work(0, 0, size());
+}
+
+// The soft body's surface (`surface`) and the scene's tools (`tools`) are met by the particles
+// inside every iteration, after the colliders, as the fluid meets them; the segments between them
+// are left to the scene's contacts after the step.
 ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<const Collider> colliders,
-                                           bool ends_step, SurfaceBoundary* surface) {
+                                           bool ends_step, SurfaceBoundary* surface, ToolBoundary* tools) {
   if (!std::isfinite(dt) || dt <= 0.0) throw std::invalid_argument("step: dt must be > 0 s (got " + fmt::format("{:g}", dt) + ")");
   if (substeps < 1) throw std::invalid_argument("step: substeps must be >= 1 (got " + std::to_string(substeps) + ")");
   const auto t0 = std::chrono::steady_clock::now();
@@ -749,6 +766,8 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
     const double reach = dt * (fastest + settings_.gravity.norm() * dt) + surface->radius;
     on_surface.emplace(*surface, state_.x, std::isfinite(reach) ? reach : surface->radius);
   }
+  std::optional<detail::ToolMeeting> on_tools;
+  if (tools && !tools->tools.empty()) on_tools.emplace(*tools, settings_.thickness, dt, ns);
   for (int s = 0; s < ns; ++s) {
     for (size_t i = 0; i < n; ++i) {
       x_prev_[i] = state_.x[i];
@@ -763,6 +782,7 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
     for (auto& [id, g] : grabs_) g.lambda.setZero();
     if (self) find_self_contacts();
     if (on_surface) on_surface->begin_substep(n);
+    if (on_tools) on_tools->begin_substep(s, n);
     size_t contacts = 0;
     for (int it = 0; it < settings_.iterations; ++it) {
       for_colours(dist_colours_, [&](size_t k) { solve_distance(k, h2); });
@@ -775,15 +795,18 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
       if (self) solve_self_contacts();
       contacts = solve_colliders(colliders);
       if (on_surface) meet_surface(*on_surface);
-      if (self && !self_contacts_.empty() && (!colliders.empty() || on_surface)) {
+      if (on_tools) meet_tools(*on_tools);
+      if (self && !self_contacts_.empty() && (!colliders.empty() || on_surface || on_tools)) {
         // a layer pressed onto a collider by another: once more, so that neither the
         // layers nor the collider end the substep violated by the other's last correction
         solve_self_contacts();
         contacts = solve_colliders(colliders);
         if (on_surface) meet_surface(*on_surface);
+        if (on_tools) meet_tools(*on_tools);
       }
     }
     if (on_surface) report.soft_body_contacts = leave_surface(*on_surface, h);
+    if (on_tools) report.tool_contacts = on_tools->give(p_, [&](size_t i) { return m_[i]; });
     for (size_t i = 0; i < n; ++i) {
       state_.v[i] = (p_[i] - x_prev_[i]) / h;
       state_.x[i] = p_[i];

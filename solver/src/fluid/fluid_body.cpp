@@ -8,6 +8,7 @@
 #include "fluid/neighbour_grid.hpp"
 #include "fluid/sph_kernels.hpp"
 #include "particles/surface_contact.hpp"
+#include "particles/tool_meeting.hpp"
 #include "step/thread_pool.hpp"
 
 #include <spdlog/fmt/fmt.h>
@@ -164,6 +165,10 @@ struct FluidBody::Impl {
   std::vector<detail::FaceHit> surface_hit, surface_near;
   std::vector<Vec3> surface_grad, surface_moved;
   std::vector<uint8_t> surface_touched, surface_last;
+  // The scene's tools over a call that passes them, and per particle within a substep the tool
+  // of its last contact (-1: the last was no tool; friction against that tool's motion).
+  detail::ToolMeeting* tools = nullptr;
+  std::vector<int> tool_last;
   std::vector<Vec3> wall_grad;       // per particle, within one iteration
   // Per pair, within one iteration: grad W and s_corr, in single precision (half the memory
   // traffic; the pair's two entries stay exactly opposite, so momentum is still conserved).
@@ -435,9 +440,9 @@ struct FluidBody::Impl {
     }
   }
 
-  // Pushes p out of the colliders (inflated by the particle radius), into the container and out
-  // of the soft body's surface; accumulates the depth and keeps the last normal and friction for
-  // particle i.
+  // Pushes p out of the colliders (inflated by the particle radius), into the container, out of
+  // the soft body's surface and out of the scene's tools; accumulates the depth and keeps the
+  // last normal and friction for particle i.
   void collide(size_t i, std::span<const Collider> cols) {
     const double r = s.particle_radius * s.spacing;
     Vec3& pi = p[i];
@@ -450,6 +455,7 @@ struct FluidBody::Impl {
       mu_s[i] = c.static_friction;
       mu_k[i] = c.dynamic_friction;
       if (surface) surface_last[i] = 0;
+      if (tools) tool_last[i] = -1;
     }
     if (s.container) {
       const Collider& c = *s.container;
@@ -473,6 +479,7 @@ struct FluidBody::Impl {
           mu_s[i] = c.static_friction;
           mu_k[i] = c.dynamic_friction;
           if (surface) surface_last[i] = 0;
+          if (tools) tool_last[i] = -1;
         }
       }
     }
@@ -485,6 +492,16 @@ struct FluidBody::Impl {
         mu_s[i] = mu_k[i] = surface->friction();
         surface_moved[i] += pi - before;
         surface_touched[i] = surface_last[i] = 1;
+        if (tools) tool_last[i] = -1;
+      }
+    }
+    if (tools) {
+      const detail::ToolMeeting::Push pr = tools->push(i, pi);
+      if (pr.tool >= 0) {
+        depth[i] += pr.depth;
+        contact_n[i] = pr.normal;
+        tool_last[i] = pr.tool;
+        if (surface) surface_last[i] = 0;
       }
     }
   }
@@ -524,7 +541,7 @@ struct FluidBody::Impl {
     return fluid::poly6_beyond(k, y);
   }
 
-  void substep(double dt, std::span<const Collider> inflated, ParticleStepReport& rep) {
+  void substep(int sub, double dt, std::span<const Collider> inflated, ParticleStepReport& rep) {
     emit(dt);
     auto clock = std::chrono::steady_clock::now();
     if (s.sort_interval > 0 && substeps_done % static_cast<uint64_t>(s.sort_interval) == 0) reorder();
@@ -549,6 +566,10 @@ struct FluidBody::Impl {
       surface_moved.assign(N, Vec3::Zero());
       surface_touched.assign(N, 0);
       surface_last.assign(N, 0);
+    }
+    if (tools) {
+      tools->begin_substep(sub, N);
+      tool_last.assign(N, -1);
     }
     const Vec3 g = s.gravity;
     parallel(N, [&](size_t b, size_t e) {
@@ -614,7 +635,10 @@ struct FluidBody::Impl {
     for (size_t i = 0; i < N; ++i) contacts += depth[i] > 0.0;
     parallel(N, [&](size_t b, size_t e) {
       for (size_t i = b; i < e; ++i) {
-        if (depth[i] > 0.0) {
+        if (depth[i] > 0.0 && tools && tool_last[i] >= 0) {
+          // The slip against the tool's motion when that was the last contact.
+          tools->friction(i, tool_last[i], contact_n[i], depth[i], Vec3(p[i] - x_prev[i]), p[i]);
+        } else if (depth[i] > 0.0) {
           // The slip against the surface's own motion when that was the last contact.
           const bool on_surface = surface && surface_last[i];
           const Vec3 nn = contact_n[i];
@@ -641,6 +665,7 @@ struct FluidBody::Impl {
       }
       rep.soft_body_contacts = touching;
     }
+    if (tools) rep.tool_contacts = tools->give(p, [this](size_t) { return mass; });
     lap(clock, times.velocity_ms);
     // XSPH viscosity (Jacobi: from the velocities before it), symmetric weights.
     if (s.xsph > 0.0) {
@@ -949,7 +974,7 @@ void FluidBody::set_state(const ParticleState& st) {
 int FluidBody::substeps() const { return impl_->s.substeps; }
 
 ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const Collider> colliders, bool ends_step,
-                                      SurfaceBoundary* surface) {
+                                      SurfaceBoundary* surface, ToolBoundary* tools) {
   require(std::isfinite(dt) && dt > 0, "dt", "must be > 0", dt);
   require(substeps >= 1, "substeps", "must be >= 1", substeps);
   Impl& m = *impl_;
@@ -985,13 +1010,20 @@ ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const C
     meeting.emplace(*surface, near, std::isfinite(reach) ? reach : m.h, m.s.surface_density ? m.h : 0.0);
     m.surface = &*meeting;
   }
+  std::optional<detail::ToolMeeting> on_tools;
+  if (tools && !tools->tools.empty()) {
+    on_tools.emplace(*tools, r, dt, substeps);
+    m.tools = &*on_tools;
+  }
   try {
-    for (int sub = 0; sub < substeps; ++sub) m.substep(h, inflated, rep);
+    for (int sub = 0; sub < substeps; ++sub) m.substep(sub, h, inflated, rep);
   } catch (...) {
     m.surface = nullptr;
+    m.tools = nullptr;
     throw;
   }
   m.surface = nullptr;
+  m.tools = nullptr;
   // Density error at the last iteration (before its correction): compression only.
   double sum = 0.0, mx = 0.0;
   for (size_t i = 0; i < m.n(); ++i) {

@@ -25,6 +25,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -302,7 +303,7 @@ class Scene {
   BodyParts body_parts() const;
   void begin_bodies();
   void bodies_part(int part, const BodyParts& parts, const std::vector<std::vector<Vec3>>& obstacle_impulses,
-                   bool tools, bool& cancelled, std::string& failure);
+                   std::span<const RigidTool> tools, bool& cancelled, std::string& failure);
   void finish_bodies(const StepInputs& inputs, StepReport& report, std::string& failure);
   void carry_report(StepReport&& report, bool rolled_back, Frame& frame);
   // A tick the cancel flag stopped: undone; with a reason from abort_tick, also pauses.

@@ -1,0 +1,74 @@
+// SPDX-License-Identifier: Apache-2.0
+// The scene's tools inside a particle body's call (ToolBoundary): where each is at every substep,
+// and per particle and tool the moves the tool gave it in the substep, whose momentum goes to the
+// tool. Shared by the kinds that meet the tools (cloth and rope, fluid).
+#pragma once
+
+#include "pliant/interaction.hpp"
+#include "pliant/particle_body.hpp"
+
+#include <span>
+#include <vector>
+
+namespace pliant::detail {
+
+class ToolMeeting {
+ public:
+  // The tools of `boundary` grown by `radius` over a call of `substeps` substeps of dt / substeps;
+  // zeroes the boundary's sums. std::invalid_argument for a radius below 0 or a tool that is not finite.
+  ToolMeeting(ToolBoundary& boundary, double radius, double dt, int substeps);
+
+  // The tools where they are at the end of substep s; clears the records of `particles` particles.
+  void begin_substep(int s, size_t particles);
+
+  struct Push {
+    double depth = 0.0;  // summed over the tools that pushed (0: none)
+    Vec3 normal = Vec3::Zero();  // the last one's
+    int tool = -1;       // the last one's index
+  };
+  // Particle i at p out of every tool it is inside, in the tools' order. Safe to call for
+  // different particles from different threads.
+  Push push(size_t i, Vec3& p) {
+    // Most particles are nowhere near a tool: the boxes around the tools rule them out.
+    if (((p.array() < lo_.array()) || (p.array() > hi_.array())).any()) return Push{};
+    return push_near(i, p);
+  }
+  // Tool k's Coulomb friction on particle i's slip over the substep against the tool's motion
+  // (held below static friction x depth, else shortened by dynamic friction x depth); the move
+  // counts as the tool's. `moved`: the particle's whole motion over the substep.
+  void friction(size_t i, int k, const Vec3& normal, double depth, const Vec3& moved, Vec3& p);
+
+  // After the substep: the momentum each particle gained from each tool (its mass x the tool's
+  // moves / h) and its angular momentum about the tool's centre, into the boundary's sums.
+  // `mass(i)`: particle i's mass. Returns the particles a tool pushed.
+  template <class Mass>
+  size_t give(std::span<const Vec3> p, const Mass& mass) {
+    size_t pushed = 0;
+    const size_t nt = tools_.size();
+    for (size_t i = 0; i < touched_.size(); ++i) {
+      if (!touched_[i]) continue;
+      ++pushed;
+      for (size_t k = 0; k < nt; ++k) {
+        const Vec3& d = moved_[i * nt + k];
+        if (d.isZero()) continue;
+        const Vec3 impulse = mass(i) * d / h_;
+        boundary_.impulse[k] += impulse;
+        boundary_.angular_impulse[k] += (p[i] - tools_[k].position).cross(impulse);
+      }
+    }
+    boundary_.pushed = pushed;
+    return pushed;
+  }
+
+ private:
+  Push push_near(size_t i, Vec3& p);
+
+  ToolBoundary& boundary_;
+  Vec3 lo_, hi_;  // a box around every tool at the substep's pose
+  double radius_, dt_, h_;
+  std::vector<RigidTool> tools_;  // grown, at the substep's pose
+  std::vector<Vec3> moved_;       // particle-major, one per tool
+  std::vector<unsigned char> touched_;
+};
+
+}  // namespace pliant::detail

@@ -1,0 +1,175 @@
+// SPDX-License-Identifier: Apache-2.0
+// The scene's tools inside a particle body's substeps (ToolBoundary): a fast tool catches what it
+// sweeps through, the tool takes minus the momentum the particles gained from it, friction carries
+// a resting cloth along with a moving tool, and bad tools are refused.
+#include "pliant/cloth.hpp"
+#include "pliant/coupling.hpp"
+#include "pliant/fluid.hpp"
+#include "pliant/interaction.hpp"
+#include "pliant/particle_body.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <vector>
+
+using namespace pliant;
+
+namespace {
+
+constexpr double kTick = 1.0 / 60;
+
+// A 20 cm rope of 20 links hanging straight down from a pin at the origin, 2 mm thick.
+std::unique_ptr<ConstraintBody> hanging_rope(const Vec3& gravity = Vec3(0, -9.81, 0), bool pinned = true) {
+  ConstraintBodySettings s;
+  s.thickness = 0.002;
+  s.gravity = gravity;
+  auto rope = ConstraintBody::rope({Vec3(0, 0, 0), Vec3(0, -0.2, 0)}, 20, 0.01, s);
+  if (pinned) rope->pin(0);
+  return rope;
+}
+
+// A 1 cm sphere crossing the rope at half its length along x at 3 m/s: over one tick it goes from
+// 2.5 cm on one side of the rope to 2.5 cm on the other, so that where the tick ends it is clear
+// of the rope.
+RigidTool crossing_tool() {
+  RigidTool t = RigidTool::sphere(Vec3(0.025, -0.1, 0), 0.01);
+  t.velocity = Vec3(3.0, 0, 0);
+  return t;
+}
+
+Vec3 momentum(const ParticleState& s, std::span<const double> w) {
+  Vec3 p = Vec3::Zero();
+  for (size_t i = 0; i < s.v.size(); ++i)
+    if (w[i] > 0) p += s.v[i] / w[i];
+  return p;
+}
+
+}  // namespace
+
+TEST(ToolInSubsteps, AFastToolCatchesTheRopeItSweepsThrough) {
+  const RigidTool tool = crossing_tool();
+  // Inside the substeps: the tool meets the rope on its way and carries its middle along.
+  auto rope = hanging_rope();
+  ToolBoundary tb;
+  const RigidTool tools[] = {tool};
+  tb.tools = tools;
+  const ParticleStepReport r = rope->advance(kTick, rope->substeps(), {}, true, nullptr, &tb);
+  double ahead = -1.0;
+  for (const Vec3& p : rope->state().x) ahead = std::max(ahead, p.x());
+  const double reach = tool.radius + rope->contact_radius();
+  EXPECT_GT(ahead, tool.position.x() + 0.5 * reach) << "the rope's middle stayed behind the tool";
+  EXPECT_EQ(r.tool_contacts, tb.pushed);
+  EXPECT_GT(tb.pushed, 0u);
+  ASSERT_EQ(tb.impulse.size(), 1u);
+  EXPECT_GT(tb.impulse[0].x(), 0.0) << "the rope gained momentum along the tool's motion";
+  for (const Vec3& p : rope->state().x)
+    EXPECT_GE((p - tool.position).norm(), reach - 1e-9) << "a particle ended inside the tool";
+  // The contact after the step alone sees the tool only where the tick ends, past the rope.
+  auto after = hanging_rope();
+  const std::vector<Vec3> start = after->state().x;
+  after->step(kTick, {});
+  ParticleState ps = after->state();
+  ToolReaction reaction;
+  EXPECT_EQ(couple_particles_to_tool(ps, after->inverse_masses(), tool, after->contact_radius(), kTick, start, reaction),
+            0u);
+  for (const Vec3& p : ps.x) EXPECT_LT(std::abs(p.x()), 1e-6) << "the rope should not have moved sideways";
+}
+
+TEST(ToolInSubsteps, TheToolTakesWhatTheParticlesGainFromIt) {
+  // No gravity, no pin, no damping, nothing else touching: every change of the particles' total
+  // momentum over the call is the tool's push, and the boundary says so.
+  {
+    auto rope = hanging_rope(Vec3::Zero(), false);
+    rope->set_state([&] {
+      ParticleState s = rope->state();
+      for (Vec3& v : s.v) v = Vec3(0.2, 0.1, -0.05);
+      return s;
+    }());
+    const Vec3 before = momentum(rope->state(), rope->inverse_masses());
+    ToolBoundary tb;
+    const RigidTool tools[] = {crossing_tool()};
+    tb.tools = tools;
+    rope->advance(kTick, rope->substeps(), {}, true, nullptr, &tb);
+    const Vec3 gained = momentum(rope->state(), rope->inverse_masses()) - before;
+    ASSERT_GT(gained.norm(), 1e-5) << "the tool did not push the rope";
+    EXPECT_NEAR((gained - tb.impulse[0]).norm(), 0.0, 1e-12 * gained.norm());
+  }
+  {
+    FluidSettings fs;
+    fs.spacing = 0.01;
+    fs.gravity = Vec3::Zero();
+    fs.substeps = 4;
+    FluidBody water(fs, {FluidBlock{Vec3(-0.03, -0.13, -0.03), Vec3(0.03, -0.07, 0.03)}});
+    const std::vector<double> w(water.inverse_masses().begin(), water.inverse_masses().end());
+    const Vec3 before = momentum(water.state(), w);
+    ToolBoundary tb;
+    RigidTool t = crossing_tool();
+    t.position = Vec3(0.0, -0.1, 0.0);  // ends in the middle of the block
+    const RigidTool tools[] = {t};
+    tb.tools = tools;
+    const ParticleStepReport r = water.advance(kTick, fs.substeps, {}, true, nullptr, &tb);
+    const Vec3 gained = momentum(water.state(), w) - before;
+    ASSERT_GT(r.tool_contacts, 0u);
+    ASSERT_GT(gained.norm(), 1e-4) << "the tool did not push the water";
+    // The fluid's pair terms are single precision but each pair's two entries exactly opposite.
+    EXPECT_NEAR((gained - tb.impulse[0]).norm(), 0.0, 1e-9 * gained.norm());
+    EXPECT_GT(tb.impulse[0].x(), 0.9 * gained.norm());
+    for (const Vec3& p : water.state().x)
+      EXPECT_GE((p - t.position).norm(), t.radius + water.contact_radius() - 1e-9);
+  }
+}
+
+TEST(ToolInSubsteps, FrictionCarriesAClothAlongWithItsTool) {
+  // A 12 cm cloth dropped across the middle of a 60 cm capsule lying along x, which then moves
+  // along its own axis at 10 cm/s for 1.5 s: only friction can carry the cloth along (the
+  // capsule's normals there have no x part). With the tool's friction it rides on it; without,
+  // the capsule slides along under it.
+  auto ride = [](double mu) {
+    ClothGridSpec g;
+    g.nx = g.ny = 8;
+    g.size_x = g.size_y = 0.12;
+    g.origin = Vec3(-0.06, 0.035, -0.06);
+    ConstraintBodySettings s;
+    s.self_collision = false;
+    auto cloth = ConstraintBody::cloth_grid(g, s);
+    RigidTool tool = RigidTool::capsule(Vec3(0, 0, 0), Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, Vec3::UnitY())),
+                                        0.03, 0.3);
+    tool.static_friction = tool.dynamic_friction = mu;
+    for (int k = 0; k < 120; ++k) {
+      if (k >= 30) {
+        tool.velocity = Vec3(0.1, 0, 0);
+        tool.position += tool.velocity * kTick;
+      }
+      ToolBoundary tb;
+      const RigidTool tools[] = {tool};
+      tb.tools = tools;
+      cloth->advance(kTick, cloth->substeps(), {}, true, nullptr, &tb);
+    }
+    Vec3 c = Vec3::Zero();
+    for (const Vec3& p : cloth->state().x) c += p;
+    return std::pair(c.x() / double(cloth->size()), tool.position.x());
+  };
+  const auto [with, tool_x] = ride(0.8);
+  const auto [without, tool_x0] = ride(0.0);
+  ASSERT_NEAR(tool_x, 0.15, 1e-9);
+  EXPECT_NEAR(with, tool_x, 0.01) << "the cloth did not ride on the tool";
+  EXPECT_NEAR(without, 0.0, 0.01) << "without friction the tool should slide along under the cloth";
+}
+
+TEST(ToolInSubsteps, RefusesToolsThatAreNotFinite) {
+  auto rope = hanging_rope();
+  RigidTool t = crossing_tool();
+  t.velocity.x() = std::numeric_limits<double>::quiet_NaN();
+  ToolBoundary tb;
+  const RigidTool tools[] = {t};
+  tb.tools = tools;
+  const ParticleState before = rope->state();
+  EXPECT_THROW(rope->advance(kTick, rope->substeps(), {}, true, nullptr, &tb), std::invalid_argument);
+  EXPECT_EQ(rope->state().x, before.x) << "a refused call leaves the body as it was";
+  FluidSettings fs;
+  FluidBody water(fs, {FluidBlock{Vec3(0, 0, 0), Vec3(0.1, 0.1, 0.1)}});
+  EXPECT_THROW(water.advance(kTick, fs.substeps, {}, true, nullptr, &tb), std::invalid_argument);
+}
