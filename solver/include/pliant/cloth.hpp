@@ -165,7 +165,7 @@ class ConstraintBody : public ParticleBody {
   struct SurfaceContacts;
   void meet_surface(SurfaceContacts& sc);
   size_t leave_surface(SurfaceContacts& sc, double h);
-  void meet_tools(detail::ToolMeeting& tm);
+  void meet_tools(detail::ToolMeeting& tm, std::span<const std::array<uint32_t, 3>> faces);
   template <class F>
   void for_colours(const std::vector<size_t>& starts, F&& f);
 

@@ -102,6 +102,15 @@ Eigen::Vector3d closest_point_on_triangle(const Eigen::Vector3d& p, const Eigen:
                                           const Eigen::Vector3d& b, const Eigen::Vector3d& c,
                                           std::array<double, 3>& barycentric);
 
+// The closest points between a tool's core (its centre; a capsule's axis segment) and triangle
+// (a, b, c): the point on the core, the point on the triangle and its barycentric weights.
+void closest_core_triangle(const RigidTool& tool, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                           const Eigen::Vector3d& c, Eigen::Vector3d& core_point, Eigen::Vector3d& triangle_point,
+                           std::array<double, 3>& barycentric);
+// The same for segment (a, b): the point on the segment is a + u (b - a).
+void closest_core_segment(const RigidTool& tool, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                          Eigen::Vector3d& core_point, Eigen::Vector3d& segment_point, double& u);
+
 // One vertex in contact with a tool during the step.
 struct ToolContact {
   int32_t vertex = -1;

@@ -91,9 +91,11 @@ struct SurfaceBoundary {
 // and moves at its velocity over it (at the end of substep s of n, position - velocity x (dt -
 // (s + 1) dt / n)), grown by the body's contact_radius(). A particle inside is put back on its
 // surface, with the tool's Coulomb friction on its slip against the tool's motion over the
-// substep. What the particles gained comes back per tool, summed over the call: momentum (N s)
-// and angular momentum about the tool's centre where it was at each push (N m s); the tool takes
-// minus them. `pushed`: the particles a tool pushed in the call's last substep.
+// substep; so are a cloth's triangles and a rope's links where a tool reaches between their
+// particles. What the particles gained comes back per tool, summed over the call: momentum (N s)
+// and angular momentum about the tool's centre where it was at each push (N m s), a pinned
+// particle's share of a triangle's or a link's push included; the tool takes minus them.
+// `pushed`: the particles a tool pushed in the call's last substep.
 struct ToolBoundary {
   std::span<const RigidTool> tools;
   std::vector<Vec3> impulse;          // per tool, sized and zeroed by the call

@@ -717,8 +717,10 @@ size_t ConstraintBody::leave_surface(SurfaceContacts& sc, double h) {
 }
 
 // Every free particle out of the scene's tools where they are in the substep, each push with its
-// tool's friction against the tool's motion, as against the colliders.
-void ConstraintBody::meet_tools(detail::ToolMeeting& tm) {
+// tool's friction against the tool's motion, as against the colliders; then the faces between
+// them (`faces`: the triangles, or a rope's links) that a tool reaches between their corners.
+void ConstraintBody::meet_tools(detail::ToolMeeting& tm, std::span<const std::array<uint32_t, 3>> faces) {
+  tm.begin_pass();
   auto work = [&](int, size_t lo, size_t hi) {
     for (size_t i = lo; i < hi; ++i) {
       if (w_[i] == 0.0) continue;
@@ -730,6 +732,7 @@ void ConstraintBody::meet_tools(detail::ToolMeeting& tm) {
     pool_->parallel_for(size(), work, 256);
   else
     work(0, 0, size());
+  tm.push_faces(faces, p_, x_prev_, w_);
 }
 
 // The soft body's surface (`surface`) and the scene's tools (`tools`) are met by the particles
@@ -767,7 +770,15 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
     on_surface.emplace(*surface, state_.x, std::isfinite(reach) ? reach : surface->radius);
   }
   std::optional<detail::ToolMeeting> on_tools;
-  if (tools && !tools->tools.empty()) on_tools.emplace(*tools, settings_.thickness, dt, ns);
+  std::vector<std::array<uint32_t, 3>> links;  // a rope's links as faces (a, b, b), for the tools
+  std::span<const std::array<uint32_t, 3>> tool_faces = triangles_;
+  if (tools && !tools->tools.empty()) {
+    on_tools.emplace(*tools, settings_.thickness, dt, ns);
+    if (triangles_.empty()) {
+      for (const auto& s : segments_) links.push_back({s[0], s[1], s[1]});
+      tool_faces = links;
+    }
+  }
   for (int s = 0; s < ns; ++s) {
     for (size_t i = 0; i < n; ++i) {
       x_prev_[i] = state_.x[i];
@@ -795,14 +806,14 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
       if (self) solve_self_contacts();
       contacts = solve_colliders(colliders);
       if (on_surface) meet_surface(*on_surface);
-      if (on_tools) meet_tools(*on_tools);
+      if (on_tools) meet_tools(*on_tools, tool_faces);
       if (self && !self_contacts_.empty() && (!colliders.empty() || on_surface || on_tools)) {
         // a layer pressed onto a collider by another: once more, so that neither the
         // layers nor the collider end the substep violated by the other's last correction
         solve_self_contacts();
         contacts = solve_colliders(colliders);
         if (on_surface) meet_surface(*on_surface);
-        if (on_tools) meet_tools(*on_tools);
+        if (on_tools) meet_tools(*on_tools, tool_faces);
       }
     }
     if (on_surface) report.soft_body_contacts = leave_surface(*on_surface, h);

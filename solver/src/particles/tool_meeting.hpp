@@ -7,6 +7,8 @@
 #include "pliant/interaction.hpp"
 #include "pliant/particle_body.hpp"
 
+#include <array>
+#include <cstdint>
 #include <span>
 #include <vector>
 
@@ -20,6 +22,8 @@ class ToolMeeting {
 
   // The tools where they are at the end of substep s; clears the records of `particles` particles.
   void begin_substep(int s, size_t particles);
+  // Starts a pass: the particles push() meets, then the faces between them (push_faces).
+  void begin_pass() { ++pass_; }
 
   struct Push {
     double depth = 0.0;  // summed over the tools that pushed (0: none)
@@ -29,7 +33,7 @@ class ToolMeeting {
   // Particle i at p out of every tool it is inside, in the tools' order. Safe to call for
   // different particles from different threads.
   Push push(size_t i, Vec3& p) {
-    // Most particles are nowhere near a tool: the boxes around the tools rule them out.
+    // Most particles are nowhere near a tool: a box around the tools (grown twice) rules them out.
     if (((p.array() < lo_.array()) || (p.array() > hi_.array())).any()) return Push{};
     return push_near(i, p);
   }
@@ -38,9 +42,21 @@ class ToolMeeting {
   // counts as the tool's. `moved`: the particle's whole motion over the substep.
   void friction(size_t i, int k, const Vec3& normal, double depth, const Vec3& moved, Vec3& p);
 
+  // After a pass's particles: the faces between them (a cloth's triangles, a rope's links as (a,
+  // b, b)) whose inside a tool reaches while none of their corners is within the body's radius of
+  // the tool's grown surface (a tool smaller than the faces, between the particles; a corner
+  // touching the tool makes the face its contact's: pushed out too, a face that is a chord of the
+  // tool would lift its corners off it), as the soft body's faces meet a tool: the
+  // face's point closest to the tool's core goes out to the tool's grown surface, with the tool's
+  // friction on its slip, each move shared by the corners by their inverse masses (weights
+  // `w`; `x_prev`: where the substep started). Serial. Returns the faces it pushed.
+  size_t push_faces(std::span<const std::array<uint32_t, 3>> faces, std::span<Vec3> p, std::span<const Vec3> x_prev,
+                    std::span<const double> w);
+
   // After the substep: the momentum each particle gained from each tool (its mass x the tool's
-  // moves / h) and its angular momentum about the tool's centre, into the boundary's sums.
-  // `mass(i)`: particle i's mass. Returns the particles a tool pushed.
+  // moves / h) and its angular momentum about the tool's centre, into the boundary's sums, with
+  // the pinned corners' shares of the faces' pushes (their pins take them: the tool still feels
+  // the whole push). `mass(i)`: particle i's mass. Returns the particles a tool pushed.
   template <class Mass>
   size_t give(std::span<const Vec3> p, const Mass& mass) {
     size_t pushed = 0;
@@ -56,6 +72,10 @@ class ToolMeeting {
         boundary_.angular_impulse[k] += (p[i] - tools_[k].position).cross(impulse);
       }
     }
+    for (size_t k = 0; k < nt; ++k) {
+      boundary_.impulse[k] += pinned_impulse_[k];
+      boundary_.angular_impulse[k] += pinned_angular_[k];
+    }
     boundary_.pushed = pushed;
     return pushed;
   }
@@ -64,11 +84,17 @@ class ToolMeeting {
   Push push_near(size_t i, Vec3& p);
 
   ToolBoundary& boundary_;
-  Vec3 lo_, hi_;  // a box around every tool at the substep's pose
+  Vec3 lo_, hi_;  // a box around every tool at the substep's pose, grown twice by the radius
   double radius_, dt_, h_;
   std::vector<RigidTool> tools_;  // grown, at the substep's pose
+  std::vector<RigidTool> near_;   // the same grown by the radius once more
   std::vector<Vec3> moved_;       // particle-major, one per tool
   std::vector<unsigned char> touched_;
+  // Per particle: the last pass that found it within the body's radius of a tool's grown surface
+  // (0: none); the faces around it are its contact's.
+  std::vector<uint32_t> near_in_;
+  std::vector<Vec3> pinned_impulse_, pinned_angular_;  // per tool: the pins' shares in the substep
+  uint32_t pass_ = 0;
 };
 
 }  // namespace pliant::detail

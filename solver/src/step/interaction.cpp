@@ -105,51 +105,6 @@ void closest_segment_segment(const V3& p1, const V3& q1, const V3& p2, const V3&
   }
 }
 
-// The tool's core (a point for a sphere, a segment for a capsule) and the closest pair
-// (core point, triangle point) between it and triangle (a, b, c).
-void closest_core_triangle(const RigidTool& tool, const V3& a, const V3& b, const V3& c, V3& core_point,
-                           V3& tri_point, std::array<double, 3>& bary) {
-  if (tool.shape != RigidTool::Shape::Capsule || tool.half_length <= 0) {
-    core_point = tool.position;
-    tri_point = closest_point_on_triangle(core_point, a, b, c, bary);
-    return;
-  }
-  const V3 axis = tool.orientation * V3::UnitZ();
-  const V3 s0 = tool.position - tool.half_length * axis, s1 = tool.position + tool.half_length * axis;
-  double best = std::numeric_limits<double>::infinity();
-  auto consider = [&](const V3& on_core, const V3& on_tri, const std::array<double, 3>& w) {
-    const double d = (on_tri - on_core).squaredNorm();
-    if (d < best) {
-      best = d;
-      core_point = on_core;
-      tri_point = on_tri;
-      bary = w;
-    }
-  };
-  std::array<double, 3> w{};
-  for (const V3* end : {&s0, &s1}) {
-    const V3 q = closest_point_on_triangle(*end, a, b, c, w);
-    consider(*end, q, w);
-  }
-  const V3* corner[3] = {&a, &b, &c};
-  for (int k = 0; k < 3; ++k) {
-    const int l = (k + 1) % 3;
-    double sp, tp;
-    closest_segment_segment(s0, s1, *corner[k], *corner[l], sp, tp);
-    std::array<double, 3> we{0, 0, 0};
-    we[k] = 1 - tp;
-    we[l] = tp;
-    consider(s0 + sp * (s1 - s0), *corner[k] + tp * (*corner[l] - *corner[k]), we);
-  }
-  // The segment crossing the triangle's interior: distance 0 there.
-  const V3 n = (b - a).cross(c - a);
-  const double d0 = n.dot(s0 - a), d1 = n.dot(s1 - a);
-  if ((d0 < 0) != (d1 < 0) && d0 != d1) {
-    const V3 hit = s0 + (d0 / (d0 - d1)) * (s1 - s0);
-    const V3 q = closest_point_on_triangle(hit, a, b, c, w);
-    consider(hit, q, w);
-  }
-}
 }  // namespace
 
 V3 closest_point_on_triangle(const V3& p, const V3& a, const V3& b, const V3& c, std::array<double, 3>& w) {
@@ -194,6 +149,64 @@ V3 closest_point_on_triangle(const V3& p, const V3& a, const V3& b, const V3& c,
   const double v = vb * denom, u = vc * denom;
   w = {1 - v - u, v, u};
   return a + v * ab + u * ac;
+}
+
+void closest_core_triangle(const RigidTool& tool, const V3& a, const V3& b, const V3& c, V3& core_point,
+                           V3& tri_point, std::array<double, 3>& bary) {
+  if (tool.shape != RigidTool::Shape::Capsule || tool.half_length <= 0) {
+    core_point = tool.position;
+    tri_point = closest_point_on_triangle(core_point, a, b, c, bary);
+    return;
+  }
+  const V3 axis = tool.orientation * V3::UnitZ();
+  const V3 s0 = tool.position - tool.half_length * axis, s1 = tool.position + tool.half_length * axis;
+  double best = std::numeric_limits<double>::infinity();
+  auto consider = [&](const V3& on_core, const V3& on_tri, const std::array<double, 3>& w) {
+    const double d = (on_tri - on_core).squaredNorm();
+    if (d < best) {
+      best = d;
+      core_point = on_core;
+      tri_point = on_tri;
+      bary = w;
+    }
+  };
+  std::array<double, 3> w{};
+  for (const V3* end : {&s0, &s1}) {
+    const V3 q = closest_point_on_triangle(*end, a, b, c, w);
+    consider(*end, q, w);
+  }
+  const V3* corner[3] = {&a, &b, &c};
+  for (int k = 0; k < 3; ++k) {
+    const int l = (k + 1) % 3;
+    double sp, tp;
+    closest_segment_segment(s0, s1, *corner[k], *corner[l], sp, tp);
+    std::array<double, 3> we{0, 0, 0};
+    we[k] = 1 - tp;
+    we[l] = tp;
+    consider(s0 + sp * (s1 - s0), *corner[k] + tp * (*corner[l] - *corner[k]), we);
+  }
+  // The segment crossing the triangle's interior: distance 0 there.
+  const V3 n = (b - a).cross(c - a);
+  const double d0 = n.dot(s0 - a), d1 = n.dot(s1 - a);
+  if ((d0 < 0) != (d1 < 0) && d0 != d1) {
+    const V3 hit = s0 + (d0 / (d0 - d1)) * (s1 - s0);
+    const V3 q = closest_point_on_triangle(hit, a, b, c, w);
+    consider(hit, q, w);
+  }
+}
+
+void closest_core_segment(const RigidTool& tool, const V3& a, const V3& b, V3& core_point, V3& segment_point,
+                          double& u) {
+  V3 s0 = tool.position, s1 = tool.position;
+  if (tool.shape == RigidTool::Shape::Capsule && tool.half_length > 0) {
+    const V3 axis = tool.orientation * V3::UnitZ();
+    s0 -= tool.half_length * axis;
+    s1 += tool.half_length * axis;
+  }
+  double s = 0;
+  closest_segment_segment(s0, s1, a, b, s, u);
+  core_point = s0 + s * (s1 - s0);
+  segment_point = a + u * (b - a);
 }
 
 int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vector<V3>& x_start,
