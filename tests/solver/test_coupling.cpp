@@ -404,7 +404,9 @@ TEST(SurfaceBoundary, WaterPouredOnABodyFromATapStaysOnIt) {
   // side may be rounding its edge: 0.14 mm below the top and 1.9 mm beyond the end face in one
   // build).
   for (const Vec3& x : water.state().x)
-    if (x.x() > 0.003 && x.x() < 0.117 && x.z() > 0.003 && x.z() < 0.007) EXPECT_GT(x.y(), 0.01) << x.transpose();
+    if (x.x() > 0.003 && x.x() < 0.117 && x.z() > 0.003 && x.z() < 0.007) {
+      EXPECT_GT(x.y(), 0.01) << x.transpose();
+    }
 }
 
 TEST(SurfaceBoundary, RefusesBadSettingsNamingTheField) {
@@ -465,12 +467,18 @@ TEST(SurfaceBoundary, FrictionPullsRestingParticlesToTheSurfacesSpeedAtMuG) {
       surface.friction = mu;
       EXPECT_EQ(water.advance(1.0 / 60, fs.substeps, {}, true, &surface).soft_body_contacts, 4u);
       for (const Vec3& j : surface.impulse) given += j;
-      if (k == 4 && mu == 0.1) EXPECT_NEAR(mean_vx(), 0.1 * 9.81 * 5.0 / 60, 0.03 * 0.0817);
+      if (k == 4 && mu == 0.1) {
+        EXPECT_NEAR(mean_vx(), 0.1 * 9.81 * 5.0 / 60, 0.03 * 0.0817);
+      }
     }
     const double m = water.particle_mass();
     EXPECT_NEAR(given.x(), 4 * m * mean_vx(), 1e-12);  // what the surface gave along x
-    if (mu == 0.0) EXPECT_NEAR(mean_vx(), 0.0, 1e-12);
-    if (mu == 1.0) EXPECT_NEAR(mean_vx(), 0.2, 1e-6);
+    if (mu == 0.0) {
+      EXPECT_NEAR(mean_vx(), 0.0, 1e-12);
+    }
+    if (mu == 1.0) {
+      EXPECT_NEAR(mean_vx(), 0.2, 1e-6);
+    }
     for (const Vec3& x : water.state().x) EXPECT_NEAR(x.y(), 0.012, 1e-6);
   }
 }
