@@ -721,18 +721,30 @@ size_t ConstraintBody::leave_surface(SurfaceContacts& sc, double h) {
 // them (`faces`: the triangles, or a rope's links) that a tool reaches between their corners.
 void ConstraintBody::meet_tools(detail::ToolMeeting& tm, std::span<const std::array<uint32_t, 3>> faces) {
   tm.begin_pass();
-  auto work = [&](int, size_t lo, size_t hi) {
+  // The particles' box, so that the faces are looked at only when a tool reaches it.
+  const int chunks = pool_ ? pool_->size() : 1;
+  std::vector<std::pair<Vec3, Vec3>> boxes(size_t(chunks), {Vec3::Constant(INFINITY), Vec3::Constant(-INFINITY)});
+  auto work = [&](int chunk, size_t lo, size_t hi) {
+    auto& [box_lo, box_hi] = boxes[size_t(chunk)];
     for (size_t i = lo; i < hi; ++i) {
-      if (w_[i] == 0.0) continue;
-      const detail::ToolMeeting::Push pr = tm.push(i, p_[i]);
-      if (pr.tool >= 0) tm.friction(i, pr.tool, pr.normal, pr.depth, p_[i] - x_prev_[i], p_[i]);
+      if (w_[i] != 0.0) {
+        const detail::ToolMeeting::Push pr = tm.push(i, p_[i]);
+        if (pr.tool >= 0) tm.friction(i, pr.tool, pr.normal, pr.depth, p_[i] - x_prev_[i], p_[i]);
+      }
+      box_lo = box_lo.cwiseMin(p_[i]);
+      box_hi = box_hi.cwiseMax(p_[i]);
     }
   };
   if (pool_)
     pool_->parallel_for(size(), work, 256);
   else
     work(0, 0, size());
-  tm.push_faces(faces, p_, x_prev_, w_);
+  Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+  for (const auto& [l, h] : boxes) {
+    lo = lo.cwiseMin(l);
+    hi = hi.cwiseMax(h);
+  }
+  if (tm.reaches(lo, hi)) tm.push_faces(faces, p_, x_prev_, w_);
 }
 
 // The soft body's surface (`surface`) and the scene's tools (`tools`) are met by the particles

@@ -52,6 +52,10 @@ class ToolMeeting {
   // `w`; `x_prev`: where the substep started). Serial. Returns the faces it pushed.
   size_t push_faces(std::span<const std::array<uint32_t, 3>> faces, std::span<Vec3> p, std::span<const Vec3> x_prev,
                     std::span<const double> w);
+  // Whether a tool at the substep's pose can reach the box (lo, hi).
+  bool reaches(const Vec3& lo, const Vec3& hi) const {
+    return !((lo.array() > hi_.array()).any() || (hi.array() < lo_.array()).any());
+  }
 
   // After the substep: the momentum each particle gained from each tool (its mass x the tool's
   // moves / h) and its angular momentum about the tool's centre, into the boundary's sums, with
