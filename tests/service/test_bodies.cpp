@@ -229,6 +229,45 @@ TEST(Bodies, SceneCarriesItsBodiesWhichFallUnderGravityWhilePinsHold) {
   EXPECT_EQ(g.solver().bodies(0).substeps(), 8);  // the rope's spec
 }
 
+namespace {
+
+// A haptic stream and a thread that keeps every feedback it receives; closed (and the thread
+// joined) at the latest when it goes, so that a failed assertion does not leave the thread running.
+struct FeedbackLog {
+  explicit FeedbackLog(Client& c) : stream(c.haptic_stream()), reader([this] {
+    v1::ToolFeedback f;
+    while (stream->next(&f)) {
+      std::lock_guard lk(mu);
+      got.push_back(f);
+    }
+  }) {}
+  ~FeedbackLog() {
+    if (reader.joinable()) close();
+  }
+  // Closes the stream and waits for the reader; true when the stream finished without error.
+  bool close() {
+    stream->close();
+    reader.join();
+    return stream->finish().ok();
+  }
+  std::vector<v1::ToolFeedback> all() {
+    std::lock_guard lk(mu);
+    return got;
+  }
+  // Whether a feedback has come for a tick that used pose `seq`.
+  bool used(uint64_t seq) {
+    std::lock_guard lk(mu);
+    return std::any_of(got.begin(), got.end(), [&](const v1::ToolFeedback& f) { return f.pose_seq() == seq; });
+  }
+
+  std::unique_ptr<client::HapticStream> stream;
+  std::mutex mu;
+  std::vector<v1::ToolFeedback> got;
+  std::thread reader;
+};
+
+}  // namespace
+
 TEST(Bodies, TheHapticToolFeelsTheClothItCatches) {
   // A 10 cm sphere held (one pose over the haptic stream) 5 cm under the middle of the cloth,
   // away from the beam: the falling cloth lands on it, and the tool's feedback carries the
@@ -236,27 +275,17 @@ TEST(Bodies, TheHapticToolFeelsTheClothItCatches) {
   BodiesServer srv;
   Client c = srv.client();
   ASSERT_TRUE(c.create_scene(bodies_request("t")).ok());
-  auto stream = c.haptic_stream();
-  std::mutex mu;
-  std::vector<v1::ToolFeedback> got;
-  std::thread reader([&] {
-    v1::ToolFeedback f;
-    while (stream->next(&f)) {
-      std::lock_guard lk(mu);
-      got.push_back(f);
-    }
-  });
+  FeedbackLog log(c);
   v1::ToolPose pose;
   pose.set_scene_id("t");
   pose.set_shape(v1::TOOL_SHAPE_SPHERE);
   pose.set_radius(0.1);
   pose.set_seq(1);
   set(pose.mutable_position(), 3.2, 1.85, 0.2);
-  ASSERT_TRUE(stream->send(pose));
+  ASSERT_TRUE(log.stream->send(pose));
   double lowest = 0;
   auto pushed_down = [&] {
-    std::lock_guard lk(mu);
-    for (const auto& f : got) lowest = std::min(lowest, f.force().y());
+    for (const auto& f : log.all()) lowest = std::min(lowest, f.force().y());
     return lowest < 0;
   };
   ASSERT_TRUE(test::wait_until([&] { return c.step("t", 1).ok() && pushed_down(); }, test::kPatience,
@@ -268,9 +297,7 @@ TEST(Bodies, TheHapticToolFeelsTheClothItCatches) {
   v1::Frame f;
   ASSERT_TRUE(s->next(&f));
   s->cancel();
-  stream->close();
-  reader.join();
-  EXPECT_TRUE(stream->finish().ok());
+  EXPECT_TRUE(log.close());
   ASSERT_EQ(f.solver().bodies_size(), 3);
   EXPECT_EQ(f.solver().bodies(1).name(), "cloth");
   EXPECT_GT(f.solver().bodies(1).tool_contacts(), 0u);
@@ -300,51 +327,33 @@ TEST(Bodies, AFastToolCatchesTheRopeItSweepsThroughInOneTick) {
   rs->set_thickness(0.002);
   rs->mutable_pins()->add_indices(0);
   ASSERT_TRUE(c.create_scene(req).ok());
-  auto stream = c.haptic_stream();
-  std::mutex mu;
-  std::vector<v1::ToolFeedback> got;
-  std::thread reader([&] {
-    v1::ToolFeedback f;
-    while (stream->next(&f)) {
-      std::lock_guard lk(mu);
-      got.push_back(f);
-    }
-  });
-  auto used = [&](uint64_t seq) {
-    std::lock_guard lk(mu);
-    for (const auto& f : got)
-      if (f.pose_seq() == seq) return true;
-    return false;
-  };
+  FeedbackLog log(c);
   v1::ToolPose pose;
   pose.set_scene_id("s");
   pose.set_shape(v1::TOOL_SHAPE_SPHERE);
   pose.set_radius(0.01);
   pose.set_seq(1);
   set(pose.mutable_position(), 4.975, 1.9, 0);
-  ASSERT_TRUE(stream->send(pose));
-  ASSERT_TRUE(test::wait_until([&] { return c.step("s", 1).ok() && used(1); }, test::kPatience, "the first pose used"));
+  ASSERT_TRUE(log.stream->send(pose));
+  ASSERT_TRUE(test::wait_until([&] { return c.step("s", 1).ok() && log.used(1); }, test::kPatience,
+                               "the first pose used"));
   pose.set_seq(2);
   set(pose.mutable_position(), 5.025, 1.9, 0);
-  ASSERT_TRUE(stream->send(pose));
-  ASSERT_TRUE(test::wait_until([&] { return c.step("s", 1).ok() && used(2); }, test::kPatience, "the second pose used"));
+  ASSERT_TRUE(log.stream->send(pose));
+  ASSERT_TRUE(test::wait_until([&] { return c.step("s", 1).ok() && log.used(2); }, test::kPatience,
+                               "the second pose used"));
   const v1::Snapshot snap = snapshot_of(c, "s");
-  stream->close();
-  reader.join();
-  EXPECT_TRUE(stream->finish().ok());
+  EXPECT_TRUE(log.close());
   ASSERT_EQ(snap.bodies_size(), 1);
   double ahead = -1e9;
   for (int i = 0; i < snap.bodies(0).x_size() / 3; ++i) ahead = std::max(ahead, snap.bodies(0).x(3 * i));
   EXPECT_GT(ahead, 5.025 + 0.006) << "the rope's middle stayed behind the tool";
   double push = 0;
-  {
-    std::lock_guard lk(mu);
-    for (const auto& f : got)
-      if (f.pose_seq() == 2) {
-        push = f.force().x();
-        break;
-      }
-  }
+  for (const auto& f : log.all())
+    if (f.pose_seq() == 2) {
+      push = f.force().x();
+      break;
+    }
   EXPECT_LT(push, 0.0) << "the tool felt nothing of the rope it swept";
 }
 
