@@ -220,6 +220,66 @@ TEST(ToolInSubsteps, AToolBetweenTheParticlesMeetsTheLinkOrTheFace) {
   }
 }
 
+TEST(ToolInSubsteps, ResultsDoNotDependOnTheThreadCount) {
+  // A 64 x 64 cloth of 1 m falling onto a capsule that sweeps under it (its particles and its
+  // faces meet the tool), and a fluid block a sphere moves through, each with 1 and 3 threads:
+  // the same positions, velocities and tool impulses to the last bit.
+  auto cloth_run = [](int threads) {
+    ClothGridSpec g;
+    g.nx = g.ny = 64;
+    g.size_x = g.size_y = 1.0;
+    g.origin = Vec3(-0.5, 0.02, -0.5);
+    ConstraintBodySettings s;
+    s.threads = threads;
+    auto cloth = ConstraintBody::cloth_grid(g, s);
+    RigidTool t = RigidTool::capsule(Vec3(-0.1, 0, 0), Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Vec3::UnitY())),
+                                     0.005, 0.3);
+    t.velocity = Vec3(0.6, 0, 0);
+    std::vector<Vec3> impulses;
+    for (int k = 0; k < 6; ++k) {
+      t.position += t.velocity / 60;
+      ToolBoundary tb;
+      const RigidTool tools[] = {t};
+      tb.tools = tools;
+      cloth->advance(kTick, cloth->substeps(), {}, true, nullptr, &tb);
+      impulses.push_back(tb.impulse[0]);
+    }
+    return std::pair(cloth->state(), impulses);
+  };
+  const auto [c1, j1] = cloth_run(1);
+  const auto [c3, j3] = cloth_run(3);
+  EXPECT_GT(j1.back().norm(), 0.0) << "the tool should have met the cloth";
+  EXPECT_EQ(j1, j3);
+  EXPECT_EQ(c1.x, c3.x);
+  EXPECT_EQ(c1.v, c3.v);
+
+  auto fluid_run = [](int threads) {
+    FluidSettings fs;
+    fs.threads = threads;
+    fs.spacing = 0.01;
+    fs.container = Collider::box(Vec3(0, 0.05, 0), Vec3(0.06, 0.1, 0.06));
+    FluidBody water(fs, {FluidBlock{Vec3(-0.05, -0.045, -0.05), Vec3(0.05, 0.04, 0.05)}});
+    RigidTool t = RigidTool::sphere(Vec3(-0.05, 0.0, 0.0), 0.015);
+    t.velocity = Vec3(0.5, 0, 0);
+    std::vector<Vec3> impulses;
+    for (int k = 0; k < 6; ++k) {
+      t.position += t.velocity / 60;
+      ToolBoundary tb;
+      const RigidTool tools[] = {t};
+      tb.tools = tools;
+      water.advance(kTick, fs.substeps, {}, true, nullptr, &tb);
+      impulses.push_back(tb.impulse[0]);
+    }
+    return std::pair(water.state(), impulses);
+  };
+  const auto [f1, k1] = fluid_run(1);
+  const auto [f3, k3] = fluid_run(3);
+  EXPECT_GT(k1.back().norm(), 0.0) << "the tool should have met the water";
+  EXPECT_EQ(k1, k3);
+  EXPECT_EQ(f1.x, f3.x);
+  EXPECT_EQ(f1.v, f3.v);
+}
+
 TEST(ToolInSubsteps, RefusesToolsThatAreNotFinite) {
   auto rope = hanging_rope();
   RigidTool t = crossing_tool();
