@@ -41,6 +41,21 @@ RigidTool crossing_tool() {
   return t;
 }
 
+// One tick of `body` (its own substeps) meeting `tool` inside them: its report and the tool's
+// boundary after the call (the impulse, the particles it pushed).
+struct Met {
+  ParticleStepReport report;
+  ToolBoundary boundary;
+};
+Met tick_with(ParticleBody& body, const RigidTool& tool) {
+  Met m;
+  const RigidTool tools[] = {tool};
+  m.boundary.tools = tools;
+  m.report = body.advance(kTick, body.substeps(), {}, true, nullptr, &m.boundary);
+  m.boundary.tools = {};
+  return m;
+}
+
 Vec3 momentum(const ParticleState& s, std::span<const double> w) {
   Vec3 p = Vec3::Zero();
   for (size_t i = 0; i < s.v.size(); ++i)
@@ -54,10 +69,7 @@ TEST(ToolInSubsteps, AFastToolCatchesTheRopeItSweepsThrough) {
   const RigidTool tool = crossing_tool();
   // Inside the substeps: the tool meets the rope on its way and carries its middle along.
   auto rope = hanging_rope();
-  ToolBoundary tb;
-  const RigidTool tools[] = {tool};
-  tb.tools = tools;
-  const ParticleStepReport r = rope->advance(kTick, rope->substeps(), {}, true, nullptr, &tb);
+  const auto [r, tb] = tick_with(*rope, tool);
   double ahead = -1.0;
   for (const Vec3& p : rope->state().x) ahead = std::max(ahead, p.x());
   const double reach = tool.radius + rope->contact_radius();
@@ -90,10 +102,7 @@ TEST(ToolInSubsteps, TheToolTakesWhatTheParticlesGainFromIt) {
       return s;
     }());
     const Vec3 before = momentum(rope->state(), rope->inverse_masses());
-    ToolBoundary tb;
-    const RigidTool tools[] = {crossing_tool()};
-    tb.tools = tools;
-    rope->advance(kTick, rope->substeps(), {}, true, nullptr, &tb);
+    const ToolBoundary tb = tick_with(*rope, crossing_tool()).boundary;
     const Vec3 gained = momentum(rope->state(), rope->inverse_masses()) - before;
     ASSERT_GT(gained.norm(), 1e-5) << "the tool did not push the rope";
     EXPECT_NEAR((gained - tb.impulse[0]).norm(), 0.0, 1e-12 * gained.norm());
@@ -106,12 +115,9 @@ TEST(ToolInSubsteps, TheToolTakesWhatTheParticlesGainFromIt) {
     FluidBody water(fs, {FluidBlock{Vec3(-0.03, -0.13, -0.03), Vec3(0.03, -0.07, 0.03)}});
     const std::vector<double> w(water.inverse_masses().begin(), water.inverse_masses().end());
     const Vec3 before = momentum(water.state(), w);
-    ToolBoundary tb;
     RigidTool t = crossing_tool();
     t.position = Vec3(0.0, -0.1, 0.0);  // ends in the middle of the block
-    const RigidTool tools[] = {t};
-    tb.tools = tools;
-    const ParticleStepReport r = water.advance(kTick, fs.substeps, {}, true, nullptr, &tb);
+    const auto [r, tb] = tick_with(water, t);
     const Vec3 gained = momentum(water.state(), w) - before;
     ASSERT_GT(r.tool_contacts, 0u);
     ASSERT_GT(gained.norm(), 1e-4) << "the tool did not push the water";
@@ -144,10 +150,7 @@ TEST(ToolInSubsteps, FrictionCarriesAClothAlongWithItsTool) {
         tool.velocity = Vec3(0.1, 0, 0);
         tool.position += tool.velocity * kTick;
       }
-      ToolBoundary tb;
-      const RigidTool tools[] = {tool};
-      tb.tools = tools;
-      cloth->advance(kTick, cloth->substeps(), {}, true, nullptr, &tb);
+      tick_with(*cloth, tool);
     }
     Vec3 c = Vec3::Zero();
     for (const Vec3& p : cloth->state().x) c += p;
@@ -173,10 +176,7 @@ TEST(ToolInSubsteps, AToolBetweenTheParticlesMeetsTheLinkOrTheFace) {
     rope->pin(2);
     RigidTool t = RigidTool::sphere(Vec3(0.05, 0.0, 0), 0.01);
     t.velocity = Vec3(0, 1.8, 0);
-    ToolBoundary tb;
-    const RigidTool tools[] = {t};
-    tb.tools = tools;
-    rope->advance(kTick, rope->substeps(), {}, true, nullptr, &tb);
+    const ToolBoundary tb = tick_with(*rope, t).boundary;
     const auto& x = rope->state().x;
     EXPECT_GT(x[1].y(), 0.005) << "the link did not catch the tool";
     // The link keeps the tool's grown radius from its centre, within the last substep's
@@ -207,10 +207,7 @@ TEST(ToolInSubsteps, AToolBetweenTheParticlesMeetsTheLinkOrTheFace) {
     t.velocity = Vec3(0, 1.8, 0);
     const std::vector<double> w(cloth->inverse_masses().begin(), cloth->inverse_masses().end());
     const Vec3 before = momentum(cloth->state(), w);
-    ToolBoundary tb;
-    const RigidTool tools[] = {t};
-    tb.tools = tools;
-    cloth->advance(kTick, cloth->substeps(), {}, true, nullptr, &tb);
+    const ToolBoundary tb = tick_with(*cloth, t).boundary;
     const Vec3 gained = momentum(cloth->state(), w) - before;
     EXPECT_GT(gained.y(), 0.0) << "the face did not catch the tool";
     EXPECT_NEAR((gained - tb.impulse[0]).norm(), 0.0, 1e-12 * gained.norm());
@@ -238,11 +235,7 @@ TEST(ToolInSubsteps, ResultsDoNotDependOnTheThreadCount) {
     std::vector<Vec3> impulses;
     for (int k = 0; k < 6; ++k) {
       t.position += t.velocity / 60;
-      ToolBoundary tb;
-      const RigidTool tools[] = {t};
-      tb.tools = tools;
-      cloth->advance(kTick, cloth->substeps(), {}, true, nullptr, &tb);
-      impulses.push_back(tb.impulse[0]);
+      impulses.push_back(tick_with(*cloth, t).boundary.impulse[0]);
     }
     return std::pair(cloth->state(), impulses);
   };
@@ -264,11 +257,7 @@ TEST(ToolInSubsteps, ResultsDoNotDependOnTheThreadCount) {
     std::vector<Vec3> impulses;
     for (int k = 0; k < 6; ++k) {
       t.position += t.velocity / 60;
-      ToolBoundary tb;
-      const RigidTool tools[] = {t};
-      tb.tools = tools;
-      water.advance(kTick, fs.substeps, {}, true, nullptr, &tb);
-      impulses.push_back(tb.impulse[0]);
+      impulses.push_back(tick_with(water, t).boundary.impulse[0]);
     }
     return std::pair(water.state(), impulses);
   };
