@@ -5,6 +5,10 @@
 // top and stepped kWarmSteps steps (lying on the sphere, its edges still swinging). Arguments:
 // substeps, threads, self-collision (0/1). Counters: particles, constraints, self_contacts,
 // s_per_particle_substep.
+// BM_ClothDrapeStepTool: the same step (16 substeps, 1 thread, self-collision) with a haptic tool
+// met inside the substeps (ToolBoundary): argument "tool" 0 none, 1 a 2 cm sphere 5 m away, 2 the
+// same sphere pressing into the drape's top while moving along x at 0.3 m/s. Counter:
+// tool_contacts (particles it pushed in the last substep).
 // BM_ClothOnBodyContact: one contact pass of a cloth hung over beam3 against the tet body
 // (couple_particles_to_body, as a scene runs it once per tick), its particles alone or with its
 // edges. Arguments: grid resolution, edges (0/1). Counters: particles, segments, contacts.
@@ -39,30 +43,43 @@ namespace {
 
 constexpr int kWarmSteps = 30;
 
-void BM_ClothDrapeStep(benchmark::State& state) {
+// The drape's step with `substeps`, `threads`, self-collision `self`; tool 0 none, 1 far away,
+// 2 pressing into the drape's top.
+void drape_step(benchmark::State& state, int substeps, int threads, bool self, int tool) {
   ClothGridSpec g;  // 64 x 64, 1 m x 1 m
   g.origin = Vec3(-0.5, 0.35, -0.5);
   ConstraintBodySettings s;
-  s.substeps = int(state.range(0));
-  s.threads = int(state.range(1));
-  s.self_collision = state.range(2) != 0;
+  s.substeps = substeps;
+  s.threads = threads;
+  s.self_collision = self;
   s.stretch_compliance = 1e-9;
   auto cloth = ConstraintBody::cloth_grid(g, s);
   const std::vector<Collider> colliders = {Collider::sphere(Vec3::Zero(), 0.3)};
   for (int k = 0; k < kWarmSteps; ++k) cloth->step(1.0 / 60, colliders);
   const ParticleState warm = cloth->state();
+  RigidTool sphere = RigidTool::sphere(tool == 1 ? Vec3(0, 5, 0) : Vec3(0, 0.32, 0), 0.02);
+  sphere.velocity = Vec3(0.3, 0, 0);
+  const RigidTool tools[] = {sphere};
+  ToolBoundary tb;
+  tb.tools = tools;
   for (auto _ : state) {
     state.PauseTiming();
     cloth->set_state(warm);
     state.ResumeTiming();
-    cloth->step(1.0 / 60, colliders);
+    cloth->advance(1.0 / 60, substeps, colliders, true, nullptr, tool > 0 ? &tb : nullptr);
   }
+  if (tool > 0) state.counters["tool_contacts"] = double(tb.pushed);
   state.counters["particles"] = double(cloth->size());
   state.counters["constraints"] = double(cloth->constraint_count());
   state.counters["self_contacts"] = double(cloth->self_contacts());
   state.counters["s_per_particle_substep"] = benchmark::Counter(
       double(cloth->size()) * s.substeps, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
 }
+
+void BM_ClothDrapeStep(benchmark::State& state) {
+  drape_step(state, int(state.range(0)), int(state.range(1)), state.range(2) != 0, 0);
+}
+void BM_ClothDrapeStepTool(benchmark::State& state) { drape_step(state, 16, 1, true, int(state.range(0))); }
 
 // A grid x grid cloth (0.12 m square, 2 mm thick) 3.5 mm over beam3's top, beside the beam up to
 // 2 cm lower, falling at 0.3 m/s: its edges cross the beam's top edges.
@@ -295,5 +312,6 @@ BENCHMARK(BM_ClothDrapeStep)
     ->Args({16, 1, 0})
     ->Args({32, 2, 1})
     ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ClothDrapeStepTool)->ArgName("tool")->Arg(0)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
 
 BENCHMARK_MAIN();

@@ -56,6 +56,15 @@ Met tick_with(ParticleBody& body, const RigidTool& tool) {
   return m;
 }
 
+// A square cloth of n x n particles, `size` a side, lying in the plane y = origin.y.
+std::unique_ptr<ConstraintBody> square_cloth(int n, double size, const Vec3& origin, const ConstraintBodySettings& s) {
+  ClothGridSpec g;
+  g.nx = g.ny = n;
+  g.size_x = g.size_y = size;
+  g.origin = origin;
+  return ConstraintBody::cloth_grid(g, s);
+}
+
 Vec3 momentum(const ParticleState& s, std::span<const double> w) {
   Vec3 p = Vec3::Zero();
   for (size_t i = 0; i < s.v.size(); ++i)
@@ -74,8 +83,7 @@ TEST(ToolInSubsteps, AFastToolCatchesTheRopeItSweepsThrough) {
   for (const Vec3& p : rope->state().x) ahead = std::max(ahead, p.x());
   const double reach = tool.radius + rope->contact_radius();
   EXPECT_GT(ahead, tool.position.x() + 0.5 * reach) << "the rope's middle stayed behind the tool";
-  EXPECT_EQ(r.tool_contacts, tb.pushed);
-  EXPECT_GT(tb.pushed, 0u);
+  EXPECT_GT(r.tool_contacts, 0u);
   ASSERT_EQ(tb.impulse.size(), 1u);
   EXPECT_GT(tb.impulse[0].x(), 0.0) << "the rope gained momentum along the tool's motion";
   for (const Vec3& p : rope->state().x)
@@ -135,13 +143,9 @@ TEST(ToolInSubsteps, FrictionCarriesAClothAlongWithItsTool) {
   // capsule's normals there have no x part). With the tool's friction it rides on it; without,
   // the capsule slides along under it.
   auto ride = [](double mu) {
-    ClothGridSpec g;
-    g.nx = g.ny = 8;
-    g.size_x = g.size_y = 0.12;
-    g.origin = Vec3(-0.06, 0.035, -0.06);
     ConstraintBodySettings s;
     s.self_collision = false;
-    auto cloth = ConstraintBody::cloth_grid(g, s);
+    auto cloth = square_cloth(8, 0.12, Vec3(-0.06, 0.035, -0.06), s);
     RigidTool tool = RigidTool::capsule(Vec3(0, 0, 0), Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, Vec3::UnitY())),
                                         0.03, 0.3);
     tool.static_friction = tool.dynamic_friction = mu;
@@ -186,22 +190,15 @@ TEST(ToolInSubsteps, AToolBetweenTheParticlesMeetsTheLinkOrTheFace) {
     EXPECT_GT((a + u * (b - a) - t.position).norm(), t.radius + s.thickness - 1e-3);
     EXPECT_GT(tb.impulse[0].y(), 0.0);
     // More than the free particle's momentum: the pinned end's share is felt too.
-    const double gained = x.size() == 3 ? rope->state().v[1].y() * rope->masses()[1] : 0.0;
-    EXPECT_GT(tb.impulse[0].y(), gained);
+    EXPECT_GT(tb.impulse[0].y(), rope->state().v[1].y() * rope->masses()[1]);
   }
   // A 20 cm cloth of two triangles, nothing pinned, no gravity, and the sphere rising into the
   // middle of one triangle: the face catches it, and the cloth gains exactly the tool's impulse.
   {
-    ClothGridSpec g;
-    g.nx = g.ny = 2;
-    g.size_x = g.size_y = 0.2;
-    g.origin = Vec3(0, 0, 0);
-    g.u = Vec3(1, 0, 0);
-    g.v = Vec3(0, 0, 1);
     ConstraintBodySettings s;
     s.gravity = Vec3::Zero();
     s.self_collision = false;
-    auto cloth = ConstraintBody::cloth_grid(g, s);
+    auto cloth = square_cloth(2, 0.2, Vec3(0, 0, 0), s);
     ASSERT_EQ(cloth->size(), 4u);
     RigidTool t = RigidTool::sphere(Vec3(0.07, 0.0, 0.07), 0.01);
     t.velocity = Vec3(0, 1.8, 0);
@@ -218,17 +215,14 @@ TEST(ToolInSubsteps, AToolBetweenTheParticlesMeetsTheLinkOrTheFace) {
 }
 
 TEST(ToolInSubsteps, ResultsDoNotDependOnTheThreadCount) {
-  // A 64 x 64 cloth of 1 m falling onto a capsule that sweeps under it (its particles and its
-  // faces meet the tool), and a fluid block a sphere moves through, each with 1 and 3 threads:
-  // the same positions, velocities and tool impulses to the last bit.
+  // A 64 x 64 cloth of 4 m (6 cm triangles) falling onto a thin capsule that sweeps under it
+  // (its particles and, between them, its faces meet the tool), and a fluid block a sphere moves
+  // through, each with 1 and 3 threads: the same positions, velocities and tool impulses to the
+  // last bit.
   auto cloth_run = [](int threads) {
-    ClothGridSpec g;
-    g.nx = g.ny = 64;
-    g.size_x = g.size_y = 1.0;
-    g.origin = Vec3(-0.5, 0.02, -0.5);
     ConstraintBodySettings s;
     s.threads = threads;
-    auto cloth = ConstraintBody::cloth_grid(g, s);
+    auto cloth = square_cloth(64, 4.0, Vec3(-2.0, 0.02, -2.0), s);
     RigidTool t = RigidTool::capsule(Vec3(-0.1, 0, 0), Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Vec3::UnitY())),
                                      0.005, 0.3);
     t.velocity = Vec3(0.6, 0, 0);

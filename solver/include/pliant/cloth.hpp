@@ -165,7 +165,7 @@ class ConstraintBody : public ParticleBody {
   struct SurfaceContacts;
   void meet_surface(SurfaceContacts& sc);
   size_t leave_surface(SurfaceContacts& sc, double h);
-  void meet_tools(detail::ToolMeeting& tm, std::span<const std::array<uint32_t, 3>> faces);
+  void meet_tools(detail::ToolMeeting& tm);
   template <class F>
   void for_colours(const std::vector<size_t>& starts, F&& f);
 
@@ -177,6 +177,7 @@ class ConstraintBody : public ParticleBody {
   std::vector<std::array<uint32_t, 3>> triangles_;
   std::vector<Distance> dist_;
   std::vector<std::array<uint32_t, 2>> segments_;
+  std::vector<std::array<uint32_t, 3>> tool_faces_;  // the triangles, or a rope's links as (a, b, b)
   std::vector<Bend> bend_;
   std::vector<RopeBend> rope_bend_;
   // colour k of a group is [starts[k], starts[k+1])

@@ -94,7 +94,9 @@ struct SurfaceBoundary {
 // substep; so are a cloth's triangles and a rope's links where a tool reaches between their
 // particles. What the particles gained comes back per tool, summed over the call: momentum (N s)
 // and angular momentum about the tool's centre where it was at each push (N m s), a pinned
-// particle's share of a triangle's or a link's push included; the tool takes minus them.
+// particle's share of a triangle's or a link's push included; the tool takes minus them. A cloth
+// or a rope none of whose particles a tool can reach over the call (by their speed and gravity)
+// skips the tools for that call.
 // `pushed`: the particles a tool pushed in the call's last substep.
 struct ToolBoundary {
   std::span<const RigidTool> tools;

@@ -171,6 +171,10 @@ void ConstraintBody::finish(const ConstraintBodySettings& settings) {
       segments_.push_back({d.i, d.j});
       shortest_edge_ = std::min(shortest_edge_, d.rest);
     }
+  // What the tools meet between the particles: the triangles, else a rope's links as (a, b, b).
+  tool_faces_ = triangles_;
+  if (tool_faces_.empty())
+    for (const auto& s : segments_) tool_faces_.push_back({s[0], s[1], s[1]});
   bend_colours_ = colour(bend_, n, [](const Bend& b) { return std::array<uint32_t, 4>{b.a, b.b, b.c, b.d}; });
   for (Bend& b : bend_) {
     b.rest_cos = std::cos(b.rest_angle);
@@ -718,8 +722,8 @@ size_t ConstraintBody::leave_surface(SurfaceContacts& sc, double h) {
 
 // Every free particle out of the scene's tools where they are in the substep, each push with its
 // tool's friction against the tool's motion, as against the colliders; then the faces between
-// them (`faces`: the triangles, or a rope's links) that a tool reaches between their corners.
-void ConstraintBody::meet_tools(detail::ToolMeeting& tm, std::span<const std::array<uint32_t, 3>> faces) {
+// them (the triangles, or a rope's links) that a tool reaches between their corners.
+void ConstraintBody::meet_tools(detail::ToolMeeting& tm) {
   tm.begin_pass();
   // The particles' box, so that the faces are looked at only when a tool reaches it.
   const int chunks = pool_ ? pool_->size() : 1;
@@ -744,7 +748,7 @@ void ConstraintBody::meet_tools(detail::ToolMeeting& tm, std::span<const std::ar
     lo = lo.cwiseMin(l);
     hi = hi.cwiseMax(h);
   }
-  if (tm.reaches(lo, hi)) tm.push_faces(faces, p_, x_prev_, w_);
+  if (tm.reaches(lo, hi)) tm.push_faces(tool_faces_, p_, x_prev_, w_);
 }
 
 // The soft body's surface (`surface`) and the scene's tools (`tools`) are met by the particles
@@ -781,15 +785,13 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
     const double reach = dt * (fastest + settings_.gravity.norm() * dt) + surface->radius;
     on_surface.emplace(*surface, state_.x, std::isfinite(reach) ? reach : surface->radius);
   }
+  // The tools, unless none can reach the particles over the call (the boundary's sums stay zero).
   std::optional<detail::ToolMeeting> on_tools;
-  std::vector<std::array<uint32_t, 3>> links;  // a rope's links as faces (a, b, b), for the tools
-  std::span<const std::array<uint32_t, 3>> tool_faces = triangles_;
   if (tools && !tools->tools.empty()) {
     on_tools.emplace(*tools, settings_.thickness, dt, ns);
-    if (triangles_.empty()) {
-      for (const auto& s : segments_) links.push_back({s[0], s[1], s[1]});
-      tool_faces = links;
-    }
+    double fastest = 0.0;
+    for (const Vec3& v : state_.v) fastest = std::max(fastest, v.norm());
+    if (!on_tools->within_reach(state_.x, fastest, settings_.gravity.norm())) on_tools.reset();
   }
   for (int s = 0; s < ns; ++s) {
     for (size_t i = 0; i < n; ++i) {
@@ -818,14 +820,14 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
       if (self) solve_self_contacts();
       contacts = solve_colliders(colliders);
       if (on_surface) meet_surface(*on_surface);
-      if (on_tools) meet_tools(*on_tools, tool_faces);
+      if (on_tools) meet_tools(*on_tools);
       if (self && !self_contacts_.empty() && (!colliders.empty() || on_surface || on_tools)) {
         // a layer pressed onto a collider by another: once more, so that neither the
         // layers nor the collider end the substep violated by the other's last correction
         solve_self_contacts();
         contacts = solve_colliders(colliders);
         if (on_surface) meet_surface(*on_surface);
-        if (on_tools) meet_tools(*on_tools, tool_faces);
+        if (on_tools) meet_tools(*on_tools);
       }
     }
     if (on_surface) report.soft_body_contacts = leave_surface(*on_surface, h);

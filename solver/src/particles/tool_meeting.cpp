@@ -22,9 +22,29 @@ ToolMeeting::ToolMeeting(ToolBoundary& boundary, double radius, double dt, int s
   tools_.assign(boundary.tools.begin(), boundary.tools.end());
   for (RigidTool& t : tools_) t.radius += radius_;
   near_ = tools_;
+  for (RigidTool& t : near_) t.radius += radius_;
   boundary_.impulse.assign(tools_.size(), Vec3::Zero());
   boundary_.angular_impulse.assign(tools_.size(), Vec3::Zero());
   boundary_.pushed = 0;
+}
+
+bool ToolMeeting::within_reach(std::span<const Vec3> x, double speed, double gravity) const {
+  const double reach = dt_ * (speed + gravity * dt_);
+  if (x.empty() || !std::isfinite(reach)) return !x.empty();
+  Vec3 lo = x[0], hi = x[0];
+  for (const Vec3& p : x) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  lo.array() -= reach;
+  hi.array() += reach;
+  for (const RigidTool& t : near_) {
+    const double r = t.radius + (t.shape == RigidTool::Shape::Capsule ? std::abs(t.half_length) : 0.0);
+    const Vec3 start = t.position - dt_ * t.velocity;
+    const Vec3 tlo = t.position.cwiseMin(start).array() - r, thi = t.position.cwiseMax(start).array() + r;
+    if (!((tlo.array() > hi.array()).any() || (thi.array() < lo.array()).any())) return true;
+  }
+  return false;
 }
 
 void ToolMeeting::begin_substep(int s, size_t particles) {
@@ -40,9 +60,13 @@ void ToolMeeting::begin_substep(int s, size_t particles) {
     lo_ = lo_.cwiseMin(t.position - Vec3::Constant(reach));
     hi_ = hi_.cwiseMax(t.position + Vec3::Constant(reach));
   }
-  moved_.assign(particles * tools_.size(), Vec3::Zero());
-  touched_.assign(particles, 0);
-  near_in_.assign(particles, 0);
+  // give() leaves the moves and marks zero, so only a new particle count clears them here (near_in_
+  // holds pass numbers, which never repeat within the call).
+  if (touched_.size() != particles) {
+    moved_.assign(particles * tools_.size(), Vec3::Zero());
+    touched_.assign(particles, 0);
+    near_in_.resize(particles, 0);
+  }
   pinned_impulse_.assign(tools_.size(), Vec3::Zero());
   pinned_angular_.assign(tools_.size(), Vec3::Zero());
 }

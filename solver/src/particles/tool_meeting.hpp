@@ -20,7 +20,12 @@ class ToolMeeting {
   // zeroes the boundary's sums. std::invalid_argument for a radius below 0 or a tool that is not finite.
   ToolMeeting(ToolBoundary& boundary, double radius, double dt, int substeps);
 
-  // The tools where they are at the end of substep s; clears the records of `particles` particles.
+  // Whether a tool can reach a particle over the call: the box of the particles at `x` grown by
+  // how far `speed` (m/s, their fastest) and `gravity` (m/s^2) take them in dt, against the box
+  // the grown tools sweep. A particle that gets farther does not meet them (as with the soft
+  // body's surface).
+  bool within_reach(std::span<const Vec3> x, double speed, double gravity) const;
+  // The tools where they are at the end of substep s, for `particles` particles.
   void begin_substep(int s, size_t particles);
   // Starts a pass: the particles push() meets, then the faces between them (push_faces).
   void begin_pass() { ++pass_; }
@@ -60,20 +65,23 @@ class ToolMeeting {
   // After the substep: the momentum each particle gained from each tool (its mass x the tool's
   // moves / h) and its angular momentum about the tool's centre, into the boundary's sums, with
   // the pinned corners' shares of the faces' pushes (their pins take them: the tool still feels
-  // the whole push). `mass(i)`: particle i's mass. Returns the particles a tool pushed.
+  // the whole push); clears the particles' records for the next substep. `mass(i)`: particle i's
+  // mass. Returns the particles a tool pushed.
   template <class Mass>
   size_t give(std::span<const Vec3> p, const Mass& mass) {
     size_t pushed = 0;
     const size_t nt = tools_.size();
     for (size_t i = 0; i < touched_.size(); ++i) {
       if (!touched_[i]) continue;
+      touched_[i] = 0;
       ++pushed;
       for (size_t k = 0; k < nt; ++k) {
-        const Vec3& d = moved_[i * nt + k];
+        Vec3& d = moved_[i * nt + k];
         if (d.isZero()) continue;
         const Vec3 impulse = mass(i) * d / h_;
         boundary_.impulse[k] += impulse;
         boundary_.angular_impulse[k] += (p[i] - tools_[k].position).cross(impulse);
+        d.setZero();
       }
     }
     for (size_t k = 0; k < nt; ++k) {
