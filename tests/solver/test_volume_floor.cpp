@@ -4,6 +4,7 @@
 // under the floor, so several passes), it gives the positions of the plain serial loop over all
 // tets, bit for bit, with one thread and with two, for every pass limit.
 #include "kernels/projection.hpp"
+#include "kernels/strain_kernel.hpp"
 #include "step/thread_pool.hpp"
 #include "step/volume_floor.hpp"
 
@@ -13,6 +14,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <random>
 
 using namespace pliant;
@@ -72,4 +74,44 @@ TEST(VolumeFloor, GivesThePlainSerialLoopsPositionsBitForBit) {
   std::vector<Vec3> rest = m.rest_positions;
   EXPECT_EQ(stage.enforce(m, rest, floor, 20, pool), 0);
   EXPECT_EQ(rest, m.rest_positions);
+}
+
+// The floor's passes skip a pack when floor_may_act says no lane can be below the trigger, from
+// det D_s det B and a rounding bound instead of the pack's own det F. It must never skip a pack
+// the floor would correct: here the trigger is put one ulp above each lane's own det F (the
+// floor acts on it), on bodies crushed at random into slivers and inverted tets and scaled far
+// from unit size.
+TEST(VolumeFloor, ThePreCheckNeverSkipsAPackTheFloorWouldCorrect) {
+  const TetMesh mesh = *builtin_mesh("beam3");
+  const auto model = build_model(mesh, Material{1e6, 0.4, 1000}, clamp_below_x(default_clamp_x(mesh.vertices)));
+  const BodyModel& m = *model;
+  const detail::PackedModel& packed = detail::packed(m);
+  ASSERT_EQ(packed.floor_checks.size(), packed.packs.size());
+  std::mt19937 rng(11);
+  int acting = 0;
+  for (double spread : {0.0, 0.05, 0.3, 1.0}) {
+    for (double scale : {1.0, 1e-3, 1e3}) {
+      std::normal_distribution<double> noise(0.0, spread * m.mean_edge);
+      std::vector<Vec3> x = m.rest_positions;
+      for (Vec3& q : x) q = scale * (q + Vec3(noise(rng), noise(rng), noise(rng))) + Vec3(0.3, -2.0, 7.0);
+      for (size_t i = 0; i < packed.packs.size(); ++i) {
+        const detail::TetPack& p = packed.packs[i];
+        const detail::v4d J = detail::volume_ratio_lanes(p, x);  // the floor's own det F
+        for (int l = 0; l < p.lanes; ++l) {
+          const double above = std::nextafter(J[l], INFINITY);
+          ASSERT_TRUE(detail::floor_may_act(packed.floor_checks[i], x, above))
+              << "pack " << i << " lane " << l << " det F " << J[l] << " spread " << spread << " scale " << scale;
+          ++acting;
+        }
+      }
+      // With the default floor most packs of a mildly deformed body are skipped (scaling the
+      // positions scales det F by scale^3).
+      if (spread <= 0.05 && scale == 1.0) {
+        size_t skipped = 0;
+        for (const detail::FloorCheck& c : packed.floor_checks) skipped += !detail::floor_may_act(c, x, 0.2);
+        EXPECT_GT(skipped, packed.packs.size() * 9 / 10) << "spread " << spread << " scale " << scale;
+      }
+    }
+  }
+  EXPECT_GT(acting, 1000);
 }

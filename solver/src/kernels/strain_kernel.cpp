@@ -119,6 +119,22 @@ void append_pack(BodyModel& m, PackedModel& pm, const int32_t* tets, int n) {
     fill_lane(p, l, t, tr, w);
   }
   pm.packs.push_back(p);
+  FloorCheck c{};
+  for (int l = 0; l < 4; ++l) {
+    double b[3][3], row_max = 0;
+    for (int k = 0; k < 3; ++k) {
+      double row = 0;
+      for (int i = 0; i < 3; ++i) {
+        b[k][i] = p.B[3 * k + i][l];
+        row += std::abs(b[k][i]);
+      }
+      row_max = std::max(row_max, row);
+    }
+    c.det_b[l] = det3(b);
+    c.b_norm3[l] = row_max * row_max * row_max;
+    for (int k = 0; k < 4; ++k) c.v[k][l] = p.v[k][l];
+  }
+  pm.floor_checks.push_back(c);
 }
 
 // One colour as packs of 4 (the last one short).
@@ -725,6 +741,36 @@ int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor, 
     }
   }
   return corrected;
+}
+
+bool floor_may_act(const FloorCheck& c, const std::vector<Vec3>& x, double trigger) {
+  v4d px[4][3];
+  for (int k = 0; k < 4; ++k)
+    for (int l = 0; l < 4; ++l) {
+      const Vec3& q = x[size_t(c.v[k][l])];
+      px[k][0][l] = q[0];
+      px[k][1][l] = q[1];
+      px[k][2][l] = q[2];
+    }
+  v4d d[3][3];  // d[k] = x_k - x_3, as deformation() takes them
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 3; ++i) d[k][i] = px[k][i] - px[3][i];
+  // det D_s (columns d[k]) = det of the rows d[k]; ||D_s|| as max row sum of |D_s|.
+  const v4d det_d = det3(d);
+  v4d norm_d = splat<v4d>(0.0);
+  for (int i = 0; i < 3; ++i) {
+    v4d row = splat<v4d>(0.0);
+    for (int k = 0; k < 3; ++k) row += d[k][i] < 0 ? -d[k][i] : d[k][i];
+    norm_d = norm_d > row ? norm_d : row;
+  }
+  // Both this product and det3(D_s B) are within a few tens of ulps of ||D_s||^3 ||B||^3 of the
+  // exact det F (every term of either is a product of three entries bounded so); 1e-12 is
+  // thousands of ulps.
+  const v4d bound = 1e-12 * norm_d * norm_d * norm_d * c.b_norm3;
+  const v4d gap = det_d * c.det_b - (trigger + bound);
+  for (int l = 0; l < 4; ++l)
+    if (!(gap[l] >= 0)) return true;  // below, or not finite
+  return false;
 }
 
 template <class T>

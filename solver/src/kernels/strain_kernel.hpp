@@ -75,10 +75,20 @@ struct SolvePhase {
   bool split = false;
 };
 
+// What the inversion floor's passes read of a pack to tell whether it may act (a sixth of the
+// pack's bytes): det F is det D_s det B, and a bound on how far that product and the floor's
+// own det F (from F = D_s B) can differ by rounding; padding lanes repeat a real one.
+struct alignas(32) FloorCheck {
+  v4d det_b;    // det B, B = D_m^-1
+  v4d b_norm3;  // ||B||^3, max row sum of |B|
+  int32_t v[4][4];  // v[corner][lane], as the pack's
+};
+
 // The model's packs, compiled with it (compile_solve_order). Running the phases in order gives
 // the same result as projecting every pack in storage order on one thread.
 struct PackedModel {
   std::vector<TetPack> packs;  // the four lanes of a pack share no vertex
+  std::vector<FloorCheck> floor_checks;  // one per pack
   std::vector<SolvePhase> phases;
   int blocks = 1;  // slabs of the block order (1: colour by colour)
   // BodyModel::vertex_tet_entry addressed by slot (4 x slot + corner): the Jacobi gather.
@@ -145,6 +155,11 @@ T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x);
 template <class T>
 int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor, double trigger);
 
+// False only when no lane of the pack can be below `trigger` at x: then volume_floor_pack with
+// that trigger would act on none (its det F and the one here differ by less than the bound
+// taken; tested), so a pass may skip the pack without reading its rest data.
+bool floor_may_act(const FloorCheck& c, const std::vector<Vec3>& x, double trigger);
+
 // Sum over the real lanes of ||C + alpha~ lambda||^2 (lambda in slots).
 template <class T>
 double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
@@ -170,6 +185,10 @@ inline void prefetch_pack(const TetPack& p) { prefetch_bytes<0>(&p, sizeof p); }
 inline void prefetch_corners(const TetPack& p, const std::vector<Vec3>& x) {
   for (int k = 0; k < 4; ++k)
     for (int l = 0; l < 4; ++l) __builtin_prefetch(x[size_t(p.v[k][l])].data());
+}
+inline void prefetch_corners(const FloorCheck& c, const std::vector<Vec3>& x) {
+  for (int k = 0; k < 4; ++k)
+    for (int l = 0; l < 4; ++l) __builtin_prefetch(x[size_t(c.v[k][l])].data());
 }
 inline void prefetch_slots(const TetPack& p, const std::vector<Vec6>& slots) {
   prefetch_bytes<1>(slots[size_t(p.slot)].data(), 4 * sizeof(Vec6));

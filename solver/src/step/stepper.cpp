@@ -201,7 +201,8 @@ struct Stepper::Impl {
   }
 
   // One pass of the inversion floor in the solve order, four tets at a time. The first pass of
-  // a substep (all = true) visits every pack; a later one only the packs with a corner that a
+  // a substep (all = true) visits every pack (those a pre-check shows above the floor cost a
+  // sixth of their data); a later one only the packs with a corner that a
   // floor correction moved in the previous pass or earlier in this one (a tet's det F changes
   // only when a corner moves). When few vertices moved it queues their packs by colour range on
   // this thread (volume_pass_from_moved); otherwise it checks every pack's corners, phase by
@@ -224,13 +225,17 @@ struct Stepper::Impl {
     floor_acted_chunks.resize(tp.size());
     for (auto& v : floor_moved_chunks) v.clear();
     for (auto& v : floor_acted_chunks) v.clear();
+    const double trigger = floor * (1 - kFloorSlack);
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
-        const detail::TetPack& p = packed.packs[i];
-        if (all) detail::prefetch_ahead(packed, i, e, x);  // (a later pass skips most packs)
-        if (!all && !pack_moved(p, serial - 1)) continue;
-        const int h = correct_pack(p, x, floor, serial, floor_moved_chunks[chunk]);
+        const detail::FloorCheck& c = packed.floor_checks[i];
+        if (all && i + 2 < e) detail::prefetch_corners(packed.floor_checks[i + 2], x);  // (a later pass skips most)
+        if (!all && !pack_moved(c, serial - 1)) continue;
+        // In the first pass most packs are far above the floor: told so from a sixth of their
+        // data. (A later pass visits the packs around corrections, which mostly act.)
+        if (all && !detail::floor_may_act(c, x, trigger)) continue;
+        const int h = correct_pack(packed.packs[i], x, floor, serial, floor_moved_chunks[chunk]);
         if (h) floor_acted_chunks[chunk].push_back(int32_t(i));
         hits += h;
       }
@@ -333,10 +338,10 @@ struct Stepper::Impl {
     return hits;
   }
 
-  bool pack_moved(const detail::TetPack& p, uint32_t since) const {
+  bool pack_moved(const detail::FloorCheck& c, uint32_t since) const {
     for (int k = 0; k < 4; ++k)
-      for (int l = 0; l < p.lanes; ++l)
-        if (floor_stamp[p.v[k][l]] >= since) return true;
+      for (int l = 0; l < 4; ++l)  // padding lanes repeat a real one
+        if (floor_stamp[c.v[k][l]] >= since) return true;
     return false;
   }
 
