@@ -791,7 +791,10 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
     on_tools.emplace(*tools, settings_.thickness, dt, ns);
     double fastest = 0.0;
     for (const Vec3& v : state_.v) fastest = std::max(fastest, v.norm());
-    if (!on_tools->within_reach(state_.x, fastest, settings_.gravity.norm())) on_tools.reset();
+    if (!on_tools->within_reach(state_.x, fastest, settings_.gravity.norm()))
+      on_tools.reset();
+    else  // of the faces, those a tool can reach
+      on_tools->select_faces(tool_faces_, state_.x, fastest, settings_.gravity.norm());
   }
   for (int s = 0; s < ns; ++s) {
     for (size_t i = 0; i < n; ++i) {

@@ -28,14 +28,7 @@ ToolMeeting::ToolMeeting(ToolBoundary& boundary, double radius, double dt, int s
   boundary_.pushed = 0;
 }
 
-bool ToolMeeting::within_reach(std::span<const Vec3> x, double speed, double gravity) const {
-  const double reach = dt_ * (speed + gravity * dt_);
-  if (x.empty() || !std::isfinite(reach)) return !x.empty();
-  Vec3 lo = x[0], hi = x[0];
-  for (const Vec3& p : x) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-  }
+bool ToolMeeting::swept_tools_meet(Vec3 lo, Vec3 hi, double reach) const {
   lo.array() -= reach;
   hi.array() += reach;
   for (const RigidTool& t : near_) {
@@ -45,6 +38,30 @@ bool ToolMeeting::within_reach(std::span<const Vec3> x, double speed, double gra
     if (!((tlo.array() > hi.array()).any() || (thi.array() < lo.array()).any())) return true;
   }
   return false;
+}
+
+bool ToolMeeting::within_reach(std::span<const Vec3> x, double speed, double gravity) const {
+  const double reach = dt_ * (speed + gravity * dt_);
+  if (x.empty() || !std::isfinite(reach)) return !x.empty();
+  Vec3 lo = x[0], hi = x[0];
+  for (const Vec3& p : x) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  return swept_tools_meet(lo, hi, reach);
+}
+
+void ToolMeeting::select_faces(std::span<const std::array<uint32_t, 3>> faces, std::span<const Vec3> x, double speed,
+                               double gravity) {
+  faces_near_.clear();
+  faces_selected_ = true;
+  const double reach = dt_ * (speed + gravity * dt_);
+  for (size_t f = 0; f < faces.size(); ++f) {
+    const auto& face = faces[f];
+    const Vec3 lo = x[face[0]].cwiseMin(x[face[1]]).cwiseMin(x[face[2]]);
+    const Vec3 hi = x[face[0]].cwiseMax(x[face[1]]).cwiseMax(x[face[2]]);
+    if (!std::isfinite(reach) || swept_tools_meet(lo, hi, reach)) faces_near_.push_back(uint32_t(f));
+  }
 }
 
 void ToolMeeting::begin_substep(int s, size_t particles) {
@@ -96,7 +113,9 @@ size_t ToolMeeting::push_faces(std::span<const std::array<uint32_t, 3>> faces, s
   constexpr double kCorner = 1.0 - 1e-9;  // a weight this close to 1: the corner's own contact
   const size_t nt = tools_.size();
   size_t pushed = 0;
-  for (const auto& face : faces) {
+  const size_t count = faces_selected_ ? faces_near_.size() : faces.size();
+  for (size_t j = 0; j < count; ++j) {
+    const auto& face = faces[faces_selected_ ? faces_near_[j] : j];
     // A rope's link comes as (a, b, b): one corner b.
     const size_t corners = face[2] == face[1] ? 2 : 3;
     bool skip = false;

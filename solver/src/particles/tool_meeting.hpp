@@ -25,6 +25,11 @@ class ToolMeeting {
   // the grown tools sweep. A particle that gets farther does not meet them (as with the soft
   // body's surface).
   bool within_reach(std::span<const Vec3> x, double speed, double gravity) const;
+  // The faces (as push_faces takes them) that a tool can reach over the call by the same test
+  // per face, from the particles at `x`: push_faces looks at these only. Without this call it
+  // looks at all.
+  void select_faces(std::span<const std::array<uint32_t, 3>> faces, std::span<const Vec3> x, double speed,
+                    double gravity);
   // The tools where they are at the end of substep s, for `particles` particles.
   void begin_substep(int s, size_t particles);
   // Starts a pass: the particles push() meets, then the faces between them (push_faces).
@@ -94,6 +99,8 @@ class ToolMeeting {
 
  private:
   Push push_near(size_t i, Vec3& p);
+  // Whether a tool's grown swept box over the call meets the box (lo, hi) grown by `reach`.
+  bool swept_tools_meet(Vec3 lo, Vec3 hi, double reach) const;
 
   ToolBoundary& boundary_;
   Vec3 lo_, hi_;  // a box around every tool at the substep's pose, grown twice by the radius
@@ -107,6 +114,8 @@ class ToolMeeting {
   std::vector<uint32_t> near_in_;
   std::vector<Vec3> pinned_impulse_, pinned_angular_;  // per tool: the pins' shares in the substep
   uint32_t pass_ = 0;
+  std::vector<uint32_t> faces_near_;  // select_faces's choice, in the faces' order
+  bool faces_selected_ = false;
 };
 
 }  // namespace pliant::detail
