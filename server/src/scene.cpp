@@ -62,9 +62,11 @@ struct Scene::TickState {
     RigidTool tool;
     uint64_t seq = 0;
     int64_t client_ns = 0;
-    // The position the previous tick used: the tick sweeps the tool from there (velocity =
-    // displacement / dt), so friction sees its motion and a fast move is no teleport.
+    // The pose the previous tick used: the tick sweeps and turns the tool from there (velocity =
+    // displacement / dt, angular velocity = rotation / dt), so friction sees its motion and a
+    // fast move is no teleport.
     Vec3 used_position = Vec3::Zero();
+    Eigen::Quaterniond used_orientation = Eigen::Quaterniond::Identity();
     bool used = false;
   };
   std::map<uint64_t, PosedTool> tools;
@@ -960,7 +962,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       if (!tools.empty()) {
         const double before_end = in_parts ? dt - (part + 1) * h : 0.0;
         posed.assign(tools.begin(), tools.end());
-        for (RigidTool& tool : posed) tool.position -= tool.velocity * before_end;
+        for (RigidTool& tool : posed) tool = tool.at(-before_end);
         on_tools.tools = posed;
       }
       const ParticleStepReport r = t.bodies[b]->advance(h, n, t.colliders, !in_parts || last_part,
@@ -1077,6 +1079,18 @@ void Scene::finish_bodies(const StepInputs& inputs, StepReport& report, std::str
   }
 }
 
+namespace {
+
+// The angular velocity (rad/s, world axes) that turns `from` into `to` in dt, the short way.
+Vec3 turn_rate(const Eigen::Quaterniond& from, const Eigen::Quaterniond& to, double dt) {
+  Eigen::Quaterniond q = to * from.conjugate();
+  if (q.w() < 0) q.coeffs() = -q.coeffs();
+  const Eigen::AngleAxisd turn(q.normalized());
+  return turn.axis() * (turn.angle() / dt);
+}
+
+}  // namespace
+
 void Scene::tick_once(bool scheduled, Clock::time_point due) {
   TickState& t = *ts_;
   const auto start = Clock::now();
@@ -1096,7 +1110,9 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
   for (auto& [id, pt] : t.tools) {
     RigidTool tool = pt.tool;
     tool.velocity = pt.used ? Vec3((tool.position - pt.used_position) / t.settings.dt) : Vec3::Zero();
+    tool.angular_velocity = pt.used ? turn_rate(pt.used_orientation, tool.orientation, t.settings.dt) : Vec3::Zero();
     pt.used_position = tool.position;
+    pt.used_orientation = tool.orientation;
     pt.used = true;
     inputs.tools.push_back(tool);
   }

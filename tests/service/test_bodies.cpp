@@ -9,6 +9,7 @@
 #include "pliant/test/segment_distance.hpp"
 #include "pliant/test/wait_until.hpp"
 
+#include "feedback_log.hpp"
 #include "in_process_server.hpp"
 
 #include <gtest/gtest.h>
@@ -229,45 +230,6 @@ TEST(Bodies, SceneCarriesItsBodiesWhichFallUnderGravityWhilePinsHold) {
   EXPECT_EQ(g.solver().bodies(0).substeps(), 8);  // the rope's spec
 }
 
-namespace {
-
-// A haptic stream and a thread that keeps every feedback it receives; closed (and the thread
-// joined) at the latest when it goes, so that a failed assertion does not leave the thread running.
-struct FeedbackLog {
-  explicit FeedbackLog(Client& c) : stream(c.haptic_stream()), reader([this] {
-    v1::ToolFeedback f;
-    while (stream->next(&f)) {
-      std::lock_guard lk(mu);
-      got.push_back(f);
-    }
-  }) {}
-  ~FeedbackLog() {
-    if (reader.joinable()) close();
-  }
-  // Closes the stream and waits for the reader; true when the stream finished without error.
-  bool close() {
-    stream->close();
-    reader.join();
-    return stream->finish().ok();
-  }
-  std::vector<v1::ToolFeedback> all() {
-    std::lock_guard lk(mu);
-    return got;
-  }
-  // Whether a feedback has come for a tick that used pose `seq`.
-  bool used(uint64_t seq) {
-    std::lock_guard lk(mu);
-    return std::any_of(got.begin(), got.end(), [&](const v1::ToolFeedback& f) { return f.pose_seq() == seq; });
-  }
-
-  std::unique_ptr<client::HapticStream> stream;
-  std::mutex mu;
-  std::vector<v1::ToolFeedback> got;
-  std::thread reader;
-};
-
-}  // namespace
-
 TEST(Bodies, TheHapticToolFeelsTheClothItCatches) {
   // A 10 cm sphere held (one pose over the haptic stream) 5 cm under the middle of the cloth,
   // away from the beam: the falling cloth lands on it, and the tool's feedback carries the
@@ -275,7 +237,7 @@ TEST(Bodies, TheHapticToolFeelsTheClothItCatches) {
   BodiesServer srv;
   Client c = srv.client();
   ASSERT_TRUE(c.create_scene(bodies_request("t")).ok());
-  FeedbackLog log(c);
+  test::FeedbackLog log(c);
   v1::ToolPose pose;
   pose.set_scene_id("t");
   pose.set_shape(v1::TOOL_SHAPE_SPHERE);
@@ -327,7 +289,7 @@ TEST(Bodies, AFastToolCatchesTheRopeItSweepsThroughInOneTick) {
   rs->set_thickness(0.002);
   rs->mutable_pins()->add_indices(0);
   ASSERT_TRUE(c.create_scene(req).ok());
-  FeedbackLog log(c);
+  test::FeedbackLog log(c);
   v1::ToolPose pose;
   pose.set_scene_id("s");
   pose.set_shape(v1::TOOL_SHAPE_SPHERE);

@@ -1,11 +1,13 @@
 // SPDX-License-Identifier: Apache-2.0
 // InteractionService over an in-process server on 127.0.0.1 port 0: grab / move / release in a
-// lockstep scene, the haptic stream's feedback (tick id, echoed pose, force and contacts), and
-// errors that name the field and the value. No timing assertions (bench/ measures latency).
+// lockstep scene, the haptic stream's feedback (tick id, echoed pose, force and contacts; the
+// friction of a tool turned between poses), and errors that name the field and the value. No
+// timing assertions (bench/ measures latency).
 #include "pliant/client/client.hpp"
 #include "pliant/server/server.hpp"
 #include "pliant/test/wait_until.hpp"
 
+#include "feedback_log.hpp"
 #include "in_process_server.hpp"
 
 #include <gtest/gtest.h>
@@ -14,6 +16,7 @@
 #include <atomic>
 #include <filesystem>
 #include <cmath>
+#include <iostream>
 #include <mutex>
 #include <thread>
 
@@ -179,28 +182,16 @@ TEST(InteractionService, HapticStreamAnswersEveryTickWithTheToolForce) {
   Server s;
   Client c = s.client();
   ASSERT_TRUE(c.create_scene(beam("h")).ok());
-  auto stream = c.haptic_stream();
-  std::mutex mu;
-  std::vector<v1::ToolFeedback> got;
-  std::thread reader([&] {
-    v1::ToolFeedback f;
-    while (stream->next(&f)) {
-      std::lock_guard lk(mu);
-      got.push_back(f);
-    }
-  });
+  test::FeedbackLog fr(c);
+  auto& stream = fr.stream;
+  auto& mu = fr.mu;
+  auto& got = fr.got;
   // A 1 cm sphere lowered from 1 mm above the top face near the tip to 2 mm into it over 60
   // ticks (one pose per tick), then held. The poses reach the tick asynchronously: a tick uses
   // the latest pose the server has read, so after each step the test waits for that tick's
   // feedback (the tool is in every tick once its first pose is).
-  auto feedback_count = [&] {
-    std::lock_guard lk(mu);
-    return got.size();
-  };
-  auto has_feedback_of_tick = [&](uint64_t tick) {
-    std::lock_guard lk(mu);
-    return !got.empty() && got.back().tick() >= tick;
-  };
+  auto feedback_count = [&] { return fr.count(); };
+  auto has_feedback_of_tick = [&](uint64_t tick) { return fr.latest(tick, nullptr); };
   v1::ToolPose pose;
   pose.set_scene_id("h");
   pose.set_shape(v1::TOOL_SHAPE_SPHERE);
@@ -234,9 +225,7 @@ TEST(InteractionService, HapticStreamAnswersEveryTickWithTheToolForce) {
   };
   ASSERT_TRUE(test::wait_until([&] { return c.step("h", 1).ok() && ticks_with_last_pose() > 10; }, test::kPatience,
                                "11 ticks' feedback with the last pose"));
-  stream->close();
-  reader.join();
-  EXPECT_TRUE(stream->finish().ok());
+  EXPECT_TRUE(fr.close());
   ASSERT_GE(got.size(), 100u);
   for (size_t i = 1; i < got.size(); ++i) {
     EXPECT_GT(got[i].tick(), got[i - 1].tick());
@@ -263,6 +252,63 @@ TEST(InteractionService, HapticStreamAnswersEveryTickWithTheToolForce) {
   // The tool goes with the stream: later ticks see no contact.
   auto after = c.step("h", 30);
   ASSERT_TRUE(after.ok());
+}
+
+TEST(InteractionService, AToolTurningBetweenPosesFeelsTheFrictionOfItsTurn) {
+  // A capsule (4 mm radius) lying across the top face near the tip, 1 mm into it, with friction
+  // 1: held still for 40 ticks, then turned about its own axis (z) by 5 rad/s x dt between one
+  // pose and the next for 40 ticks. The server takes the turn between the poses a tick uses as
+  // the tool's angular velocity, so friction drags the surface under it and the feedback's
+  // torque about the axis opposes the turn, mu x the normal force x the radius as it slides;
+  // held, the torque about the axis is about nil (a tool that only jumped between orientations
+  // would feel nearly none either way: a capsule turned about its axis has the same shape).
+  Server s;
+  Client c = s.client();
+  ASSERT_TRUE(c.create_scene(beam("turn")).ok());
+  test::FeedbackLog fr(c);
+  v1::ToolPose pose;
+  pose.set_scene_id("turn");
+  pose.set_shape(v1::TOOL_SHAPE_CAPSULE);
+  pose.set_radius(0.004);
+  pose.set_half_length(0.03);
+  pose.set_static_friction(1.0);
+  pose.set_dynamic_friction(1.0);
+  *pose.mutable_position() = vec(0.09, 0.01 + 0.004 - 0.001, 0.005);
+  const double rate = 5.0, dt = 1.0 / 60;
+  double angle = 0, held = 0, turning = 0, pressing = 0;
+  uint64_t seq = 0;
+  for (int i = 0; i < 80; ++i) {
+    if (i >= 40) angle += rate * dt;
+    pose.set_seq(++seq);
+    auto* q = pose.mutable_orientation();
+    q->set_w(std::cos(angle / 2));
+    q->set_x(0);
+    q->set_y(0);
+    q->set_z(std::sin(angle / 2));
+    ASSERT_TRUE(fr.stream->send(pose));
+    pose.clear_scene_id();
+    // Step until a tick has used this pose, and read that tick's feedback.
+    v1::ToolFeedback f;
+    ASSERT_TRUE(test::wait_until(
+        [&] {
+          auto st = c.step("turn", 1);
+          return st.ok() && fr.latest(st->tick(), &f) && f.pose_seq() == seq;
+        },
+        test::kPatience, "a tick with pose " + std::to_string(seq)));
+    if (i >= 20 && i < 40) held += f.torque().z() / 20;
+    if (i >= 60) {
+      turning += f.torque().z() / 20;
+      pressing += f.force().y() / 20;
+    }
+  }
+  EXPECT_TRUE(fr.close());
+  std::cout << "[ turn ] torque about the axis " << turning << " N m turning, " << held << " held; pressing "
+            << pressing << " N\n";
+  // Sliding, friction is mu x the normal force at the capsule's radius: mu = 1, r = 4 mm.
+  const double sliding = 1.0 * pressing * 0.004;
+  ASSERT_GT(pressing, 0.0);
+  EXPECT_NEAR(turning, -sliding, 0.3 * sliding) << "the body should hold the turn back by sliding friction";
+  EXPECT_LT(std::abs(held), 0.2 * sliding);
 }
 
 TEST(InteractionService, HapticStreamRejectsBadPoses) {

@@ -17,6 +17,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iostream>
 
 using namespace pliant;
 using namespace pliant::test;
@@ -283,4 +284,63 @@ TEST(ToolContact, TorqueIsLeverArmCrossForce) {
   for (const ToolContact& c : t.contacts) expected += (c.point - centre).cross(c.force);
   EXPECT_NEAR((t.torque - expected).norm(), 0, 0.02 * expected.norm() + 1e-12);
   EXPECT_GT(t.force.y(), 0);
+}
+
+TEST(ToolContact, ASpinningCapsuleDragsTheSurfaceAndFeelsATorqueAgainstItsSpin) {
+  // A capsule lying across the top face near the tip, 1 mm into it, turning about its own axis
+  // (z) in place at 5 rad/s: its bottom, where it touches, moves along +x at 2 cm/s. With
+  // friction the body is dragged along +x under it and holds the tool back: a force along -x and
+  // a torque about its axis against the spin. Held still, neither (the beam's bending alone
+  // moves the touched vertices). Without its angular velocity the step would see a tool that
+  // does not move. In every solver family (vertex block descent's and the Newton step's smoothed
+  // friction give a small part of sliding friction here: docs/haptics.md).
+  auto m = clamped_beam(1e6);
+  SolverSettings s = quiet_settings(false);
+  const double r = 0.004;
+  struct Felt {
+    double torque = 0, force = 0, dragged = 0, pressing = 0;
+  };
+  auto spin = [&](double rate) {
+    BodyState st = rest_state(*m);
+    Stepper stepper;
+    StepInputs in;
+    in.tools.push_back(RigidTool::capsule(Vec3(0.09, 0.01 + r - 0.001, 0.005), Eigen::Quaterniond::Identity(), r, 0.03));
+    in.tools[0].static_friction = in.tools[0].dynamic_friction = 1.0;
+    in.tools[0].angular_velocity = Vec3(0, 0, rate);
+    Felt f;
+    for (int i = 0; i < 60; ++i) {
+      in.tools[0].orientation = Eigen::Quaterniond(Eigen::AngleAxisd(rate * s.dt * (i + 1), Vec3::UnitZ()));
+      const StepReport rep = stepper.step(*m, st, s, in);
+      if (i < 30) continue;
+      f.torque += rep.tools[0].torque.z() / 30;
+      f.force += rep.tools[0].force.x() / 30;
+      f.pressing += rep.tools[0].force.y() / 30;
+      for (const ToolContact& c : rep.tools[0].contacts)
+        f.dragged += (st.x[c.vertex].x() - m->rest_positions[c.vertex].x()) / (30.0 * rep.tools[0].contacts.size());
+    }
+    return f;
+  };
+  for (Method method : {Method::Xpbd, Method::Vbd, Method::Newton}) {
+    SCOPED_TRACE(std::string(to_string(method)));
+    s.method = method;
+    if (method == Method::Newton) {  // converged per substep: fewer do; friction from the second iteration
+      s.substeps = 32;
+      s.iterations = 3;
+    }
+    const Felt spinning = spin(5.0), held = spin(0.0);
+    std::cout << "[ spin ] " << to_string(method) << ": about the axis " << spinning.torque << " N m (held "
+              << held.torque << "), along x " << spinning.force << " N (held " << held.force
+              << "), touched vertices along x " << spinning.dragged << " m (held " << held.dragged << "), pressing "
+              << spinning.pressing << " N\n";
+    // The pushes have no moment about the axis (their normals meet it): the torque is friction's.
+    EXPECT_LT(spinning.torque, 0.0) << "the body should hold the spin back";
+    EXPECT_LT(spinning.torque, held.torque - 0.5 * std::abs(spinning.torque));
+    EXPECT_GT(spinning.dragged, held.dragged);
+    if (method == Method::Xpbd) {
+      // Hard contact with Coulomb friction: sliding, mu x the normal force at the radius, and
+      // the force that holds the tool back along -x.
+      EXPECT_NEAR(spinning.torque, -1.0 * spinning.pressing * r, 0.1 * spinning.pressing * r);
+      EXPECT_LT(spinning.force, held.force - 0.5 * std::abs(spinning.force));
+    }
+  }
 }

@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // Tool contact without stepping: closest points on triangles, sphere and capsule geometry, one
 // projection pass of the contacts on beam1 (faces pushed out of a small tool, vertices put on
-// a big tool's surface), and interaction inputs validated with the field and value named.
+// a big tool's surface), a tool posed along its velocities, and interaction inputs validated
+// with the field and value named.
 #include "pliant/interaction.hpp"
 #include "pliant/model.hpp"
 
@@ -60,10 +61,10 @@ TEST(ToolContact, ASmallSpherePressedIntoACoarseFacePushesItsTriangle) {
     touched.push_back(v);
     EXPECT_LT(normal.y(), -0.9);
   };
-  EXPECT_GE(project_tool_contacts(*m, x, x_start, tool, Vec3::Zero(), record), 1);
+  EXPECT_GE(project_tool_contacts(*m, x, x_start, tool, 1.0 / 600, record), 1);
   // The corners move by different amounts (b_k), so the face tilts and a few more passes
   // (iterations, in the solver) finish the job, as for any linearised constraint.
-  for (int pass = 0; pass < 20; ++pass) project_tool_contacts(*m, x, x_start, tool, Vec3::Zero(), record);
+  for (int pass = 0; pass < 20; ++pass) project_tool_contacts(*m, x, x_start, tool, 1.0 / 600, record);
   EXPECT_LT(lambda.y(), 0);  // the body is pushed down, the tool up
   Vec3 momentum = Vec3::Zero();
   for (size_t i = 0; i < x.size(); ++i) momentum += m->inertia[i] * (x[i] - x_start[i]);
@@ -94,7 +95,7 @@ TEST(ToolContact, FacesAroundAVertexInContactAreLeftToTheVertex) {
   }
   ASSERT_GE(inside.size(), 5u);
   std::vector<Vec3> x = m->rest_positions;
-  project_tool_contacts(*m, x, m->rest_positions, tool, Vec3::Zero(), [](int32_t, const Vec3&, const Vec3&) {});
+  project_tool_contacts(*m, x, m->rest_positions, tool, 1.0 / 600, [](int32_t, const Vec3&, const Vec3&) {});
   for (int32_t i : inside) EXPECT_NEAR((x[i] - centre).norm(), tool.radius, 1e-9) << "vertex " << i;
 }
 
@@ -106,7 +107,7 @@ TEST(ToolContact, ACapsuleLyingBetweenVertexRowsTouchesTheFaces) {
   const RigidTool tool = RigidTool::capsule(centre, Eigen::Quaterniond::Identity(), 0.0005, 0.004);
   std::vector<Vec3> x = m->rest_positions;
   Vec3 lambda = Vec3::Zero();
-  const int n = project_tool_contacts(*m, x, m->rest_positions, tool, Vec3::Zero(),
+  const int n = project_tool_contacts(*m, x, m->rest_positions, tool, 1.0 / 600,
                                       [&](int32_t, const Vec3& dl, const Vec3&) { lambda += dl; });
   EXPECT_GE(n, 2);
   EXPECT_LT(lambda.y(), 0);
@@ -141,4 +142,37 @@ TEST(Interaction, ValidationNamesFieldAndValue) {
   EXPECT_NE(validate_interaction({}, t, *m).find("tools[0].radius = -1"), std::string::npos);
   a[0] = Attachment::vertex(0, Vec3::Zero(), -2);
   EXPECT_NE(validate_interaction(a, {}, *m).find("attachments[0].compliance = -2"), std::string::npos);
+}
+
+TEST(ToolContact, AToolIsPosedBackAlongItsVelocitiesAndItsSurfaceMovesWithThem) {
+  // A capsule along x (its local z turned onto x) moving at v and turning about z at 3 rad/s:
+  // 0.1 s before the pose it is at p - 0.1 v with its axis turned back by 0.3 rad; a point of its
+  // surface moves by h (v + w x (q - p)).
+  RigidTool t = RigidTool::capsule(Vec3(0.1, 0.2, 0.3), Eigen::Quaterniond::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX()),
+                                   0.01, 0.05);
+  t.velocity = Vec3(0.5, -0.2, 0.1);
+  t.angular_velocity = Vec3(0, 0, 3.0);
+  const RigidTool back = t.at(-0.1);
+  EXPECT_NEAR((back.position - Vec3(0.05, 0.22, 0.29)).norm(), 0.0, 1e-15);
+  const Vec3 axis = back.orientation * Vec3::UnitZ();
+  EXPECT_NEAR((axis - Vec3(std::cos(0.3), -std::sin(0.3), 0)).norm(), 0.0, 1e-12);
+  EXPECT_NEAR(back.orientation.norm(), 1.0, 1e-12);
+  EXPECT_EQ(back.radius, t.radius);
+  EXPECT_EQ(back.half_length, t.half_length);
+  const RigidTool same = t.at(0.0);
+  EXPECT_EQ(same.position, t.position);
+  EXPECT_TRUE(same.orientation.coeffs().isApprox(t.orientation.coeffs(), 1e-15));
+  // The end of the axis, 5 cm along x from the centre, moves along y at 3 x 0.05 m/s besides v.
+  const Vec3 tip = t.position + Vec3(0.05, 0, 0);
+  EXPECT_NEAR((t.motion(tip, 0.01) - 0.01 * (t.velocity + Vec3(0, 0.15, 0))).norm(), 0.0, 1e-15);
+  // Over a small step the motion matches the poses' difference at that point.
+  const double h = 1e-5;
+  const Vec3 end_tip = t.position + t.orientation * Vec3(0, 0, 0.05);
+  const RigidTool earlier = t.at(-h);
+  const Vec3 start_tip = earlier.position + earlier.orientation * Vec3(0, 0, 0.05);
+  EXPECT_NEAR((end_tip - start_tip - t.motion(end_tip, h)).norm(), 0.0, 1e-9);
+  // Not finite: refused by the step's validation, naming the field.
+  t.angular_velocity.y() = std::nan("");
+  EXPECT_NE(validate_interaction({}, {t}, *clamped_beam(1e6)).find("tools[0].angular_velocity is not finite"),
+            std::string::npos);
 }

@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // The scene's tools inside a particle body's substeps (ToolBoundary): a fast tool catches what it
 // sweeps through, the tool takes minus the momentum the particles gained from it, friction carries
-// a resting cloth along with a moving tool, and bad tools are refused.
+// a resting cloth along with a moving or a spinning tool, a turning tool sweeps what its turn
+// crosses, and bad tools are refused.
 #include "pliant/cloth.hpp"
 #include "pliant/coupling.hpp"
 #include "pliant/fluid.hpp"
@@ -12,6 +13,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iostream>
 #include <limits>
 #include <memory>
 #include <vector>
@@ -165,6 +167,90 @@ TEST(ToolInSubsteps, FrictionCarriesAClothAlongWithItsTool) {
   ASSERT_NEAR(tool_x, 0.15, 1e-9);
   EXPECT_NEAR(with, tool_x, 0.01) << "the cloth did not ride on the tool";
   EXPECT_NEAR(without, 0.0, 0.01) << "without friction the tool should slide along under the cloth";
+}
+
+TEST(ToolInSubsteps, ASpinningCapsuleCarriesTheClothLyingOnIt) {
+  // A 12 cm cloth dropped across a 6 cm capsule lying along z, which then turns about its own
+  // axis in place at 2 rad/s for 0.5 s: its top moves along -x at 3 cm/s, and only friction with
+  // that motion can move the cloth along x. Spinning, the cloth goes along with it and gains
+  // momentum along -x; held still, it stays. The tool's pushes have no moment about its axis
+  // (their normals meet it), so the angular impulse about the axis the cloth takes from the tool
+  // is friction's: with the moment of its weight it makes the change of its angular momentum.
+  struct Ride {
+    double x = 0, angular = 0, weight_moment = 0, gained = 0;
+    Vec3 impulse = Vec3::Zero();
+  };
+  auto angular_z = [](const ConstraintBody& c) {
+    double l = 0;
+    const auto w = c.inverse_masses();
+    for (size_t i = 0; i < c.size(); ++i) l += c.state().x[i].cross(c.state().v[i]).z() / w[i];
+    return l;
+  };
+  auto ride = [&](double rate) {
+    ConstraintBodySettings s;
+    s.self_collision = false;
+    auto cloth = square_cloth(8, 0.12, Vec3(-0.06, 0.035, -0.06), s);
+    RigidTool tool = RigidTool::capsule(Vec3(0, 0, 0), Eigen::Quaterniond::Identity(), 0.03, 0.3);
+    tool.static_friction = tool.dynamic_friction = 0.8;
+    const auto w = cloth->inverse_masses();
+    auto weight_moment = [&] {  // about the axis, N m
+      double m = 0;
+      for (size_t i = 0; i < cloth->size(); ++i) m += cloth->state().x[i].cross(s.gravity).z() / w[i];
+      return m;
+    };
+    Ride r;
+    for (int k = 0; k < 60; ++k) {
+      if (k >= 30) {
+        tool.angular_velocity = Vec3(0, 0, rate);
+        tool.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(rate * kTick, Vec3::UnitZ())) * tool.orientation;
+      }
+      if (k == 30) r.gained = -angular_z(*cloth);
+      const double before = weight_moment();
+      const ToolBoundary tb = tick_with(*cloth, tool).boundary;
+      if (k >= 30) {
+        r.impulse += tb.impulse[0];
+        r.angular += tb.angular_impulse[0].z();
+        r.weight_moment += 0.5 * (before + weight_moment()) * kTick;
+      }
+    }
+    r.gained += angular_z(*cloth);
+    for (const Vec3& p : cloth->state().x) r.x += p.x() / double(cloth->size());
+    return r;
+  };
+  const Ride spinning = ride(2.0), held = ride(0.0);
+  std::cout << "[ spin ] cloth x " << spinning.x << " m (held " << held.x << "); about the axis: from the tool "
+            << spinning.angular << " N m s, weight " << spinning.weight_moment << ", gained " << spinning.gained
+            << " (held: " << held.angular << ", " << held.weight_moment << ", " << held.gained << ")\n";
+  EXPECT_LT(spinning.x, -0.005) << "the cloth did not go along with the spinning tool";
+  EXPECT_NEAR(held.x, 0.0, 1e-3) << "held still, the tool should leave the cloth where it lies";
+  EXPECT_LT(spinning.impulse.x(), held.impulse.x() - 0.5 * std::abs(spinning.impulse.x()));
+  EXPECT_NEAR(spinning.angular + spinning.weight_moment, spinning.gained, 0.02 * std::abs(spinning.weight_moment));
+  EXPECT_GT(std::abs(spinning.angular), 0.2 * std::abs(spinning.weight_moment)) << "friction's moment is not small";
+  EXPECT_LT(std::abs(held.angular), 0.01 * std::abs(spinning.angular));
+}
+
+TEST(ToolInSubsteps, ATurningToolSweepsThroughTheRopeOnItsWay) {
+  // A capsule 3 cm beside the rope's middle (8 cm long, 5 mm radius), its axis along z, turned
+  // half a turn about the vertical in one tick: where the tick starts and ends it is clear of
+  // the rope, but half-way its axis lies along x through the rope, whose middle it sweeps along
+  // +z (the arm from the centre to the rope, -3 cm along x, turning about +y). A tool that only
+  // jumped from pose to pose would leave the rope alone.
+  auto sweep = [](double rate) {
+    auto rope = hanging_rope();
+    RigidTool tool = RigidTool::capsule(Vec3(0.03, -0.1, 0), Eigen::Quaterniond::Identity(), 0.005, 0.04);
+    tool.angular_velocity = Vec3(0, rate, 0);
+    tool.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(rate * kTick, Vec3::UnitY()));
+    const Met m = tick_with(*rope, tool);
+    double z = 0;
+    for (const Vec3& p : rope->state().x) z = std::max(z, p.z());
+    return std::pair(z, m.boundary.impulse[0]);
+  };
+  const auto [turned, impulse] = sweep(M_PI / kTick);
+  const auto [jumped, none] = sweep(0.0);
+  EXPECT_GT(turned, 0.005) << "the turning tool passed through the rope";
+  EXPECT_GT(impulse.z(), 0.0);
+  EXPECT_LT(std::abs(jumped), 1e-9);
+  EXPECT_EQ(none.norm(), 0.0);
 }
 
 TEST(ToolInSubsteps, AToolBetweenTheParticlesMeetsTheLinkOrTheFace) {

@@ -63,6 +63,18 @@ struct RigidTool {
   // velocity the step moves it there from position - velocity * dt over the substeps, and
   // friction acts on the vertices' motion relative to the tool's.
   Eigen::Vector3d velocity{0, 0, 0};
+  // Angular velocity (rad/s, world axes, about `position`). Likewise the step turns the tool to
+  // its orientation from that orientation turned back by angular_velocity * dt, and friction sees
+  // the motion of the tool's surface where it touches.
+  Eigen::Vector3d angular_velocity{0, 0, 0};
+
+  // The tool `offset` seconds after the pose (offset <= 0: before the step's end), moved and
+  // turned at its velocities.
+  RigidTool at(double offset) const;
+  // How far the tool's material point at p moves in a time h at its velocities.
+  Eigen::Vector3d motion(const Eigen::Vector3d& p, double h) const {
+    return h * (velocity + angular_velocity.cross(p - position));
+  }
 
   static RigidTool sphere(const Eigen::Vector3d& centre, double radius);
   static RigidTool capsule(const Eigen::Vector3d& centre, const Eigen::Quaterniond& orientation,
@@ -86,14 +98,13 @@ bool tool_contact(const RigidTool& tool, const Eigen::Vector3d& p, Eigen::Vector
 // Contacts are projected one after the other (Gauss-Seidel): a penetration resolved by one
 // contact is not seen by the next, so an edge shared by two triangles, or a corner shared by a
 // vertex contact, is not counted twice. Friction acts on the contact point's motion since
-// x_start relative to the tool (tool_motion: the tool's displacement over the substep).
+// x_start relative to the tool's surface there (tool.motion over the substep h).
 // `record(vertex, dlambda, normal)` is called for every correction of a vertex: dlambda is the
 // vector multiplier increment m_v * (correction of x_v) (force on the body = lambda / h^2, on
 // the tool minus that), normal the tool's outward normal at the contact. Returns the number of
 // contacts (vertices and triangles) projected.
 int project_tool_contacts(const BodyModel& model, std::vector<Eigen::Vector3d>& x,
-                          const std::vector<Eigen::Vector3d>& x_start, const RigidTool& tool,
-                          const Eigen::Vector3d& tool_motion,
+                          const std::vector<Eigen::Vector3d>& x_start, const RigidTool& tool, double h,
                           const std::function<void(int32_t vertex, const Eigen::Vector3d& dlambda,
                                                    const Eigen::Vector3d& normal)>& record);
 

@@ -834,7 +834,7 @@ ParticleStepReport ConstraintBody::advance(double dt, int substeps, std::span<co
       }
     }
     if (on_surface) report.soft_body_contacts = leave_surface(*on_surface, h);
-    if (on_tools) report.tool_contacts = on_tools->give(p_, [&](size_t i) { return m_[i]; });
+    if (on_tools) report.tool_contacts = on_tools->give([&](size_t i) { return m_[i]; });
     for (size_t i = 0; i < n; ++i) {
       state_.v[i] = (p_[i] - x_prev_[i]) / h;
       state_.x[i] = p_[i];

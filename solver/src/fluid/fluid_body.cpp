@@ -665,7 +665,7 @@ struct FluidBody::Impl {
       }
       rep.soft_body_contacts = touching;
     }
-    if (tools) rep.tool_contacts = tools->give(p, [this](size_t) { return mass; });
+    if (tools) rep.tool_contacts = tools->give([this](size_t) { return mass; });
     lap(clock, times.velocity_ms);
     // XSPH viscosity (Jacobi: from the velocities before it), symmetric weights.
     if (s.xsph > 0.0) {

@@ -604,9 +604,7 @@ double NewtonFamily::attachment_stiffness(const BodyModel& m, const Attachment& 
 }
 
 RigidTool NewtonFamily::tool_now(const StepInputs& in, size_t t) const {
-  RigidTool tool = in.tools[t];
-  tool.position += tool.velocity * tool_time_offset_;
-  return tool;
+  return in.tools[t].at(tool_time_offset_);
 }
 
 void NewtonFamily::remember_normal_forces() {
@@ -643,7 +641,7 @@ void NewtonFamily::find_contacts(const BodyModel& m, const std::vector<Vec3>& x,
       double depth;
       if (!tool_contact(tool, x[i], q, n, depth) || !(depth > 0)) continue;
       contacts_.push_back(Contact{int32_t(i), int(t), n, depth, tool.dynamic_friction, lagged(int32_t(i), int(t)),
-                                  tool.velocity * h});
+                                  tool.motion(q, h)});
     }
   }
 }
@@ -1058,6 +1056,10 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         r = g_.norm();
         remember_normal_forces();
         rep.times.residual_ms += ms_since(t_res);
+      } else {
+        // Friction's bound from the contacts this iteration started with: without it a step that
+        // measures nothing would have none.
+        remember_normal_forces();
       }
       rep.residuals.push_back(r);
       rep.residual_final = r;

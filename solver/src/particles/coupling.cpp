@@ -636,7 +636,6 @@ size_t couple_particles_to_tool(ParticleState& ps, std::span<const double> wp, c
     throw std::invalid_argument(fmt::format("radius must be >= 0 m, got {}", radius));
   RigidTool grown = tool;
   grown.radius += radius;
-  const Vec3 tool_motion = tool.velocity * dt;
   const double inv_dt = 1.0 / dt;
   size_t pushed = 0;
   Vec3 impulse_sum = Vec3::Zero(), angular_sum = Vec3::Zero();
@@ -650,7 +649,7 @@ size_t couple_particles_to_tool(ParticleState& ps, std::span<const double> wp, c
     const Vec3 before = xp;
     xp += depth * n;
     const Vec3 start = particle_start.empty() ? Vec3(before - dt * ps.v[i]) : particle_start[i];
-    const Vec3 slip = (xp - start) - tool_motion;
+    const Vec3 slip = (xp - start) - tool.motion(xp, dt);
     const Vec3 tangential = slip - slip.dot(n) * n;
     const double tn = tangential.norm();
     if (tn < tool.static_friction * depth) xp -= tangential;

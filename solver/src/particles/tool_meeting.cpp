@@ -15,7 +15,7 @@ ToolMeeting::ToolMeeting(ToolBoundary& boundary, double radius, double dt, int s
     throw std::invalid_argument(fmt::format("tools: radius must be >= 0 m, got {}", radius));
   for (size_t k = 0; k < boundary.tools.size(); ++k) {
     const RigidTool& t = boundary.tools[k];
-    if (!t.position.allFinite() || !t.velocity.allFinite() || !std::isfinite(t.radius) ||
+    if (!t.position.allFinite() || !t.velocity.allFinite() || !t.angular_velocity.allFinite() || !std::isfinite(t.radius) ||
         !std::isfinite(t.half_length) || !t.orientation.coeffs().allFinite())
       throw std::invalid_argument(fmt::format("tools[{}]: pose or velocity is not finite", k));
   }
@@ -70,7 +70,8 @@ void ToolMeeting::begin_substep(int s, size_t particles) {
   hi_ = Vec3::Constant(-INFINITY);
   for (size_t k = 0; k < tools_.size(); ++k) {
     RigidTool& t = tools_[k];
-    t.position = boundary_.tools[k].position - boundary_.tools[k].velocity * before_end;
+    t = boundary_.tools[k].at(-before_end);
+    t.radius += radius_;
     near_[k] = t;
     near_[k].radius += radius_;
     const double reach = near_[k].radius + (t.shape == RigidTool::Shape::Capsule ? std::abs(t.half_length) : 0.0);
@@ -81,6 +82,7 @@ void ToolMeeting::begin_substep(int s, size_t particles) {
   // holds pass numbers, which never repeat within the call).
   if (touched_.size() != particles) {
     moved_.assign(particles * tools_.size(), Vec3::Zero());
+    moment_.assign(particles * tools_.size(), Vec3::Zero());
     touched_.assign(particles, 0);
     near_in_.resize(particles, 0);
   }
@@ -100,6 +102,7 @@ ToolMeeting::Push ToolMeeting::push_near(size_t i, Vec3& p) {
     const Vec3 d = depth * n;
     p += d;
     moved_[i * tools_.size() + k] += d;
+    moment_[i * tools_.size() + k] += (p - near_[k].position).cross(d);
     out.depth += depth;
     out.normal = n;
     out.tool = int(k);
@@ -162,11 +165,12 @@ size_t ToolMeeting::push_faces(std::span<const std::array<uint32_t, 3>> faces, s
           const Vec3 d = (w[face[c]] * b[c] / wsum) * dp;
           p[face[c]] += d;
           moved_[face[c] * nt + k] += d;
+          moment_[face[c] * nt + k] += (p[face[c]] - t.position).cross(d);
         }
       };
       const double depth = t.radius - len;
       move_point(depth * normal);
-      Vec3 slip = -h_ * t.velocity;
+      Vec3 slip = -t.motion(q + point_moved, h_);  // the tool's surface where the point now is
       for (size_t c = 0; c < corners; ++c) slip += b[c] * (p[face[c]] - x_prev[face[c]]);
       const Vec3 tang = slip - slip.dot(normal) * normal;
       const double tl = tang.norm();
@@ -193,13 +197,14 @@ size_t ToolMeeting::push_faces(std::span<const std::array<uint32_t, 3>> faces, s
 
 void ToolMeeting::friction(size_t i, int k, const Vec3& normal, double depth, const Vec3& moved, Vec3& p) {
   const RigidTool& t = tools_[size_t(k)];
-  const Vec3 slip = moved - h_ * t.velocity;
+  const Vec3 slip = moved - t.motion(p, h_);
   const Vec3 tang = slip - slip.dot(normal) * normal;
   const double tl = tang.norm();
   if (!(tl > 0)) return;
   const Vec3 back = tl < t.static_friction * depth ? tang : Vec3(tang * std::min(t.dynamic_friction * depth / tl, 1.0));
   p -= back;
   moved_[i * tools_.size() + size_t(k)] -= back;
+  moment_[i * tools_.size() + size_t(k)] -= (p - t.position).cross(back);
 }
 
 }  // namespace pliant::detail

@@ -73,7 +73,7 @@ class ToolMeeting {
   // the whole push); clears the particles' records for the next substep. `mass(i)`: particle i's
   // mass. Returns the particles a tool pushed.
   template <class Mass>
-  size_t give(std::span<const Vec3> p, const Mass& mass) {
+  size_t give(const Mass& mass) {
     size_t pushed = 0;
     const size_t nt = tools_.size();
     for (size_t i = 0; i < touched_.size(); ++i) {
@@ -82,11 +82,12 @@ class ToolMeeting {
       ++pushed;
       for (size_t k = 0; k < nt; ++k) {
         Vec3& d = moved_[i * nt + k];
-        if (d.isZero()) continue;
-        const Vec3 impulse = mass(i) * d / h_;
-        boundary_.impulse[k] += impulse;
-        boundary_.angular_impulse[k] += (p[i] - tools_[k].position).cross(impulse);
+        Vec3& moment = moment_[i * nt + k];
+        if (d.isZero() && moment.isZero()) continue;
+        boundary_.impulse[k] += mass(i) * d / h_;
+        boundary_.angular_impulse[k] += mass(i) * moment / h_;
         d.setZero();
+        moment.setZero();
       }
     }
     for (size_t k = 0; k < nt; ++k) {
@@ -108,6 +109,9 @@ class ToolMeeting {
   std::vector<RigidTool> tools_;  // grown, at the substep's pose
   std::vector<RigidTool> near_;   // the same grown by the radius once more
   std::vector<Vec3> moved_;       // particle-major, one per tool
+  // The same moves' moments about the tool's centre, each taken where the particle was when it
+  // moved (the lever of the force the tool gave it there).
+  std::vector<Vec3> moment_;
   std::vector<unsigned char> touched_;
   // Per particle: the last pass that found it within the body's radius of a tool's grown surface
   // (0: none); the faces around it are its contact's.

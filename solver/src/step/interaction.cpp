@@ -56,6 +56,15 @@ RigidTool RigidTool::capsule(const Eigen::Vector3d& centre, const Eigen::Quatern
   return t;
 }
 
+RigidTool RigidTool::at(double offset) const {
+  RigidTool t = *this;
+  t.position += velocity * offset;
+  const double rate = angular_velocity.norm();
+  if (rate > 0 && offset != 0)
+    t.orientation = (Eigen::Quaterniond(Eigen::AngleAxisd(rate * offset, angular_velocity / rate)) * orientation).normalized();
+  return t;
+}
+
 bool tool_contact(const RigidTool& tool, const Eigen::Vector3d& p, Eigen::Vector3d& q,
                   Eigen::Vector3d& normal, double& depth) {
   // Both shapes are a point set swept by a ball: find the closest core point, then it is a sphere.
@@ -210,7 +219,7 @@ void closest_core_segment(const RigidTool& tool, const V3& a, const V3& b, V3& c
 }
 
 int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vector<V3>& x_start,
-                          const RigidTool& tool, const V3& tool_motion,
+                          const RigidTool& tool, double h,
                           const std::function<void(int32_t, const V3&, const V3&)>& record) {
   int n = 0;
   // Vertices inside the tool (remembered: the faces around them are theirs, below).
@@ -222,7 +231,7 @@ int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vec
     if (!tool_contact(tool, x[i], q, normal, depth)) continue;
     const V3 before = x[i];
     x[i] += depth * normal;
-    const V3 dx = x[i] - x_start[i] - tool_motion;  // relative to the tool's surface
+    const V3 dx = x[i] - x_start[i] - tool.motion(x[i], h);  // relative to the tool's surface
     const V3 tangential = dx - dx.dot(normal) * normal;
     const double tn = tangential.norm();
     if (tn < tool.static_friction * depth) x[i] -= tangential;
@@ -286,7 +295,7 @@ int project_tool_contacts(const BodyModel& m, std::vector<V3>& x, const std::vec
     move_point(depth * normal);
     V3 dp = V3::Zero();
     for (int k = 0; k < 3; ++k) dp += b[k] * (x[v[k]] - x_start[v[k]]);
-    dp -= tool_motion;
+    dp -= tool.motion(p + moved, h);  // the point, now on the tool's surface
     const V3 tangential = dp - dp.dot(normal) * normal;
     const double tn = tangential.norm();
     if (tn < tool.static_friction * depth) move_point(-tangential);
@@ -350,6 +359,10 @@ std::string validate_interaction(const std::vector<Attachment>& attachments,
     }
     if (!finite(t.velocity)) {
       os << "tools[" << i << "].velocity is not finite";
+      return os.str();
+    }
+    if (!finite(t.angular_velocity)) {
+      os << "tools[" << i << "].angular_velocity is not finite";
       return os.str();
     }
     if (!(t.radius > 0) || !std::isfinite(t.radius)) {

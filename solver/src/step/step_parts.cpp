@@ -103,8 +103,7 @@ StepReport Stepper::step_in_parts(const BodyModel& m, BodyState& state, const So
     SolverSettings& ps = last ? part : early;
     if (s.time_budget_ms > 0) ps.time_budget_ms = std::max(1e-6, (s.time_budget_ms - total.wall_ms) / (parts - p));
     for (size_t t = 0; t < tools.size() && t < inputs.tools.size(); ++t)
-      if (!tools[t].velocity.isZero())
-        inputs.tools[t].position = tools[t].position - tools[t].velocity * ((parts - 1 - p) * part.dt);
+      inputs.tools[t] = tools[t].at(-(parts - 1 - p) * part.dt);
     StepReport r = step(m, state, ps, inputs);
     forces.add(r);
     const bool stop = r.cancelled || r.diverged;

@@ -420,12 +420,10 @@ struct Stepper::Impl {
     int n = 0;
     for (size_t t = 0; t < inputs.tools.size(); ++t) {
       // The tool where it is in this substep, and how far it moved during it.
-      RigidTool tool = inputs.tools[t];
-      tool.position += tool.velocity * tool_time_offset;
-      const Vec3 tool_motion = tool.velocity * h;
+      const RigidTool tool = inputs.tools[t].at(tool_time_offset);
       SparseVertexVectors& ts = tool_scratch[t];
       // Vertices inside the tool, then boundary triangles (pliant/interaction.hpp).
-      n += project_tool_contacts(m, x, x_start, tool, tool_motion,
+      n += project_tool_contacts(m, x, x_start, tool, h,
                                  [&ts](int32_t v, const Vec3& dlambda, const Vec3& normal) {
                                    ts.value[v] += dlambda;
                                    ts.normal[v] = normal;
@@ -445,7 +443,7 @@ struct Stepper::Impl {
       for (int32_t v : ts.vertices) {
         const Vec3 f_tool = -ts.value[v] * inv_h2;
         r.force += f_tool;
-        r.torque += (x[v] - (inputs.tools[t].position + inputs.tools[t].velocity * tool_time_offset)).cross(f_tool);
+        r.torque += (x[v] - inputs.tools[t].at(tool_time_offset).position).cross(f_tool);
         r.contacts.push_back(ToolContact{v, x[v], ts.normal[v], f_tool});
       }
     }

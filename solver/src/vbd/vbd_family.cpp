@@ -48,7 +48,7 @@ struct GrabTerm {
 // A tool as it is during the current substep.
 struct ToolPose {
   RigidTool tool;
-  Vec3 motion;  // its displacement over the substep
+  double h;  // the substep: tool.motion(p, h) is its surface's displacement at p over it
 };
 
 Vec3 solve3(const Mat3& H, const Vec3& f, bool& ok) {
@@ -211,11 +211,12 @@ bool VbdFamily::tool_force(const BodyModel& m, const ToolPose& tp, int32_t i, co
   f += fn * n;
   if (H) *H += k * n * n.transpose();
   if (energy) *energy += 0.5 * k * depth * depth;
-  // Smoothed Coulomb friction on the slip relative to the tool since the substep began.
+  // Smoothed Coulomb friction on the slip relative to the tool since the substep began (the
+  // tool's surface moving as it does where the vertex started: constant in p).
   const double mu = tp.tool.dynamic_friction;
   if (mu <= 0) return true;
   const Mat3 T = Mat3::Identity() - n * n.transpose();
-  const Vec3 u = T * ((p - x_start_[i]) - tp.motion);
+  const Vec3 u = T * ((p - x_start_[i]) - tp.tool.motion(x_start_[i], tp.h));
   const double eps = kFrictionSlip * m.mean_edge, len = u.norm();
   const double scale = mu * fn / std::max(len, eps);
   f -= scale * u;
@@ -419,9 +420,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
     v_last_ = v_before_;
     tools_.clear();
     for (const RigidTool& t : inputs.tools) {
-      ToolPose p{t, t.velocity * h};
-      p.tool.position += t.velocity * ((substep + 1 - n) * h);
-      tools_.push_back(p);
+      tools_.push_back(ToolPose{t.at((substep + 1 - n) * h), h});
     }
     total.times.other_ms += ms_since(t_other);
 
