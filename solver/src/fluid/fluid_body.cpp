@@ -169,6 +169,9 @@ struct FluidBody::Impl {
   // of its last contact (-1: the last was no tool; friction against that tool's motion).
   detail::ToolMeeting* tools = nullptr;
   std::vector<int> tool_last;
+  // Per particle within a substep: whether a collider or the container pushed it (the report's
+  // contacts; the surface's and the tools' are counted apart).
+  std::vector<uint8_t> walled;
   std::vector<Vec3> wall_grad;       // per particle, within one iteration
   // Per pair, within one iteration: grad W and s_corr, in single precision (half the memory
   // traffic; the pair's two entries stay exactly opposite, so momentum is still conserved).
@@ -451,6 +454,7 @@ struct FluidBody::Impl {
       if (!find_contact(c, pi, cp) || !(cp.depth > 0)) continue;
       pi += cp.depth * cp.normal;
       depth[i] += cp.depth;
+      walled[i] = 1;
       contact_n[i] = cp.normal;
       mu_s[i] = c.static_friction;
       mu_k[i] = c.dynamic_friction;
@@ -475,6 +479,7 @@ struct FluidBody::Impl {
         }
         if (d > 0) {
           depth[i] += d;
+          walled[i] = 1;
           contact_n[i] = nrm;
           mu_s[i] = c.static_friction;
           mu_k[i] = c.dynamic_friction;
@@ -556,6 +561,7 @@ struct FluidBody::Impl {
     lam.resize(N);
     ratio.resize(N);
     depth.assign(N, 0.0);
+    walled.assign(N, 0);
     contact_n.resize(N);
     mu_s.resize(N);
     mu_k.resize(N);
@@ -632,7 +638,7 @@ struct FluidBody::Impl {
 
     // Friction at position level against each particle's last contact, then velocities.
     size_t contacts = 0;
-    for (size_t i = 0; i < N; ++i) contacts += depth[i] > 0.0;
+    for (size_t i = 0; i < N; ++i) contacts += walled[i];
     parallel(N, [&](size_t b, size_t e) {
       for (size_t i = b; i < e; ++i) {
         if (depth[i] > 0.0 && tools && tool_last[i] >= 0) {
