@@ -15,8 +15,8 @@ ToolMeeting::ToolMeeting(ToolBoundary& boundary, double radius, double dt, int s
     throw std::invalid_argument(fmt::format("tools: radius must be >= 0 m, got {}", radius));
   for (size_t k = 0; k < boundary.tools.size(); ++k) {
     const RigidTool& t = boundary.tools[k];
-    if (!t.position.allFinite() || !t.velocity.allFinite() || !t.angular_velocity.allFinite() || !std::isfinite(t.radius) ||
-        !std::isfinite(t.half_length) || !t.orientation.coeffs().allFinite())
+    if (!t.position.allFinite() || !t.velocity.allFinite() || !t.angular_velocity.allFinite() ||
+        !std::isfinite(t.radius) || !std::isfinite(t.half_length) || !t.orientation.coeffs().allFinite())
       throw std::invalid_argument(fmt::format("tools[{}]: pose or velocity is not finite", k));
   }
   tools_.assign(boundary.tools.begin(), boundary.tools.end());
