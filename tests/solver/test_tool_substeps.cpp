@@ -363,4 +363,9 @@ TEST(ToolInSubsteps, RefusesToolsThatAreNotFinite) {
   FluidSettings fs;
   FluidBody water(fs, {FluidBlock{Vec3(0, 0, 0), Vec3(0.1, 0.1, 0.1)}});
   EXPECT_THROW(water.advance(kTick, fs.substeps, {}, true, nullptr, &tb), std::invalid_argument);
+  RigidTool turning = crossing_tool();
+  turning.angular_velocity.z() = std::numeric_limits<double>::infinity();
+  const RigidTool turning_tools[] = {turning};
+  tb.tools = turning_tools;
+  EXPECT_THROW(rope->advance(kTick, rope->substeps(), {}, true, nullptr, &tb), std::invalid_argument);
 }
