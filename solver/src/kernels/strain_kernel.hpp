@@ -182,13 +182,11 @@ inline void prefetch_bytes(const void* p, size_t n) {  // every 64-byte line of 
   __builtin_prefetch(last, Write);
 }
 inline void prefetch_pack(const TetPack& p) { prefetch_bytes<0>(&p, sizeof p); }
-inline void prefetch_corners(const TetPack& p, const std::vector<Vec3>& x) {
+// The corners of a pack (a TetPack, or its FloorCheck).
+template <class Pack>
+inline void prefetch_corners(const Pack& p, const std::vector<Vec3>& x) {
   for (int k = 0; k < 4; ++k)
     for (int l = 0; l < 4; ++l) __builtin_prefetch(x[size_t(p.v[k][l])].data());
-}
-inline void prefetch_corners(const FloorCheck& c, const std::vector<Vec3>& x) {
-  for (int k = 0; k < 4; ++k)
-    for (int l = 0; l < 4; ++l) __builtin_prefetch(x[size_t(c.v[k][l])].data());
 }
 inline void prefetch_slots(const TetPack& p, const std::vector<Vec6>& slots) {
   prefetch_bytes<1>(slots[size_t(p.slot)].data(), 4 * sizeof(Vec6));

@@ -54,7 +54,6 @@ bool ToolMeeting::within_reach(std::span<const Vec3> x, double speed, double gra
 void ToolMeeting::select_faces(std::span<const std::array<uint32_t, 3>> faces, std::span<const Vec3> x, double speed,
                                double gravity) {
   faces_near_.clear();
-  faces_selected_ = true;
   const double reach = dt_ * (speed + gravity * dt_);
   for (size_t f = 0; f < faces.size(); ++f) {
     const auto& face = faces[f];
@@ -116,9 +115,8 @@ size_t ToolMeeting::push_faces(std::span<const std::array<uint32_t, 3>> faces, s
   constexpr double kCorner = 1.0 - 1e-9;  // a weight this close to 1: the corner's own contact
   const size_t nt = tools_.size();
   size_t pushed = 0;
-  const size_t count = faces_selected_ ? faces_near_.size() : faces.size();
-  for (size_t j = 0; j < count; ++j) {
-    const auto& face = faces[faces_selected_ ? faces_near_[j] : j];
+  for (uint32_t f : faces_near_) {
+    const auto& face = faces[f];
     // A rope's link comes as (a, b, b): one corner b.
     const size_t corners = face[2] == face[1] ? 2 : 3;
     bool skip = false;

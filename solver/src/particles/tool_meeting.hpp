@@ -25,9 +25,8 @@ class ToolMeeting {
   // the grown tools sweep. A particle that gets farther does not meet them (as with the soft
   // body's surface).
   bool within_reach(std::span<const Vec3> x, double speed, double gravity) const;
-  // The faces (as push_faces takes them) that a tool can reach over the call by the same test
-  // per face, from the particles at `x`: push_faces looks at these only. Without this call it
-  // looks at all.
+  // Chooses the faces (as push_faces takes them) that a tool can reach over the call, by the same
+  // test per face, from the particles at `x`: push_faces looks at these only.
   void select_faces(std::span<const std::array<uint32_t, 3>> faces, std::span<const Vec3> x, double speed,
                     double gravity);
   // The tools where they are at the end of substep s, for `particles` particles.
@@ -52,14 +51,15 @@ class ToolMeeting {
   // counts as the tool's. `moved`: the particle's whole motion over the substep.
   void friction(size_t i, int k, const Vec3& normal, double depth, const Vec3& moved, Vec3& p);
 
-  // After a pass's particles: the faces between them (a cloth's triangles, a rope's links as (a,
-  // b, b)) whose inside a tool reaches while none of their corners is within the body's radius of
-  // the tool's grown surface (a tool smaller than the faces, between the particles; a corner
-  // touching the tool makes the face its contact's: pushed out too, a face that is a chord of the
-  // tool would lift its corners off it), as the soft body's faces meet a tool: the
-  // face's point closest to the tool's core goes out to the tool's grown surface, with the tool's
-  // friction on its slip, each move shared by the corners by their inverse masses (weights
-  // `w`; `x_prev`: where the substep started). Serial. Returns the faces it pushed.
+  // After a pass's particles: of the faces between them that select_faces chose (a cloth's
+  // triangles, a rope's links as (a, b, b)), those whose inside a tool reaches while none of their
+  // corners is within the body's radius of the tool's grown surface (a tool smaller than the
+  // faces, between the particles; a corner touching the tool makes the face its contact's: pushed
+  // out too, a face that is a chord of the tool would lift its corners off it), as the soft
+  // body's faces meet a tool: the face's point closest to the tool's core goes out to the tool's
+  // grown surface, with the tool's friction on its slip, each move shared by the corners by their
+  // inverse masses (weights `w`; `x_prev`: where the substep started). Serial. Returns the faces
+  // it pushed.
   size_t push_faces(std::span<const std::array<uint32_t, 3>> faces, std::span<Vec3> p, std::span<const Vec3> x_prev,
                     std::span<const double> w);
   // Whether a tool at the substep's pose can reach the box (lo, hi).
@@ -119,7 +119,6 @@ class ToolMeeting {
   std::vector<Vec3> pinned_impulse_, pinned_angular_;  // per tool: the pins' shares in the substep
   uint32_t pass_ = 0;
   std::vector<uint32_t> faces_near_;  // select_faces's choice, in the faces' order
-  bool faces_selected_ = false;
 };
 
 }  // namespace pliant::detail

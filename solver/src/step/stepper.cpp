@@ -440,10 +440,11 @@ struct Stepper::Impl {
     for (size_t t = 0; t < inputs.tools.size(); ++t) {
       const SparseVertexVectors& ts = tool_scratch[t];
       ToolReaction& r = rep.tools[t];
+      const Vec3 centre = inputs.tools[t].at(tool_time_offset).position;
       for (int32_t v : ts.vertices) {
         const Vec3 f_tool = -ts.value[v] * inv_h2;
         r.force += f_tool;
-        r.torque += (x[v] - inputs.tools[t].at(tool_time_offset).position).cross(f_tool);
+        r.torque += (x[v] - centre).cross(f_tool);
         r.contacts.push_back(ToolContact{v, x[v], ts.normal[v], f_tool});
       }
     }
