@@ -286,9 +286,45 @@ TEST(ToolContact, TorqueIsLeverArmCrossForce) {
   EXPECT_GT(t.force.y(), 0);
 }
 
+// A capsule of 4 mm radius lying across the beam's top face near the tip, 1 mm into it, with
+// friction 1, turning about its own axis (z) in place at `rate` rad/s for 1 s; the second half's
+// means of the tool's reaction and of the touched vertices' displacement along x.
+struct Turned {
+  double torque = 0, force = 0, dragged = 0, pressing = 0;  // about z, along x, along x, along y
+};
+constexpr double kCapsuleRadius = 0.004;
+Turned turn_capsule(const BodyModel& m, const SolverSettings& s, double rate) {
+  const double r = kCapsuleRadius;
+  BodyState st = rest_state(m);
+  Stepper stepper;
+  StepInputs in;
+  in.tools.push_back(RigidTool::capsule(Vec3(0.09, 0.01 + r - 0.001, 0.005), Eigen::Quaterniond::Identity(), r, 0.03));
+  in.tools[0].static_friction = in.tools[0].dynamic_friction = 1.0;
+  in.tools[0].angular_velocity = Vec3(0, 0, rate);
+  Turned f;
+  const int steps = int(std::lround(1.0 / s.dt)), half = steps / 2;
+  for (int i = 0; i < steps; ++i) {
+    in.tools[0].orientation = Eigen::Quaterniond(Eigen::AngleAxisd(rate * s.dt * (i + 1), Vec3::UnitZ()));
+    const StepReport rep = stepper.step(m, st, s, in);
+    if (i < half) continue;
+    f.torque += rep.tools[0].torque.z() / half;
+    f.force += rep.tools[0].force.x() / half;
+    f.pressing += rep.tools[0].force.y() / half;
+    for (const ToolContact& c : rep.tools[0].contacts)
+      f.dragged += (st.x[c.vertex].x() - m.rest_positions[c.vertex].x()) / (double(half) * rep.tools[0].contacts.size());
+  }
+  return f;
+}
+
+void print_turned(const std::string& what, const Turned& spinning, const Turned& held) {
+  std::cout << "[ spin ] " << what << ": about the axis " << spinning.torque << " N m (held " << held.torque
+            << "), along x " << spinning.force << " N (held " << held.force << "), touched vertices along x "
+            << spinning.dragged << " m (held " << held.dragged << "), pressing " << spinning.pressing << " N (held "
+            << held.pressing << ")\n";
+}
+
 TEST(ToolContact, ASpinningCapsuleDragsTheSurfaceAndFeelsATorqueAgainstItsSpin) {
-  // A capsule lying across the top face near the tip, 1 mm into it, turning about its own axis
-  // (z) in place at 5 rad/s: its bottom, where it touches, moves along +x at 2 cm/s. With
+  // The capsule turning at 5 rad/s: its bottom, where it touches, moves along +x at 2 cm/s. With
   // friction the body is dragged along +x under it and holds the tool back: a force along -x and
   // a torque about its axis against the spin. Held still, neither (the beam's bending alone
   // moves the touched vertices). Without its angular velocity the step would see a tool that
@@ -296,30 +332,6 @@ TEST(ToolContact, ASpinningCapsuleDragsTheSurfaceAndFeelsATorqueAgainstItsSpin) 
   // friction give a small part of sliding friction here: docs/haptics.md).
   auto m = clamped_beam(1e6);
   SolverSettings s = quiet_settings(false);
-  const double r = 0.004;
-  struct Felt {
-    double torque = 0, force = 0, dragged = 0, pressing = 0;
-  };
-  auto spin = [&](double rate) {
-    BodyState st = rest_state(*m);
-    Stepper stepper;
-    StepInputs in;
-    in.tools.push_back(RigidTool::capsule(Vec3(0.09, 0.01 + r - 0.001, 0.005), Eigen::Quaterniond::Identity(), r, 0.03));
-    in.tools[0].static_friction = in.tools[0].dynamic_friction = 1.0;
-    in.tools[0].angular_velocity = Vec3(0, 0, rate);
-    Felt f;
-    for (int i = 0; i < 60; ++i) {
-      in.tools[0].orientation = Eigen::Quaterniond(Eigen::AngleAxisd(rate * s.dt * (i + 1), Vec3::UnitZ()));
-      const StepReport rep = stepper.step(*m, st, s, in);
-      if (i < 30) continue;
-      f.torque += rep.tools[0].torque.z() / 30;
-      f.force += rep.tools[0].force.x() / 30;
-      f.pressing += rep.tools[0].force.y() / 30;
-      for (const ToolContact& c : rep.tools[0].contacts)
-        f.dragged += (st.x[c.vertex].x() - m->rest_positions[c.vertex].x()) / (30.0 * rep.tools[0].contacts.size());
-    }
-    return f;
-  };
   for (Method method : {Method::Xpbd, Method::Vbd, Method::Newton}) {
     SCOPED_TRACE(std::string(to_string(method)));
     s.method = method;
@@ -327,11 +339,8 @@ TEST(ToolContact, ASpinningCapsuleDragsTheSurfaceAndFeelsATorqueAgainstItsSpin) 
       s.substeps = 32;
       s.iterations = 3;
     }
-    const Felt spinning = spin(5.0), held = spin(0.0);
-    std::cout << "[ spin ] " << to_string(method) << ": about the axis " << spinning.torque << " N m (held "
-              << held.torque << "), along x " << spinning.force << " N (held " << held.force
-              << "), touched vertices along x " << spinning.dragged << " m (held " << held.dragged << "), pressing "
-              << spinning.pressing << " N\n";
+    const Turned spinning = turn_capsule(*m, s, 5.0), held = turn_capsule(*m, s, 0.0);
+    print_turned(std::string(to_string(method)), spinning, held);
     // The pushes have no moment about the axis (their normals meet it): the torque is friction's.
     EXPECT_LT(spinning.torque, 0.0) << "the body should hold the spin back";
     EXPECT_LT(spinning.torque, held.torque - 0.5 * std::abs(spinning.torque));
@@ -339,8 +348,28 @@ TEST(ToolContact, ASpinningCapsuleDragsTheSurfaceAndFeelsATorqueAgainstItsSpin) 
     if (method == Method::Xpbd) {
       // Hard contact with Coulomb friction: sliding, mu x the normal force at the radius, and
       // the force that holds the tool back along -x.
+      const double r = kCapsuleRadius;
       EXPECT_NEAR(spinning.torque, -1.0 * spinning.pressing * r, 0.1 * spinning.pressing * r);
       EXPECT_LT(spinning.force, held.force - 0.5 * std::abs(spinning.force));
     }
   }
+}
+
+TEST(ToolContact, TheHapticBridgesNewtonStepFeelsTheFrictionOfATurningTool) {
+  // The same capsule on beam1 at 100 kPa with the haptic bridge's budget: one Newton iteration a
+  // 1 ms tick, residuals recorded (as the server does). The torque about the axis is about sliding
+  // friction's, mu x the normal force at the radius; held, about nil.
+  auto m = clamped_beam(1e5);
+  SolverSettings s = quiet_settings(false);
+  s.method = Method::Newton;
+  s.dt = 1e-3;
+  s.substeps = 1;
+  s.iterations = 1;
+  s.record_residuals = true;
+  const Turned spinning = turn_capsule(*m, s, 5.0), held = turn_capsule(*m, s, 0.0);
+  print_turned("newton 1 x 1 at 1 kHz, 100 kPa", spinning, held);
+  const double sliding = spinning.pressing * kCapsuleRadius;
+  ASSERT_GT(sliding, 0.0);
+  EXPECT_NEAR(spinning.torque, -sliding, 0.5 * sliding);
+  EXPECT_LT(std::abs(held.torque), 0.01 * sliding);
 }

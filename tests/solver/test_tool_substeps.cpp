@@ -58,6 +58,17 @@ Met tick_with(ParticleBody& body, const RigidTool& tool) {
   return m;
 }
 
+// `ticks` ticks of `body`, the tool moved by its velocity before each: the body's state after them
+// and the tool's impulse in each.
+std::pair<ParticleState, std::vector<Vec3>> moving_ticks(ParticleBody& body, RigidTool tool, int ticks) {
+  std::vector<Vec3> impulses;
+  for (int k = 0; k < ticks; ++k) {
+    tool.position += tool.velocity * kTick;
+    impulses.push_back(tick_with(body, tool).boundary.impulse[0]);
+  }
+  return {body.state(), impulses};
+}
+
 // A square cloth of n x n particles, `size` a side, lying in the plane y = origin.y.
 std::unique_ptr<ConstraintBody> square_cloth(int n, double size, const Vec3& origin, const ConstraintBodySettings& s) {
   ClothGridSpec g;
@@ -313,12 +324,7 @@ TEST(ToolInSubsteps, ResultsDoNotDependOnTheThreadCount) {
     RigidTool t = RigidTool::capsule(Vec3(-0.1, 0, 0), Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Vec3::UnitY())),
                                      0.005, 0.3);
     t.velocity = Vec3(0.6, 0, 0);
-    std::vector<Vec3> impulses;
-    for (int k = 0; k < 6; ++k) {
-      t.position += t.velocity / 60;
-      impulses.push_back(tick_with(*cloth, t).boundary.impulse[0]);
-    }
-    return std::pair(cloth->state(), impulses);
+    return moving_ticks(*cloth, t, 6);
   };
   const auto [c1, j1] = cloth_run(1);
   const auto [c3, j3] = cloth_run(3);
@@ -335,12 +341,7 @@ TEST(ToolInSubsteps, ResultsDoNotDependOnTheThreadCount) {
     FluidBody water(fs, {FluidBlock{Vec3(-0.05, -0.045, -0.05), Vec3(0.05, 0.04, 0.05)}});
     RigidTool t = RigidTool::sphere(Vec3(-0.05, 0.0, 0.0), 0.015);
     t.velocity = Vec3(0.5, 0, 0);
-    std::vector<Vec3> impulses;
-    for (int k = 0; k < 6; ++k) {
-      t.position += t.velocity / 60;
-      impulses.push_back(tick_with(water, t).boundary.impulse[0]);
-    }
-    return std::pair(water.state(), impulses);
+    return moving_ticks(water, t, 6);
   };
   const auto [f1, k1] = fluid_run(1);
   const auto [f3, k3] = fluid_run(3);
