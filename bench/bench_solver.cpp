@@ -96,7 +96,7 @@ void run(benchmark::State& state, const std::string& mesh, Method method, Sweep 
   // over the tets at the start of the solve; flop_per_s: what the solve achieved with it (the
   // roofline's numerator; docs/solver.md gives this machine's peak).
   const double flops = detail::mean_projection_flops(*su.model, su.x0, std::vector<Vec6>(su.model->slot_count(), Vec6::Zero()),
-                                                     su.model->compliance * 3600.0, line_search);
+                                                     Mat6(su.model->compliance * 3600.0), line_search);
   state.counters["flops_per_tet"] = flops;
   state.counters["flop_per_s"] =
       benchmark::Counter(flops * double(iterations) * double(su.model->tet_count()), benchmark::Counter::kIsRate);

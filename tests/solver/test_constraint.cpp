@@ -341,6 +341,74 @@ TEST(StrainConstraint, PackedKernelMatchesScalarKernel) {
   expect_pack_matches_scalar_kernel(4);
 }
 
+TEST(StrainConstraint, TheKernelSkipsOnlyTheComplianceEntriesThatAreZero) {
+  // An isotropic material's alpha~ couples the normal rows among themselves and each shear row
+  // with itself only; the kernels then leave out the products with the other entries. That must
+  // change nothing to the last bit (both strain models, with and without the line search, tets
+  // squashed enough for it to act), and a compliance that couples a normal row with a shear row
+  // must take the full product: the step then solves its own system.
+  std::mt19937 rng(21);
+  std::vector<std::array<Vec3, 4>> tets;
+  for (int t = 0; t < 4; ++t) tets.push_back(random_tet(rng));
+  const TetMesh mesh = disjoint_tets(tets);
+  for (ElasticModel model : {ElasticModel::StVK, ElasticModel::Corotated}) {
+    Material mat{2e5, 0.35, 900};
+    mat.model = model;
+    auto body = build_model(mesh, mat);
+    const detail::TetPack& pack = detail::packed(*body).packs[0];
+    std::vector<Vec3> x = mesh.vertices;
+    for (auto& p : x) p += 0.3 * Vec3(std::sin(7 * p.x()), std::cos(5 * p.y()), std::sin(3 * p.z()));
+    std::uniform_real_distribution<double> u(-2e-4, 2e-4);
+    std::vector<Vec6> lambda(detail::packed(*body).slot_count());
+    for (Vec6& l : lambda)
+      for (int r = 0; r < 6; ++r) l[r] = u(rng);
+    const detail::KernelCompliance skipping(Mat6(body->compliance * 3600.0));
+    ASSERT_TRUE(skipping.normal_and_shear);
+    detail::KernelCompliance full = skipping;
+    full.normal_and_shear = false;
+    for (bool line_search : {false, true}) {
+      std::vector<Vec3> xa = x, xb = x;
+      std::vector<Vec6> la = lambda, lb = lambda, da(lambda.size()), db(lambda.size());
+      detail::project_pack(pack, xa, la, da, *body, skipping, 1.0, 0.0, line_search);
+      detail::project_pack(pack, xb, lb, db, *body, full, 1.0, 0.0, line_search);
+      EXPECT_EQ(xa, xb) << int(model) << line_search;
+      EXPECT_EQ(la, lb) << int(model) << line_search;
+      EXPECT_EQ(da, db) << int(model) << line_search;
+      ASSERT_GT(da[0].norm(), 0.0);
+    }
+  }
+  // A compliance with normal-shear coupling (still symmetric positive definite).
+  Mat6 coupled = stvk_stiffness(lame_parameters(3.0, 0.35)).inverse() * 0.8;
+  coupled(0, 3) = coupled(3, 0) = 0.2 * coupled(0, 0);
+  coupled(2, 5) = coupled(5, 2) = -0.1 * coupled(0, 0);
+  ASSERT_GT(coupled.ldlt().vectorD().minCoeff(), 0.0);
+  EXPECT_FALSE(detail::KernelCompliance(coupled).normal_and_shear);
+  Mat6 shear_pair = stvk_stiffness(lame_parameters(3.0, 0.35)).inverse();
+  shear_pair(3, 4) = shear_pair(4, 3) = 1e-300;
+  EXPECT_FALSE(detail::KernelCompliance(shear_pair).normal_and_shear);
+  for (int trial = 0; trial < 10; ++trial) {
+    const TetRest tet = make_rest(random_tet(rng));
+    const auto x = deform(random_tet(rng), rng, 0.2);
+    const double w[4] = {1.3, 0.4, 2.1, 0.7};
+    Vec6 lambda;
+    lambda << 0.1, -0.2, 0.05, 0.3, -0.1, 0.02;
+    const Mat6x12 J = strain_jacobian(tet, x);
+    Eigen::Matrix<double, 12, 12> W = Eigen::Matrix<double, 12, 12>::Zero();
+    for (int k = 0; k < 4; ++k) W.block<3, 3>(3 * k, 3 * k) = w[k] * Mat3::Identity();
+    const Vec6 expected = (J * W * J.transpose() + coupled).ldlt().solve(-strain_constraint(tet, x) - coupled * lambda);
+    detail::ProjectionParams params;
+    params.alpha_tilde = coupled;
+    const Vec3* p[4] = {&x[0], &x[1], &x[2], &x[3]};
+    Vec6 dl;
+    Vec3 dx[4];
+    detail::strain_increment(tet, p, w, lambda, params, dl, dx);
+    EXPECT_LT((dl - expected).norm(), 1e-10 * (1 + expected.norm())) << trial;
+    params.alpha_tilde.normal_and_shear = true;  // wrongly skipping the coupling: another step
+    detail::strain_increment(tet, p, w, lambda, params, dl, dx);
+    EXPECT_GT((dl - expected).norm(), 1e-6 * (1 + expected.norm())) << trial;
+  }
+}
+
 TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
   // A tet squashed to 20% of its height: the linearised Green-strain step stretches it far past
   // its rest shape (the correction of a singular value s is (1 - s^2) / 2s = 2.4) and its own

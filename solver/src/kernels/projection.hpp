@@ -4,6 +4,7 @@
 // algebra, the inversion floor, and one-tet entry points for the tests.
 #pragma once
 
+#include "kernels/strain_kernel.hpp"
 #include "pliant/model.hpp"
 
 #include <Eigen/Core>
@@ -14,7 +15,7 @@ namespace pliant::detail {
 
 struct ProjectionParams {
   ElasticModel model = ElasticModel::StVK;  // which strain the constraint measures
-  Mat6 alpha_tilde;          // compliance / h^2
+  KernelCompliance alpha_tilde;  // compliance / h^2
   double lambda_scale = 1;   // over-relaxation of the increment (lambda-SOR), 1 otherwise
   double inversion_floor = 0;
   bool line_search = false;  // shorten a tet's step until its residual does not grow

@@ -402,13 +402,21 @@ inline void stvk_corrections(const TetLanes<T>& p, const Geometry<T>& g, const T
   move_corners(p, g.f, P, dx);
 }
 
+// Whether alpha~(r, c) may be nonzero: every entry, or with Blocks (KernelCompliance::
+// normal_and_shear) the normal block and the shear diagonal only.
+template <bool Blocks>
+constexpr bool couples(int r, int c) {
+  return !Blocks || (r < 3 && c < 3) || r == c;
+}
+
 // ||C + alpha~ lambda||^2 per lane.
-template <class T>
-inline T lane_residual_squared(const T C[6], const T lam[6], const Mat6& at) {
+template <bool Blocks, class T>
+inline T lane_residual_squared(const T C[6], const T lam[6], const KernelCompliance& at) {
   T sum = splat<T>(0.0);
   for (int r = 0; r < 6; ++r) {
     T s = C[r];
-    for (int c = 0; c < 6; ++c) s += at(r, c) * lam[c];
+    for (int c = 0; c < 6; ++c)
+      if (couples<Blocks>(r, c)) s += at(r, c) * lam[c];
     sum += s * s;
   }
   return sum;
@@ -416,10 +424,10 @@ inline T lane_residual_squared(const T C[6], const T lam[6], const Mat6& at) {
 
 // Step length along the projection's increment (y for lambda, dx for the corners), per lane:
 // see kMaxHalvings in projection.hpp.
-template <class T>
+template <bool Blocks, class T>
 T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geometry<T>& g, const T C[6], const T lam[6],
-                           const T y[6], const T dx[4][3], const Mat6& at) {
-  const T before = lane_residual_squared(C, lam, at);
+                           const T y[6], const T dx[4][3], const KernelCompliance& at) {
+  const T before = lane_residual_squared<Blocks>(C, lam, at);
   // dF[i][c]: change of column i, component c of F for the full step.
   T dd[3][3];
   for (int k = 0; k < 3; ++k)
@@ -445,7 +453,7 @@ T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geome
     T Cn[6], ln[6];
     constraint(p, n, Cn);
     for (int r = 0; r < 6; ++r) ln[r] = lam[r] + trial * y[r];
-    const T after = lane_residual_squared(Cn, ln, at);
+    const T after = lane_residual_squared<Blocks>(Cn, ln, at);
     for (int l = 0; l < p.lanes; ++l) {
       if (!(pending & (1 << l))) continue;
       set_lane(step, l, get_lane(trial, l));
@@ -486,32 +494,39 @@ inline void ldlt_solve(const T A[6][6], const T rhs[6], double lambda_scale, T D
   }
 }
 
+// a + alpha~(r, c), or a where that entry is zero (Blocks).
+template <bool Blocks, int r, int c, class T>
+inline T with_alpha(const T& a, const KernelCompliance& at) {
+  if constexpr (couples<Blocks>(r, c)) return a + at(r, c);
+  else return a;
+}
+
 // The StVK 6x6 system, lower triangle: A = V0 (bilinear terms in S = F^T F and Q) + alpha~.
-template <class T>
-inline void stvk_system(const T S[6], const T Q[6], const T& V, const Mat6& at, T A[6][6]) {
+template <bool Blocks, class T>
+inline void stvk_system(const T S[6], const T Q[6], const T& V, const KernelCompliance& at, T A[6][6]) {
   const T &S00 = S[0], &S11 = S[1], &S22 = S[2], &S12 = S[3], &S02 = S[4], &S01 = S[5];
   const T &Q00 = Q[0], &Q11 = Q[1], &Q22 = Q[2], &Q12 = Q[3], &Q02 = Q[4], &Q01 = Q[5];
-  A[0][0] = V * (S00 * Q00) + at(0, 0);
-  A[1][0] = V * (S01 * Q01) + at(1, 0);
-  A[1][1] = V * (S11 * Q11) + at(1, 1);
-  A[2][0] = V * (S02 * Q02) + at(2, 0);
-  A[2][1] = V * (S12 * Q12) + at(2, 1);
-  A[2][2] = V * (S22 * Q22) + at(2, 2);
-  A[3][0] = V * (S02 * Q01 + S01 * Q02) + at(3, 0);
-  A[3][1] = V * (S12 * Q11 + S11 * Q12) + at(3, 1);
-  A[3][2] = V * (S22 * Q12 + S12 * Q22) + at(3, 2);
-  A[3][3] = V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22) + at(3, 3);
-  A[4][0] = V * (S02 * Q00 + S00 * Q02) + at(4, 0);
-  A[4][1] = V * (S12 * Q01 + S01 * Q12) + at(4, 1);
-  A[4][2] = V * (S22 * Q02 + S02 * Q22) + at(4, 2);
-  A[4][3] = V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22) + at(4, 3);
-  A[4][4] = V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22) + at(4, 4);
-  A[5][0] = V * (S01 * Q00 + S00 * Q01) + at(5, 0);
-  A[5][1] = V * (S11 * Q01 + S01 * Q11) + at(5, 1);
-  A[5][2] = V * (S12 * Q02 + S02 * Q12) + at(5, 2);
-  A[5][3] = V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12) + at(5, 3);
-  A[5][4] = V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12) + at(5, 4);
-  A[5][5] = V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11) + at(5, 5);
+  A[0][0] = with_alpha<Blocks, 0, 0>(V * (S00 * Q00), at);
+  A[1][0] = with_alpha<Blocks, 1, 0>(V * (S01 * Q01), at);
+  A[1][1] = with_alpha<Blocks, 1, 1>(V * (S11 * Q11), at);
+  A[2][0] = with_alpha<Blocks, 2, 0>(V * (S02 * Q02), at);
+  A[2][1] = with_alpha<Blocks, 2, 1>(V * (S12 * Q12), at);
+  A[2][2] = with_alpha<Blocks, 2, 2>(V * (S22 * Q22), at);
+  A[3][0] = with_alpha<Blocks, 3, 0>(V * (S02 * Q01 + S01 * Q02), at);
+  A[3][1] = with_alpha<Blocks, 3, 1>(V * (S12 * Q11 + S11 * Q12), at);
+  A[3][2] = with_alpha<Blocks, 3, 2>(V * (S22 * Q12 + S12 * Q22), at);
+  A[3][3] = with_alpha<Blocks, 3, 3>(V * (S22 * Q11 + S12 * Q12 + S12 * Q12 + S11 * Q22), at);
+  A[4][0] = with_alpha<Blocks, 4, 0>(V * (S02 * Q00 + S00 * Q02), at);
+  A[4][1] = with_alpha<Blocks, 4, 1>(V * (S12 * Q01 + S01 * Q12), at);
+  A[4][2] = with_alpha<Blocks, 4, 2>(V * (S22 * Q02 + S02 * Q22), at);
+  A[4][3] = with_alpha<Blocks, 4, 3>(V * (S22 * Q01 + S12 * Q02 + S02 * Q12 + S01 * Q22), at);
+  A[4][4] = with_alpha<Blocks, 4, 4>(V * (S22 * Q00 + S02 * Q02 + S02 * Q02 + S00 * Q22), at);
+  A[5][0] = with_alpha<Blocks, 5, 0>(V * (S01 * Q00 + S00 * Q01), at);
+  A[5][1] = with_alpha<Blocks, 5, 1>(V * (S11 * Q01 + S01 * Q11), at);
+  A[5][2] = with_alpha<Blocks, 5, 2>(V * (S12 * Q02 + S02 * Q12), at);
+  A[5][3] = with_alpha<Blocks, 5, 3>(V * (S12 * Q01 + S11 * Q02 + S02 * Q11 + S01 * Q12), at);
+  A[5][4] = with_alpha<Blocks, 5, 4>(V * (S12 * Q00 + S01 * Q02 + S02 * Q01 + S00 * Q12), at);
+  A[5][5] = with_alpha<Blocks, 5, 5>(V * (S11 * Q00 + S01 * Q01 + S01 * Q01 + S00 * Q11), at);
 }
 
 // The corotated constraint (corotated_rows in projection.hpp gives the rows
@@ -540,7 +555,8 @@ inline void corotated_axes_of(const Geometry<T>& g, T u[6][3]) {
 }
 
 template <class T>
-inline void corotated_system(const TetLanes<T>& p, const Geometry<T>& g, const Mat6& at, T A[6][6], T u[6][3]) {
+inline void corotated_system(const TetLanes<T>& p, const Geometry<T>& g, const KernelCompliance& at, T A[6][6],
+                             T u[6][3]) {
   corotated_axes_of(g, u);
   const T &Q00 = p.Q[0], &Q11 = p.Q[1], &Q22 = p.Q[2], &Q12 = p.Q[3], &Q02 = p.Q[4], &Q01 = p.Q[5];
   T v[6][3];
@@ -587,11 +603,9 @@ inline void corotated_corrections(const TetLanes<T>& p, const Geometry<T>& g, co
   move_corners(p, g.r, P, dx);
 }
 
-}  // namespace
-
-template <class T>
-void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6], ElasticModel elastic,
-                 const Mat6& at, double lambda_scale, bool line_search, StrainStep<T>& out) {
+template <bool Blocks, class T>
+void strain_step_with(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6], ElasticModel elastic,
+                      const KernelCompliance& at, double lambda_scale, bool line_search, StrainStep<T>& out) {
   Geometry<T> g;
   geometry(p, x, g, elastic);
   T C[6];
@@ -599,11 +613,12 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6
   T A[6][6];
   T u[6][3];  // corotated only: the rotation axes of the rows
   if (elastic == ElasticModel::Corotated) corotated_system(p, g, at, A, u);
-  else stvk_system(g.S, p.Q, p.volume, at, A);
-  T rhs[6];
+  else stvk_system<Blocks>(g.S, p.Q, p.volume, at, A);
+  T rhs[6];  // -C - alpha~ lambda
   for (int r = 0; r < 6; ++r) {
     T s = -C[r];
-    for (int c = 0; c < 6; ++c) s -= at(r, c) * lam[c];
+    for (int c = 0; c < 6; ++c)
+      if (couples<Blocks>(r, c)) s -= at(r, c) * lam[c];
     rhs[r] = s;
   }
   T D[6], y[6];
@@ -612,7 +627,7 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6
   if (elastic == ElasticModel::Corotated) corotated_corrections(p, g, u, y, dx);
   else stvk_corrections(p, g, y, dx);
   T step = splat<T>(1.0);
-  if (line_search) step = residual_decreasing_step(elastic, p, g, C, lam, y, dx, at);
+  if (line_search) step = residual_decreasing_step<Blocks>(elastic, p, g, C, lam, y, dx, at);
   out.det = det3(g.f);
   out.ok = 0;
   if constexpr (kLanes<T> == 4) {
@@ -633,9 +648,24 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6
     for (int c = 0; c < 3; ++c) out.dx[k][c] = step * dx[k][c];
 }
 
+}  // namespace
+
+KernelCompliance::KernelCompliance(const Mat6& alpha_tilde) : m(alpha_tilde) {
+  for (int r = 0; r < 6; ++r)
+    for (int c = 0; c < 6; ++c)
+      if (!couples<true>(r, c) && m(r, c) != 0.0) normal_and_shear = false;
+}
+
+template <class T>
+void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6], ElasticModel elastic,
+                 const KernelCompliance& at, double lambda_scale, bool line_search, StrainStep<T>& out) {
+  if (at.normal_and_shear) strain_step_with<true>(p, x, lam, elastic, at, lambda_scale, line_search, out);
+  else strain_step_with<false>(p, x, lam, elastic, at, lambda_scale, line_search, out);
+}
+
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda, std::vector<Vec6>& dlambda,
-                  const BodyModel& model, const Mat6& at, double lambda_scale, double inversion_floor, bool line_search) {
+                  const BodyModel& model, const KernelCompliance& at, double lambda_scale, double inversion_floor, bool line_search) {
   T lam[6];
   gather_slots(p, lambda, lam);
   StrainStep<T> st;
@@ -775,29 +805,30 @@ bool floor_may_act(const FloorCheck& c, const std::vector<Vec3>& x, double trigg
 
 template <class T>
 double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
-                              const Mat6& at, ElasticModel model) {
+                              const KernelCompliance& at, ElasticModel model) {
   Geometry<T> g;
   geometry(p, x, g, model);
   T C[6], lam[6];
   constraint(p, g, C);
   gather_slots(p, lambda, lam);
-  const T sum = lane_residual_squared(C, lam, at);
+  const T sum = at.normal_and_shear ? lane_residual_squared<true>(C, lam, at) : lane_residual_squared<false>(C, lam, at);
   double total = 0;
   for (int l = 0; l < p.lanes; ++l) total += get_lane(sum, l);
   return total;
 }
 
 #define PLIANT_STRAIN_KERNEL(T)                                                                                    \
-  template void strain_step(const TetLanes<T>&, const std::vector<Vec3>&, const T[6], ElasticModel, const Mat6&,   \
+  template void strain_step(const TetLanes<T>&, const std::vector<Vec3>&, const T[6], ElasticModel,               \
+                            const KernelCompliance&,                                                         \
                             double, bool, StrainStep<T>&);                                                         \
   template int project_lanes(const TetLanes<T>&, std::vector<Vec3>&, std::vector<Vec6>&, std::vector<Vec6>&,       \
-                             const BodyModel&, const Mat6&, double, double, bool);                                 \
+                             const BodyModel&, const KernelCompliance&, double, double, bool);                                 \
   template void apply_increment_lanes(const TetLanes<T>&, std::vector<Vec3>&, const std::vector<Vec6>&,            \
                                       ElasticModel);                                                               \
   template T volume_ratio_lanes(const TetLanes<T>&, const std::vector<Vec3>&);                                     \
   template int volume_floor_pack(const TetLanes<T>&, std::vector<Vec3>&, double, double);                        \
   template double residual_squared_lanes(const TetLanes<T>&, const std::vector<Vec3>&, const std::vector<Vec6>&,   \
-                                         const Mat6&, ElasticModel);
+                                         const KernelCompliance&, ElasticModel);
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wignored-attributes"  // see strain_kernel.hpp
 PLIANT_STRAIN_KERNEL(double)
@@ -829,7 +860,7 @@ inline void set_lane(Counted& a, int, double value) { a.v = value; }
 }  // namespace
 
 double mean_projection_flops(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
-                             const Mat6& alpha_tilde, bool line_search) {
+                             const KernelCompliance& alpha_tilde, bool line_search) {
   if (m.tets.empty()) return 0;
   const int64_t before = Counted::flops;
   for (size_t t = 0; t < m.tets.size(); ++t) {

@@ -113,6 +113,18 @@ void compile_solve_order(BodyModel& model);
 // The model's packs (compiled with it).
 inline const PackedModel& packed(const BodyModel& model) { return *model.packed; }
 
+// alpha~ (the compliance over h^2) as the kernels take it: the 6x6, and whether its only nonzero
+// entries are the normal block (rows and columns 0-2) and the shear rows' diagonal, as an
+// isotropic material's are. The kernels then leave out the products with the zeros, which add
+// exactly nothing (same results, fewer operations).
+struct KernelCompliance {
+  Mat6 m = Mat6::Zero();
+  bool normal_and_shear = true;
+  KernelCompliance() = default;
+  KernelCompliance(const Mat6& alpha_tilde);  // NOLINT(google-explicit-constructor): a Mat6 converts
+  double operator()(int r, int c) const { return m(r, c); }
+};
+
 // One projection's result per lane, before it is applied: the multiplier increment and the
 // corner moves (line-search step and lambda_scale included), det F before the projection, and
 // the lanes whose 6x6 system was positive definite (bit l; the others must be skipped).
@@ -129,14 +141,14 @@ struct StrainStep {
 // until its own residual does not grow (projection.hpp). lambda_t: the lanes' multipliers.
 template <class T>
 void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lambda_t[6], ElasticModel model,
-                 const Mat6& alpha_tilde, double lambda_scale, bool line_search, StrainStep<T>& out);
+                 const KernelCompliance& alpha_tilde, double lambda_scale, bool line_search, StrainStep<T>& out);
 
 // Gauss-Seidel projection of the real lanes: x, lambda and dlambda (slot order) updated; a lane
 // whose system is not positive definite is skipped (dlambda zero). Then the inversion floor for
 // the lanes whose det F was below it before the projection; returns how many it corrected.
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
-                  std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
+                  std::vector<Vec6>& dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
                   double lambda_scale, double inversion_floor, bool line_search);
 
 // x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update; dl in slots).
@@ -163,14 +175,14 @@ bool floor_may_act(const FloorCheck& c, const std::vector<Vec3>& x, double trigg
 // Sum over the real lanes of ||C + alpha~ lambda||^2 (lambda in slots).
 template <class T>
 double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
-                              const Mat6& alpha_tilde, ElasticModel model);
+                              const KernelCompliance& alpha_tilde, ElasticModel model);
 
 // Arithmetic operations (+, -, *, /) of one projection (strain_step of one tet), averaged over
 // the model's tets at x with multipliers lambda (slots): the kernel's own code run on a number
 // type that counts them. The rotation's per-lane scaling and SVD fallback (corotated) and the
 // line search's bookkeeping are scalar code outside the count.
 double mean_projection_flops(const BodyModel& model, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
-                             const Mat6& alpha_tilde, bool line_search);
+                             const KernelCompliance& alpha_tilde, bool line_search);
 
 // Ask for a pack's data ahead of its turn: a sweep streams the packs (and the multipliers in
 // their slots) from memory and reads the corners' positions scattered.
@@ -205,7 +217,7 @@ inline void prefetch_ahead(const PackedModel& pm, size_t i, size_t e, const std:
 
 // The pack-of-four names the sweeps use.
 inline int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
-                        std::vector<Vec6>& dlambda, const BodyModel& model, const Mat6& alpha_tilde,
+                        std::vector<Vec6>& dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
                         double lambda_scale, double inversion_floor, bool line_search) {
   return project_lanes(p, x, lambda, dlambda, model, alpha_tilde, lambda_scale, inversion_floor, line_search);
 }

@@ -117,7 +117,7 @@ struct Stepper::Impl {
   }
 
   double residual(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
-                  const Mat6& alpha_tilde, ThreadPool& tp) {
+                  const detail::KernelCompliance& alpha_tilde, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     partial.assign(tp.size(), 0.0);
     tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
@@ -484,7 +484,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
   accel->begin_substep(m.vertex_count(), packed.slot_count());
   detail::ProjectionParams params;
   params.model = m.material.model;
-  params.alpha_tilde = m.compliance / (h * h);
+  params.alpha_tilde = detail::KernelCompliance(Mat6(m.compliance / (h * h)));
   params.lambda_scale = accel->increment_scale();
   params.inversion_floor = s.inversion_floor;
   params.line_search = s.line_search;
@@ -799,7 +799,7 @@ void apply_damping(const BodyModel& m, BodyState& state, const SolverSettings& s
 
 double residual_norm(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
                      double h) {
-  const Mat6 at = m.compliance / (h * h);
+  const detail::KernelCompliance at(Mat6(m.compliance / (h * h)));
   double sum = 0;
   if (lambda.size() != m.slot_count())
     throw std::invalid_argument("lambda: " + std::to_string(lambda.size()) + " multipliers, expected " +
