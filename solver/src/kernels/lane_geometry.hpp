@@ -67,7 +67,9 @@ template <class T>
 inline void rotation(const T f[3][3], T r[3][3]) {
   constexpr int W = kLanes<T>;
   T X[3][3];
+  PLIANT_UNROLL
   for (int i = 0; i < 3; ++i)
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) X[i][c] = f[i][c];
   int pending = (1 << W) - 1, failed = 0;
   for (int it = 0; it < kMaxPolarIterations && pending; ++it) {
@@ -77,12 +79,15 @@ inline void rotation(const T f[3][3], T r[3][3]) {
     cross(X[0], X[1], cof[2]);
     const T det = column_dot(X[0], cof[0]);
     T nx = splat<T>(0.0), nc = splat<T>(0.0);
+    PLIANT_UNROLL
     for (int i = 0; i < 3; ++i)
+      PLIANT_UNROLL
       for (int c = 0; c < 3; ++c) {
         nx += X[i][c] * X[i][c];
         nc += cof[i][c] * cof[i][c];
       }
     T g, inv;  // g and 1 / (g det) per lane
+    PLIANT_UNROLL
     for (int l = 0; l < W; ++l) {
       const double d = get_lane(det, l);
       if (!(d > 0)) {  // inverted or degenerate: the SVD handles this lane
@@ -98,28 +103,38 @@ inline void rotation(const T f[3][3], T r[3][3]) {
       set_lane(inv, l, 1.0 / (gl * d));
     }
     T change = splat<T>(0.0);
+    PLIANT_UNROLL
     for (int i = 0; i < 3; ++i)
+      PLIANT_UNROLL
       for (int c = 0; c < 3; ++c) {
         const T next = 0.5 * (g * X[i][c] + inv * cof[i][c]);
         const T d = next - X[i][c];
         change += d * d;
         X[i][c] = next;
       }
+    PLIANT_UNROLL
     for (int l = 0; l < W; ++l)
       if ((pending & (1 << l)) && get_lane(change, l) < kPolarConverged) pending &= ~(1 << l);
   }
   failed |= pending;
+  PLIANT_UNROLL
   for (int l = 0; l < W; ++l) {
     if (failed & (1 << l)) {
       Mat3 F;
+      PLIANT_UNROLL
       for (int i = 0; i < 3; ++i)
+        PLIANT_UNROLL
         for (int c = 0; c < 3; ++c) F(c, i) = get_lane(f[i][c], l);
       const Mat3 R = polar_rotation(F);
+      PLIANT_UNROLL
       for (int i = 0; i < 3; ++i)
+        PLIANT_UNROLL
         for (int c = 0; c < 3; ++c) set_lane(X[i][c], l, R(c, i));
     }
   }
+  PLIANT_UNROLL
   for (int i = 0; i < 3; ++i)
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) r[i][c] = X[i][c];
 }
 
@@ -129,11 +144,14 @@ template <class T>
 inline void corotated_strain(Geometry<T>& g) {
   rotation(g.f, g.r);
   T* S = g.stretch;
+  PLIANT_UNROLL
   for (int i = 0; i < 3; ++i) S[i] = column_dot(g.r[i], g.f[i]);
   S[3] = 0.5 * (column_dot(g.r[1], g.f[2]) + column_dot(g.r[2], g.f[1]));
   S[4] = 0.5 * (column_dot(g.r[0], g.f[2]) + column_dot(g.r[2], g.f[0]));
   S[5] = 0.5 * (column_dot(g.r[0], g.f[1]) + column_dot(g.r[1], g.f[0]));
+  PLIANT_UNROLL
   for (int i = 0; i < 3; ++i) g.c[i] = S[i] - 1.0;
+  PLIANT_UNROLL
   for (int i = 3; i < 6; ++i) g.c[i] = 2.0 * S[i];
 }
 

@@ -67,14 +67,17 @@ inline void corotated_axials(const T M[6], T a[6][3]) {
     else { out[0] = s[1]; out[1] = -s[0]; out[2] = s[0] * 0.0; }
   };
   constexpr int kA[6] = {0, 1, 2, 1, 0, 0}, kC[6] = {0, 1, 2, 2, 2, 1};
+  PLIANT_UNROLL
   for (int i = 0; i < 6; ++i) {
     T t[3];
     if (i < 3) {
       cross_e(row[i], i, a[i]);
+      PLIANT_UNROLL
       for (int c = 0; c < 3; ++c) a[i][c] = 0.5 * a[i][c];
     } else {
       cross_e(row[kC[i]], kA[i], a[i]);
       cross_e(row[kA[i]], kC[i], t);
+      PLIANT_UNROLL
       for (int c = 0; c < 3; ++c) a[i][c] = 0.5 * (a[i][c] + t[c]);
     }
   }
@@ -85,6 +88,7 @@ template <class T>
 inline void corotated_axes(const T S[6], const T Ginv[6], T u[6][3]) {
   T a[6][3];
   corotated_axials(S, a);
+  PLIANT_UNROLL
   for (int i = 0; i < 6; ++i) {
     u[i][0] = Ginv[0] * a[i][0] + Ginv[5] * a[i][1] + Ginv[4] * a[i][2];
     u[i][1] = Ginv[5] * a[i][0] + Ginv[1] * a[i][1] + Ginv[3] * a[i][2];

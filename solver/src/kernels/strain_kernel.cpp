@@ -295,6 +295,7 @@ namespace {
 template <class T>
 inline void deformation(const TetLanes<T>& p, const std::vector<Vec3>& x, T f[3][3]) {
   T px[4][3];
+  PLIANT_UNROLL
   for (int k = 0; k < 4; ++k)
     for (int l = 0; l < kLanes<T>; ++l) {
       const Vec3& q = x[p.v[k][l]];
@@ -303,9 +304,13 @@ inline void deformation(const TetLanes<T>& p, const std::vector<Vec3>& x, T f[3]
       set_lane(px[k][2], l, q[2]);
     }
   T d[3][3];
+  PLIANT_UNROLL
   for (int k = 0; k < 3; ++k)
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) d[k][c] = px[k][c] - px[3][c];
+  PLIANT_UNROLL
   for (int i = 0; i < 3; ++i)
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) f[i][c] = d[0][c] * p.B[i] + d[1][c] * p.B[3 + i] + d[2][c] * p.B[6 + i];
 }
 
@@ -317,6 +322,7 @@ inline void geometry(const TetLanes<T>& p, const std::vector<Vec3>& x, Geometry<
 
 template <class T>
 inline void constraint(const TetLanes<T>& p, const Geometry<T>& g, T C[6]) {
+  PLIANT_UNROLL
   for (int r = 0; r < 6; ++r) C[r] = p.sqrt_volume * g.c[r];
 }
 
@@ -365,6 +371,7 @@ inline void gather_slots(const TetLanes<T>& p, const std::vector<Vec6>& lambda, 
   } else {
     for (int l = 0; l < kLanes<T>; ++l) {
       const Vec6& a = lambda[p.slot + l];
+      PLIANT_UNROLL
       for (int r = 0; r < 6; ++r) set_lane(lam[r], l, a[r]);
     }
   }
@@ -374,14 +381,21 @@ inline void gather_slots(const TetLanes<T>& p, const std::vector<Vec6>& lambda, 
 template <class T>
 inline void move_corners(const TetLanes<T>& p, const T G[3][3], const T P[3][3], T dx[4][3]) {
   T M[3][3];  // M[i][c]: component c of column i of G P
+  PLIANT_UNROLL
   for (int i = 0; i < 3; ++i)
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) M[i][c] = G[0][c] * P[0][i] + G[1][c] * P[1][i] + G[2][c] * P[2][i];
   T b[4][3];
+  PLIANT_UNROLL
   for (int k = 0; k < 3; ++k)
+    PLIANT_UNROLL
     for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
+  PLIANT_UNROLL
   for (int i = 0; i < 3; ++i) b[3][i] = -(b[0][i] + b[1][i] + b[2][i]);
+  PLIANT_UNROLL
   for (int k = 0; k < 4; ++k) {
     const T s = p.w[k] * p.sqrt_volume;
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) dx[k][c] = s * (M[0][c] * b[k][0] + M[1][c] * b[k][1] + M[2][c] * b[k][2]);
   }
 }
@@ -413,8 +427,10 @@ constexpr bool couples(int r, int c) {
 template <bool Blocks, class T>
 inline T lane_residual_squared(const T C[6], const T lam[6], const KernelCompliance& at) {
   T sum = splat<T>(0.0);
+  PLIANT_UNROLL
   for (int r = 0; r < 6; ++r) {
     T s = C[r];
+    PLIANT_UNROLL
     for (int c = 0; c < 6; ++c)
       if (couples<Blocks>(r, c)) s += at(r, c) * lam[c];
     sum += s * s;
@@ -430,10 +446,14 @@ T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geome
   const T before = lane_residual_squared<Blocks>(C, lam, at);
   // dF[i][c]: change of column i, component c of F for the full step.
   T dd[3][3];
+  PLIANT_UNROLL
   for (int k = 0; k < 3; ++k)
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) dd[k][c] = dx[k][c] - dx[3][c];
   T dF[3][3];
+  PLIANT_UNROLL
   for (int i = 0; i < 3; ++i)
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) dF[i][c] = dd[0][c] * p.B[i] + dd[1][c] * p.B[3 + i] + dd[2][c] * p.B[6 + i];
   T step = splat<T>(1.0);
   T trial = splat<T>(1.0);
@@ -441,17 +461,22 @@ T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geome
   int pending = 0;
   for (int l = 0; l < p.lanes; ++l) {
     double n2 = 0;
+    PLIANT_UNROLL
     for (int i = 0; i < 3; ++i)
+      PLIANT_UNROLL
       for (int c = 0; c < 3; ++c) n2 += get_lane(dF[i][c], l) * get_lane(dF[i][c], l);
     if (n2 > kSmallStep * kSmallStep) pending |= 1 << l;
   }
   for (int h = 0; h <= kMaxHalvings && pending; ++h) {
     Geometry<T> n;
+    PLIANT_UNROLL
     for (int i = 0; i < 3; ++i)
+      PLIANT_UNROLL
       for (int c = 0; c < 3; ++c) n.f[i][c] = g.f[i][c] + trial * dF[i][c];
     strain(n, model);
     T Cn[6], ln[6];
     constraint(p, n, Cn);
+    PLIANT_UNROLL
     for (int r = 0; r < 6; ++r) ln[r] = lam[r] + trial * y[r];
     const T after = lane_residual_squared<Blocks>(Cn, ln, at);
     for (int l = 0; l < p.lanes; ++l) {
@@ -470,25 +495,33 @@ T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geome
 template <class T>
 inline void ldlt_solve(const T A[6][6], const T rhs[6], double lambda_scale, T D[6], T y[6]) {
   T L[6][6], invD[6];
+  PLIANT_UNROLL
   for (int j = 0; j < 6; ++j) {
     T d = A[j][j];
+    PLIANT_UNROLL
     for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k] * D[k];
     D[j] = d;
     invD[j] = 1.0 / d;
+    PLIANT_UNROLL
     for (int i = j + 1; i < 6; ++i) {
       T s = A[i][j];
+      PLIANT_UNROLL
       for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k] * D[k];
       L[i][j] = s * invD[j];
     }
   }
   T z[6];
+  PLIANT_UNROLL
   for (int i = 0; i < 6; ++i) {
     T s = rhs[i];
+    PLIANT_UNROLL
     for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
     z[i] = s;
   }
+  PLIANT_UNROLL
   for (int i = 5; i >= 0; --i) {
     T s = z[i] * invD[i];
+    PLIANT_UNROLL
     for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
     y[i] = lambda_scale * s;
   }
@@ -549,6 +582,7 @@ inline void corotated_axes_of(const Geometry<T>& g, T u[6][3]) {
     const double t3 = get_lane(third, l), d = get_lane(det, l);
     const bool ok = d > kRotationConditionLimit * t3 * t3 * t3;
     const double inv = ok ? 1.0 / d : 0.0;
+    PLIANT_UNROLL
     for (int i = 0; i < 6; ++i) set_lane(Ginv[i], l, get_lane(Ginv[i], l) * inv);
   }
   corotated_axes(S, Ginv, u);
@@ -563,6 +597,7 @@ inline void corotated_system(const TetLanes<T>& p, const Geometry<T>& g, const K
   corotated_axials(p.Q, v);  // half of v_i
   const T trQ = Q00 + Q11 + Q22;
   T Qu[6][3];
+  PLIANT_UNROLL
   for (int i = 0; i < 6; ++i) {
     Qu[i][0] = Q00 * u[i][0] + Q01 * u[i][1] + Q02 * u[i][2];
     Qu[i][1] = Q01 * u[i][0] + Q11 * u[i][1] + Q12 * u[i][2];
@@ -577,6 +612,7 @@ inline void corotated_system(const TetLanes<T>& p, const Geometry<T>& g, const K
       {zero, Q12, Q12, Q11 + Q22, zero, zero},
       {Q02, zero, Q02, Q01, Q00 + Q22, zero},
       {Q01, Q01, zero, Q02, Q12, Q00 + Q11}};
+  PLIANT_UNROLL
   for (int i = 0; i < 6; ++i)
     for (int j = 0; j <= i; ++j) {
       // v holds half of v_i: -2 (u_j . v_i + u_i . v_j) = -4 (u_j . v~_i + u_i . v~_j).
@@ -592,8 +628,10 @@ template <class T>
 inline void corotated_corrections(const TetLanes<T>& p, const Geometry<T>& g, const T u[6][3], const T y[6],
                                   T dx[4][3]) {
   T U[3];
+  PLIANT_UNROLL
   for (int c = 0; c < 3; ++c) {
     U[c] = y[0] * u[0][c];
+    PLIANT_UNROLL
     for (int i = 1; i < 6; ++i) U[c] += y[i] * u[i][c];
   }
   const T two = splat<T>(2.0);
@@ -615,8 +653,10 @@ void strain_step_with(const TetLanes<T>& p, const std::vector<Vec3>& x, const T 
   if (elastic == ElasticModel::Corotated) corotated_system(p, g, at, A, u);
   else stvk_system<Blocks>(g.S, p.Q, p.volume, at, A);
   T rhs[6];  // -C - alpha~ lambda
+  PLIANT_UNROLL
   for (int r = 0; r < 6; ++r) {
     T s = -C[r];
+    PLIANT_UNROLL
     for (int c = 0; c < 6; ++c)
       if (couples<Blocks>(r, c)) s -= at(r, c) * lam[c];
     rhs[r] = s;
@@ -633,18 +673,23 @@ void strain_step_with(const TetLanes<T>& p, const std::vector<Vec3>& x, const T 
   if constexpr (kLanes<T> == 4) {
     // y - y == 0 exactly when y is finite; all six rows at once, lane by lane.
     auto good = (y[0] - y[0] == 0) & (D[0] > 0);
+    PLIANT_UNROLL
     for (int r = 1; r < 6; ++r) good &= (y[r] - y[r] == 0) & (D[r] > 0);
     for (int l = 0; l < p.lanes; ++l)
       if (good[l]) out.ok |= 1 << l;
   } else {
     for (int l = 0; l < p.lanes; ++l) {
       bool ok = true;
+      PLIANT_UNROLL
       for (int r = 0; r < 6; ++r) ok &= std::isfinite(get_lane(y[r], l)) && get_lane(D[r], l) > 0;
       if (ok) out.ok |= 1 << l;
     }
   }
+  PLIANT_UNROLL
   for (int r = 0; r < 6; ++r) out.dlambda[r] = step * y[r];
+  PLIANT_UNROLL
   for (int k = 0; k < 4; ++k)
+    PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) out.dx[k][c] = step * dx[k][c];
 }
 
@@ -719,6 +764,7 @@ void apply_increment_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const std
     stvk_corrections(p, g, y, dx);
   }
   for (int l = 0; l < p.lanes; ++l)
+    PLIANT_UNROLL
     for (int k = 0; k < 4; ++k) {
       Vec3& q = x[p.v[k][l]];
       q[0] += get_lane(dx[k][0], l);
@@ -750,11 +796,14 @@ int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor, 
   cross(f[2], f[0], cof[1]);
   cross(f[0], f[1], cof[2]);
   T grad[4][3];
+  PLIANT_UNROLL
   for (int c = 0; c < 3; ++c) {
+    PLIANT_UNROLL
     for (int k = 0; k < 3; ++k) grad[k][c] = cof[0][c] * p.B[3 * k] + cof[1][c] * p.B[3 * k + 1] + cof[2][c] * p.B[3 * k + 2];
     grad[3][c] = -(grad[0][c] + grad[1][c] + grad[2][c]);
   }
   T denom = splat<T>(0.0);
+  PLIANT_UNROLL
   for (int k = 0; k < 4; ++k)
     denom += p.w[k] * (grad[k][0] * grad[k][0] + grad[k][1] * grad[k][1] + grad[k][2] * grad[k][2]);
   const T dl = (splat<T>(floor) - J) / denom;
@@ -762,6 +811,7 @@ int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor, 
   for (int l = 0; l < p.lanes; ++l) {
     if (!(below & (1 << l)) || !(get_lane(denom, l) > 1e-300)) continue;
     corrected |= 1 << l;
+    PLIANT_UNROLL
     for (int k = 0; k < 4; ++k) {
       const double s = get_lane(p.w[k], l) * get_lane(dl, l);
       Vec3& q = x[p.v[k][l]];

@@ -23,6 +23,10 @@
 
 // v4d as a template argument: GCC warns that it drops the vector type's attributes there, but
 // the type (4 doubles, 32-byte aligned by its size) is what the templates see.
+// Put before a small loop of fixed length in the kernels: unrolled whole, its arrays stay in
+// registers (GCC kept the 6x6 solve's nested loops as loops over the stack otherwise).
+#define PLIANT_UNROLL _Pragma("GCC unroll 8")
+
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wignored-attributes"
 
