@@ -443,7 +443,6 @@ inline T lane_residual_squared(const T C[6], const T lam[6], const KernelComplia
 template <bool Blocks, class T>
 T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geometry<T>& g, const T C[6], const T lam[6],
                            const T y[6], const T dx[4][3], const KernelCompliance& at) {
-  const T before = lane_residual_squared<Blocks>(C, lam, at);
   // dF[i][c]: change of column i, component c of F for the full step.
   T dd[3][3];
   PLIANT_UNROLL
@@ -458,15 +457,16 @@ T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geome
   T step = splat<T>(1.0);
   T trial = splat<T>(1.0);
   // Lanes whose full step changes F by less than kSmallStep keep it.
-  int pending = 0;
-  for (int l = 0; l < p.lanes; ++l) {
-    double n2 = 0;
+  T n2 = splat<T>(0.0);
+  PLIANT_UNROLL
+  for (int i = 0; i < 3; ++i)
     PLIANT_UNROLL
-    for (int i = 0; i < 3; ++i)
-      PLIANT_UNROLL
-      for (int c = 0; c < 3; ++c) n2 += get_lane(dF[i][c], l) * get_lane(dF[i][c], l);
-    if (n2 > kSmallStep * kSmallStep) pending |= 1 << l;
-  }
+    for (int c = 0; c < 3; ++c) n2 += dF[i][c] * dF[i][c];
+  int pending = 0;
+  for (int l = 0; l < p.lanes; ++l)
+    if (get_lane(n2, l) > kSmallStep * kSmallStep) pending |= 1 << l;
+  if (!pending) return step;
+  const T before = lane_residual_squared<Blocks>(C, lam, at);
   for (int h = 0; h <= kMaxHalvings && pending; ++h) {
     Geometry<T> n;
     PLIANT_UNROLL
@@ -666,8 +666,13 @@ void strain_step_with(const TetLanes<T>& p, const std::vector<Vec3>& x, const T 
   T dx[4][3];
   if (elastic == ElasticModel::Corotated) corotated_corrections(p, g, u, y, dx);
   else stvk_corrections(p, g, y, dx);
+  // A lane's increment shortened by the line search (a step of 1 multiplies by nothing).
+  bool shortened = false;
   T step = splat<T>(1.0);
-  if (line_search) step = residual_decreasing_step<Blocks>(elastic, p, g, C, lam, y, dx, at);
+  if (line_search) {
+    step = residual_decreasing_step<Blocks>(elastic, p, g, C, lam, y, dx, at);
+    for (int l = 0; l < kLanes<T>; ++l) shortened |= get_lane(step, l) != 1.0;
+  }
   out.det = det3(g.f);
   out.ok = 0;
   if constexpr (kLanes<T> == 4) {
@@ -686,11 +691,11 @@ void strain_step_with(const TetLanes<T>& p, const std::vector<Vec3>& x, const T 
     }
   }
   PLIANT_UNROLL
-  for (int r = 0; r < 6; ++r) out.dlambda[r] = step * y[r];
+  for (int r = 0; r < 6; ++r) out.dlambda[r] = shortened ? step * y[r] : y[r];
   PLIANT_UNROLL
   for (int k = 0; k < 4; ++k)
     PLIANT_UNROLL
-    for (int c = 0; c < 3; ++c) out.dx[k][c] = step * dx[k][c];
+    for (int c = 0; c < 3; ++c) out.dx[k][c] = shortened ? step * dx[k][c] : dx[k][c];
 }
 
 }  // namespace
