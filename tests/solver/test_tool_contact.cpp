@@ -36,6 +36,27 @@ TEST(ToolContact, ClosestPointOnTriangleInEveryRegion) {
   EXPECT_EQ(q, b);
 }
 
+TEST(ToolContact, ClosestPointOnADegenerateTriangleIsOneOfItsPoints) {
+  // The mesh embedding, the contacts and the cloth share one closest-point query; a triangle
+  // collapsed to a segment or a point must give a point of it with weights that sum to 1, not
+  // a division by zero.
+  std::array<double, 3> w{};
+  auto check = [&](const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& expected) {
+    const Vec3 q = closest_point_on_triangle(p, a, b, c, w);
+    ASSERT_TRUE(q.allFinite());
+    EXPECT_NEAR((q - expected).norm(), 0, 1e-12);
+    EXPECT_NEAR(w[0] + w[1] + w[2], 1.0, 1e-12);
+    for (double x : w) EXPECT_GE(x, 0.0);
+    EXPECT_NEAR((w[0] * a + w[1] * b + w[2] * c - q).norm(), 0, 1e-12);
+  };
+  const Vec3 o(0.1, 0.2, 0.3);
+  check(Vec3(1, 2, 3), o, o, o, o);                                  // a point
+  check(Vec3(0.5, 0.7, 0.3), o, o, Vec3(1.1, 0.2, 0.3), Vec3(0.5, 0.2, 0.3));  // a segment, a = b
+  check(Vec3(0.5, 0.7, 0.3), o, Vec3(1.1, 0.2, 0.3), o, Vec3(0.5, 0.2, 0.3));  // a = c
+  check(Vec3(0.5, 0.7, 0.3), Vec3(1.1, 0.2, 0.3), o, o, Vec3(0.5, 0.2, 0.3));  // b = c
+  check(Vec3(0.5, 0.7, 0.3), o, Vec3(0.6, 0.2, 0.3), Vec3(1.1, 0.2, 0.3), Vec3(0.5, 0.2, 0.3));  // collinear
+}
+
 TEST(ToolContact, ASmallSpherePressedIntoACoarseFacePushesItsTriangle) {
   // beam1's faces are 5 mm right triangles: a sphere of radius 1 mm pressed 0.5 mm into the
   // middle of one has no vertex inside it (the nearest corner is 2.4 mm from the centroid), so

@@ -5,6 +5,7 @@
 // The reactions come from the XPBD multipliers (f = lambda / h^2), not from a made-up spring.
 #pragma once
 
+#include "pliant/geometry.hpp"
 #include "pliant/material.hpp"
 #include "pliant/mesh.hpp"
 
@@ -107,11 +108,6 @@ int project_tool_contacts(const BodyModel& model, std::vector<Eigen::Vector3d>& 
                           const std::vector<Eigen::Vector3d>& x_start, const RigidTool& tool, double h,
                           const std::function<void(int32_t vertex, const Eigen::Vector3d& dlambda,
                                                    const Eigen::Vector3d& normal)>& record);
-
-// Closest point to p on triangle (a, b, c) and its barycentric weights (sum 1, all >= 0).
-Eigen::Vector3d closest_point_on_triangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
-                                          const Eigen::Vector3d& b, const Eigen::Vector3d& c,
-                                          std::array<double, 3>& barycentric);
 
 // The closest points between a tool's core (its centre; a capsule's axis segment) and triangle
 // (a, b, c): the point on the core, the point on the triangle and its barycentric weights.

@@ -99,37 +99,11 @@ Collider inflated(const Collider& c, double r) {
   return out;
 }
 
-// Closest point of triangle (a, b, c) to p as barycentric coordinates (Ericson's regions).
+// Closest point of triangle (a, b, c) to p as barycentric coordinates.
 Vec3 closest_barycentric(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
-  const Vec3 ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0 && d2 <= 0) return {1, 0, 0};
-  const Vec3 bp = p - b;
-  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0 && d4 <= d3) return {0, 1, 0};
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) {
-    const double t = d1 - d3 > 0 ? d1 / (d1 - d3) : 0.0;
-    return {1 - t, t, 0};
-  }
-  const Vec3 cp = p - c;
-  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0 && d5 <= d6) return {0, 0, 1};
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-    const double t = d2 - d6 > 0 ? d2 / (d2 - d6) : 0.0;
-    return {1 - t, 0, t};
-  }
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-    const double t = (d4 - d3) + (d5 - d6) > 0 ? (d4 - d3) / ((d4 - d3) + (d5 - d6)) : 0.0;
-    return {0, 1 - t, t};
-  }
-  const double sum = va + vb + vc;
-  if (!(sum > 0)) return {1, 0, 0};  // degenerate triangle
-  const double denom = 1.0 / sum;
-  const double v = vb * denom, w = vc * denom;
-  return {1 - v - w, v, w};
+  std::array<double, 3> w;
+  closest_point_on_triangle(p, a, b, c, w);
+  return {w[0], w[1], w[2]};
 }
 
 // The cell index of a coordinate already divided by the cell size, clamped so that a body

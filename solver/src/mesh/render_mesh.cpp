@@ -10,6 +10,7 @@
 #include "pliant/render_mesh.hpp"
 
 #include "mesh/mesh_parse.hpp"
+#include "pliant/geometry.hpp"
 #include "pliant/mesh_io.hpp"
 
 #include <Eigen/Dense>
@@ -27,30 +28,6 @@ namespace pliant {
 namespace fs = std::filesystem;
 
 namespace {
-
-// Closest point to p on triangle (a, b, c): classify p against the triangle's Voronoi regions
-// (three vertices, three edges, the face), using barycentric-style dot products.
-Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
-  const Vec3 ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0 && d2 <= 0) return a;
-  const Vec3 bp = p - b;
-  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0 && d4 <= d3) return b;
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) return a + ab * (d1 / (d1 - d3));
-  const Vec3 cp = p - c;
-  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0 && d5 <= d6) return c;
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) return a + ac * (d2 / (d2 - d6));
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-  const double denom = va + vb + vc;
-  if (!(std::abs(denom) > 0)) return a;  // degenerate triangle
-  const double v = vb / denom, w = vc / denom;
-  return a + ab * v + ac * w;
-}
 
 Eigen::Vector4d barycentric(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
   Eigen::Matrix3d m;
@@ -112,7 +89,8 @@ double distance_to_tet(const Vec3& p, const TetMesh& mesh, const Tet& t, const E
   static constexpr int kFaces[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
   double best = std::numeric_limits<double>::infinity();
   for (const auto& f : kFaces) {
-    const Vec3 q = closest_on_triangle(p, mesh.vertices[t[f[0]]], mesh.vertices[t[f[1]]], mesh.vertices[t[f[2]]]);
+    std::array<double, 3> b;
+    const Vec3 q = closest_point_on_triangle(p, mesh.vertices[t[f[0]]], mesh.vertices[t[f[1]]], mesh.vertices[t[f[2]]], b);
     best = std::min(best, (q - p).norm());
   }
   return best;

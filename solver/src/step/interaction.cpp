@@ -116,50 +116,6 @@ void closest_segment_segment(const V3& p1, const V3& q1, const V3& p2, const V3&
 
 }  // namespace
 
-V3 closest_point_on_triangle(const V3& p, const V3& a, const V3& b, const V3& c, std::array<double, 3>& w) {
-  // Voronoi regions of the vertices, edges and face (Ericson, Real-Time Collision Detection 5.1.5).
-  const V3 ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0 && d2 <= 0) {
-    w = {1, 0, 0};
-    return a;
-  }
-  const V3 bp = p - b;
-  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0 && d4 <= d3) {
-    w = {0, 1, 0};
-    return b;
-  }
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) {
-    const double v = d1 / (d1 - d3);
-    w = {1 - v, v, 0};
-    return a + v * ab;
-  }
-  const V3 cp = p - c;
-  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0 && d5 <= d6) {
-    w = {0, 0, 1};
-    return c;
-  }
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-    const double t = d2 / (d2 - d6);
-    w = {1 - t, 0, t};
-    return a + t * ac;
-  }
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-    const double t = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-    w = {0, 1 - t, t};
-    return b + t * (c - b);
-  }
-  const double denom = 1.0 / (va + vb + vc);
-  const double v = vb * denom, u = vc * denom;
-  w = {1 - v - u, v, u};
-  return a + v * ab + u * ac;
-}
-
 void closest_core_triangle(const RigidTool& tool, const V3& a, const V3& b, const V3& c, V3& core_point,
                            V3& tri_point, std::array<double, 3>& bary) {
   if (tool.shape != RigidTool::Shape::Capsule || tool.half_length <= 0) {
