@@ -12,8 +12,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <functional>
 #include <numbers>
 #include <random>
+#include <stdexcept>
+#include <string>
 
 using namespace pliant;
 using pliant::fluid::Kernels;
@@ -683,7 +686,23 @@ TEST(FluidBody, GrabPullsAParticleAndReportsItsForce) {
   EXPECT_TRUE(f.move_grab(7, start));
   EXPECT_TRUE(f.release(7));
   EXPECT_FALSE(f.release(7));
+  EXPECT_FALSE(f.move_grab(7, start));
   EXPECT_EQ(f.grab_force(7), Vec3::Zero());
+  // Bad grabs are refused naming what is wrong (the particle bodies share this bookkeeping).
+  auto refused = [](const std::function<void()>& call, const std::string& word) {
+    try {
+      call();
+      ADD_FAILURE() << "accepted; expected a message naming " << word;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(word), std::string::npos) << e.what();
+    }
+  };
+  refused([&] { f.grab(8, f.size(), start, 0.0); }, "particle");
+  refused([&] { f.grab(8, 0, Vec3(NAN, 0, 0), 0.0); }, "target");
+  refused([&] { f.grab(8, 0, start, -1.0); }, "compliance");
+  refused([&] { f.grab(8, 0, start, INFINITY); }, "compliance");
+  f.grab(8, 0, start, 0.0);
+  refused([&] { f.move_grab(8, Vec3(0, INFINITY, 0)); }, "target");
 }
 
 TEST(FluidBody, VorticityConfinementKeepsARotatingBlobSpinning) {

@@ -97,10 +97,6 @@ class ConstraintBody : public ParticleBody {
                              SurfaceBoundary* surface, ToolBoundary* tools) override;
   void set_gravity(const Vec3& gravity) override;
 
-  void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;
-  bool move_grab(uint64_t id, const Vec3& target) override;
-  bool release(uint64_t id) override;
-  Vec3 grab_force(uint64_t id) const override;
 
   // Pins particle i where it is (inverse mass 0) or frees it again with its mass.
   void pin(size_t i);
@@ -188,14 +184,6 @@ class ConstraintBody : public ParticleBody {
                                       // (finish runs twice for a grid with shear diagonals)
   std::unique_ptr<ThreadPool> pool_;
 
-  struct Grab {
-    size_t particle;
-    Vec3 target;
-    double compliance;
-    Vec3 lambda = Vec3::Zero();
-    Vec3 force = Vec3::Zero();
-  };
-  std::map<uint64_t, Grab> grabs_;
 
   // self-collision: triangle candidates by hashed cell, rebuilt every step
   double cell_ = 0.0;

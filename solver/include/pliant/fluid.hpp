@@ -124,10 +124,6 @@ class FluidBody final : public ParticleBody {
                              SurfaceBoundary* surface, ToolBoundary* tools) override;
   void set_gravity(const Vec3& gravity) override;
 
-  void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) override;
-  bool move_grab(uint64_t id, const Vec3& target) override;
-  bool release(uint64_t id) override;
-  Vec3 grab_force(uint64_t id) const override;
 
   const FluidSettings& settings() const;
   double particle_mass() const;    // kg

@@ -12,6 +12,7 @@
 
 #include <array>
 #include <cstdint>
+#include <map>
 #include <span>
 #include <string>
 #include <utility>
@@ -105,6 +106,19 @@ struct ToolBoundary {
   size_t pushed = 0;
 };
 
+// One grab of a particle body: the particle it pulls toward `target` through `compliance` (m/N;
+// 0 = hard) and the force it applied to the body over the last step (N). `lambda` is the body's
+// multiplier of it: a cloth's or a rope's three rows; a fluid's distance constraint its first
+// entry, along `normal`.
+struct ParticleGrab {
+  size_t particle = 0;
+  Vec3 target = Vec3::Zero();
+  double compliance = 0.0;
+  Vec3 lambda = Vec3::Zero();
+  Vec3 normal = Vec3::Zero();
+  Vec3 force = Vec3::Zero();
+};
+
 // How many parts a step of bodies in contact is cut into, so that their contacts are resolved
 // between the parts and not once per step: the largest count that divides every body's substeps
 // (each part is whole substeps of every body, so a body alone steps as it would in one piece);
@@ -163,15 +177,20 @@ class ParticleBody {
 
   // Grabs: particle `particle` pulled toward `target` through a constraint of compliance
   // `compliance` (m/N; 0 = hard). The force the grab applies to the body (N) comes from its
-  // multiplier, as the soft body's grabs do.
-  virtual void grab(uint64_t id, size_t particle, const Vec3& target, double compliance) = 0;
-  virtual bool move_grab(uint64_t id, const Vec3& target) = 0;
-  virtual bool release(uint64_t id) = 0;
-  virtual Vec3 grab_force(uint64_t id) const = 0;
+  // multiplier, as the soft body's grabs do. grab throws std::invalid_argument naming the bad
+  // argument (a particle out of range, a target not finite, a compliance not finite or < 0), as
+  // move_grab does for its target; move_grab and release return false for an unknown id.
+  void grab(uint64_t id, size_t particle, const Vec3& target, double compliance);
+  bool move_grab(uint64_t id, const Vec3& target);
+  bool release(uint64_t id);
+  Vec3 grab_force(uint64_t id) const;
 
   // How the body's log lines name it (a scene sets "scene 'S' body 'B'"); kind() when unset.
   void set_log_name(std::string name) { log_name_ = std::move(name); }
   std::string log_name() const { return log_name_.empty() ? kind() : log_name_; }
+
+ protected:
+  std::map<uint64_t, ParticleGrab> grabs_;  // by id; each kind solves them in its step
 
  private:
   std::string log_name_;

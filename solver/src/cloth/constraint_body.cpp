@@ -277,31 +277,6 @@ void ConstraintBody::set_position(size_t i, const Vec3& x) {
   state_.v[i] = Vec3::Zero();
 }
 
-void ConstraintBody::grab(uint64_t id, size_t particle, const Vec3& target, double compliance) {
-  if (particle >= size())
-    throw std::invalid_argument("grab: particle " + std::to_string(particle) + " out of range (body has " +
-                                std::to_string(size()) + ")");
-  if (!target.allFinite()) throw std::invalid_argument("grab: target is not finite");
-  if (!std::isfinite(compliance) || compliance < 0.0)
-    throw std::invalid_argument("grab: compliance must be a finite number >= 0 m/N (got " + fmt::format("{:g}", compliance) + ")");
-  grabs_[id] = Grab{particle, target, compliance};
-}
-
-bool ConstraintBody::move_grab(uint64_t id, const Vec3& target) {
-  auto it = grabs_.find(id);
-  if (it == grabs_.end()) return false;
-  if (!target.allFinite()) throw std::invalid_argument("move_grab: target is not finite");
-  it->second.target = target;
-  return true;
-}
-
-bool ConstraintBody::release(uint64_t id) { return grabs_.erase(id) > 0; }
-
-Vec3 ConstraintBody::grab_force(uint64_t id) const {
-  auto it = grabs_.find(id);
-  return it == grabs_.end() ? Vec3::Zero() : it->second.force;
-}
-
 template <class F>
 void ConstraintBody::for_colours(const std::vector<size_t>& starts, F&& f) {
   for (size_t c = 0; c + 1 < starts.size(); ++c) {

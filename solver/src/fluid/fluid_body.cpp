@@ -132,14 +132,6 @@ struct FluidBody::Impl {
     double travelled = 0.0;   // m since the last layer
     size_t emitted = 0;
   };
-  struct Grab {
-    size_t particle;  // creation order
-    Vec3 target;
-    double compliance;
-    double lambda = 0.0;
-    Vec3 normal = Vec3::Zero();
-    Vec3 force = Vec3::Zero();
-  };
 
   FluidSettings s;
   fluid::Kernels k;
@@ -183,7 +175,7 @@ struct FluidBody::Impl {
   std::vector<double> inv_mass;
   std::vector<Emitter> emitters;
   size_t block_count = 0;  // particles the blocks created (the first ones in creation order)
-  std::map<uint64_t, Grab> grabs;
+  std::map<uint64_t, ParticleGrab>& grabs;  // the body's (particle: in creation order)
   fluid::NeighbourGrid grid;
   std::unique_ptr<ThreadPool> pool;
   uint64_t substeps_done = 0;
@@ -196,7 +188,8 @@ struct FluidBody::Impl {
     t = now;
   }
 
-  explicit Impl(const FluidSettings& settings) : s(settings), k(settings.spacing * settings.support_ratio) {}
+  Impl(const FluidSettings& settings, std::map<uint64_t, ParticleGrab>& body_grabs)
+      : s(settings), k(settings.spacing * settings.support_ratio), grabs(body_grabs) {}
 
   // With one thread too, `fn` runs through its out-of-line copy, as the pool's threads run it: a
   // copy the compiler inlined here could contract its products into FMAs otherwise and round a
@@ -590,7 +583,7 @@ struct FluidBody::Impl {
     lap(clock, times.predict_ms);
     grid.build(p, h, pool.get());
     lap(clock, times.neighbours_ms);
-    for (auto& [id, gr] : grabs) gr.lambda = 0.0;
+    for (auto& [id, gr] : grabs) gr.lambda[0] = 0.0;
 
     const double sw = mass / s.rest_density;  // m / rho0
     wall_grad.resize(N);
@@ -628,13 +621,13 @@ struct FluidBody::Impl {
         if (len < 1e-12) continue;
         gr.normal = diff / len;
         const double alpha = gr.compliance / (dt * dt);
-        const double dl = (-len - alpha * gr.lambda) / (w + alpha);
+        const double dl = (-len - alpha * gr.lambda[0]) / (w + alpha);
         pg += w * dl * gr.normal;
-        gr.lambda += dl;
+        gr.lambda[0] += dl;
       }
       lap(clock, times.grabs_ms);
     }
-    for (auto& [id, gr] : grabs) gr.force = gr.normal * gr.lambda / (dt * dt);
+    for (auto& [id, gr] : grabs) gr.force = gr.normal * gr.lambda[0] / (dt * dt);
 
     // Friction at position level against each particle's last contact, then velocities.
     size_t contacts = 0;
@@ -792,7 +785,7 @@ FluidBody::FluidBody(const FluidSettings& st, const std::vector<FluidBlock>& blo
             "must exceed the particle radius on every axis", c.half_extent.minCoeff());
   }
 
-  impl_ = std::make_unique<Impl>(st);
+  impl_ = std::make_unique<Impl>(st, grabs_);
   Impl& m = *impl_;
   m.h = st.spacing * st.support_ratio;
   m.mass = st.rest_density * st.spacing * st.spacing * st.spacing;
@@ -1044,28 +1037,6 @@ ParticleStepReport FluidBody::advance(double dt, int substeps, std::span<const C
   m.sync_state();
   rep.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return rep;
-}
-
-void FluidBody::grab(uint64_t id, size_t particle, const Vec3& target, double compliance) {
-  require(particle < size(), "grab particle", "must be below the particle count", static_cast<double>(particle));
-  require_vec(target, "grab target");
-  require(std::isfinite(compliance) && compliance >= 0, "grab compliance", "must be >= 0", compliance);
-  impl_->grabs[id] = Impl::Grab{particle, target, compliance};
-}
-
-bool FluidBody::move_grab(uint64_t id, const Vec3& target) {
-  require_vec(target, "grab target");
-  auto it = impl_->grabs.find(id);
-  if (it == impl_->grabs.end()) return false;
-  it->second.target = target;
-  return true;
-}
-
-bool FluidBody::release(uint64_t id) { return impl_->grabs.erase(id) > 0; }
-
-Vec3 FluidBody::grab_force(uint64_t id) const {
-  auto it = impl_->grabs.find(id);
-  return it == impl_->grabs.end() ? Vec3::Zero() : it->second.force;
 }
 
 std::vector<double> FluidBody::pressure() const {
