@@ -281,13 +281,10 @@ template <class F>
 void ConstraintBody::for_colours(const std::vector<size_t>& starts, F&& f) {
   for (size_t c = 0; c + 1 < starts.size(); ++c) {
     const size_t b = starts[c], e = starts[c + 1];
-    if (pool_ && e - b >= kMinParallelColour) {
-      pool_->parallel_for(e - b, [&](int, size_t lo, size_t hi) {
-        for (size_t k = b + lo; k < b + hi; ++k) f(k);
-      });
-    } else {
-      for (size_t k = b; k < e; ++k) f(k);
-    }
+    // Small colours on this thread, through the same out-of-line call (run_parallel).
+    run_parallel(pool_ && e - b >= kMinParallelColour ? pool_.get() : nullptr, e - b, [&](int, size_t lo, size_t hi) {
+      for (size_t k = b + lo; k < b + hi; ++k) f(k);
+    });
   }
 }
 
@@ -487,10 +484,7 @@ void ConstraintBody::build_self_hash(double dt) {
       }
     }
   };
-  if (pool_)
-    pool_->parallel_for(n, work, 256);
-  else
-    work(0, 0, n);
+  run_parallel(pool_.get(), n, work, 256);
   candidates_.clear();
   for (auto& f : found) candidates_.insert(candidates_.end(), f.begin(), f.end());
 }
@@ -519,10 +513,7 @@ void ConstraintBody::find_self_contacts() {
     }
   };
   for (auto& s : self_scratch_) s.clear();
-  if (pool_)
-    pool_->parallel_for(candidates_.size(), work, 256);
-  else
-    work(0, 0, candidates_.size());
+  run_parallel(pool_.get(), candidates_.size(), work, 256);
   // chunks are contiguous ranges of the candidate list: the same order for any thread count
   self_contacts_.clear();
   for (auto& s : self_scratch_) self_contacts_.insert(self_contacts_.end(), s.begin(), s.end());
@@ -587,10 +578,7 @@ size_t ConstraintBody::solve_colliders(std::span<const Collider> colliders) {
     }
     counts[chunk] += count;
   };
-  if (pool_)
-    pool_->parallel_for(n, work, 256);
-  else
-    work(0, 0, n);
+  run_parallel(pool_.get(), n, work, 256);
   size_t total = 0;
   for (size_t c : counts) total += c;
   return total;
@@ -639,10 +627,7 @@ void ConstraintBody::meet_surface(SurfaceContacts& sc) {
       sc.moved[i] += p_[i] - before;
     }
   };
-  if (pool_)
-    pool_->parallel_for(size(), work, 256);
-  else
-    work(0, 0, size());
+  run_parallel(pool_.get(), size(), work, 256);
 }
 
 // After a substep's iterations: Coulomb friction on each touching particle's slip against the
@@ -688,10 +673,7 @@ void ConstraintBody::meet_tools(detail::ToolMeeting& tm) {
       box_hi = box_hi.cwiseMax(p_[i]);
     }
   };
-  if (pool_)
-    pool_->parallel_for(size(), work, 256);
-  else
-    work(0, 0, size());
+  run_parallel(pool_.get(), size(), work, 256);
   Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
   for (const auto& [l, h] : boxes) {
     lo = lo.cwiseMin(l);

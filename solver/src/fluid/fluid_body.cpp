@@ -191,16 +191,11 @@ struct FluidBody::Impl {
   Impl(const FluidSettings& settings, std::map<uint64_t, ParticleGrab>& body_grabs)
       : s(settings), k(settings.spacing * settings.support_ratio), grabs(body_grabs) {}
 
-  // With one thread too, `fn` runs through its out-of-line copy, as the pool's threads run it: a
-  // copy the compiler inlined here could contract its products into FMAs otherwise and round a
-  // few results differently, and then results would depend on the thread count.
-  [[gnu::noinline]] static void run_whole(const std::function<void(size_t, size_t)>& fn, size_t n) { fn(0, n); }
+  // fn over [0, n) on the pool (one out-of-line copy of it with any thread count: run_parallel).
   void parallel(size_t n, const std::function<void(size_t, size_t)>& fn) {
-    if (pool)
-      pool->parallel_for(n, [&](int, size_t b, size_t e) { fn(b, e); }, 256);
-    else
-      run_whole(fn, n);
+    run_parallel(pool.get(), n, [&](int, size_t b, size_t e) { fn(b, e); }, 256);
   }
+
 
   size_t n() const { return x.size(); }
   // The dimensional factors of the pair terms kept in units of h: poly6 pc h^6, the spiky

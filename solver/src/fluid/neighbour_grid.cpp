@@ -90,13 +90,6 @@ size_t collect(size_t m, const double* cx, const double* cy, const double* cz, c
   return hits;
 }
 
-void run(ThreadPool* pool, size_t n, const std::function<void(int, size_t, size_t)>& fn, size_t min_parallel) {
-  if (pool)
-    pool->parallel_for(n, fn, min_parallel);
-  else
-    fn(0, 0, n);
-}
-
 // Sorts a (distinct entries, so there is one result) with the pool: each chunk of the pool's
 // split sorted on its own thread, then the sorted chunks merged.
 template <class T>
@@ -124,7 +117,7 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
   const double inv_h = 1.0 / h;
   const double h2 = h * h;
   sorted_.resize(n);
-  run(pool, n, [&](int, size_t b, size_t e) {
+  run_parallel(pool, n, [&](int, size_t b, size_t e) {
     for (size_t i = b; i < e; ++i) sorted_[i] = {cell_key(x[i], inv_h), static_cast<uint32_t>(i)};
   }, 1024);
   sort_parallel(sorted_, pool);
@@ -167,7 +160,7 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
   sy_.resize(n);
   sz_.resize(n);
   point_.resize(n);
-  run(pool, n, [&](int, size_t b, size_t e) {
+  run_parallel(pool, n, [&](int, size_t b, size_t e) {
     for (size_t s = b; s < e; ++s) {
       const Vec3& q = x[sorted_[s].second];
       sx_[s] = q.x();
@@ -176,7 +169,7 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
       point_[s] = sorted_[s].second;
     }
   }, 1024);
-  run(pool, ncells, [&](int chunk, size_t b, size_t e) {
+  run_parallel(pool, ncells, [&](int chunk, size_t b, size_t e) {
     std::vector<uint32_t>& out = chunk_list_[chunk];
     size_t used = 0;
     // The candidates of one cell: the points of its 9 rows one after the other, padded to a
@@ -240,7 +233,7 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
   }
   chunk_first_[chunks] = base;
   list_.resize(base);
-  run(pool, ncells, [&](int chunk, size_t b, size_t e) {
+  run_parallel(pool, ncells, [&](int chunk, size_t b, size_t e) {
     const uint32_t first = chunk_first_[chunk];
     std::copy(chunk_list_[chunk].begin(), chunk_list_[chunk].begin() + static_cast<ptrdiff_t>(chunk_used_[chunk]),
               list_.begin() + first);

@@ -46,6 +46,14 @@ void ThreadPool::run_claimed(int index, uint64_t generation) {
   }
 }
 
+[[gnu::noinline]] void run_parallel(ThreadPool* pool, size_t n, const std::function<void(int, size_t, size_t)>& fn,
+                                    size_t min_parallel) {
+  if (pool)
+    pool->parallel_for(n, fn, min_parallel);
+  else
+    fn(0, 0, n);
+}
+
 void ThreadPool::parallel_for(size_t n, const std::function<void(int, size_t, size_t)>& fn,
                               size_t min_parallel) {
   if (workers_.empty() || n < min_parallel) {

@@ -53,4 +53,11 @@ class ThreadPool {
   std::atomic<bool> stop_{false};
 };
 
+// fn over [0, n) on `pool` (in chunks when n >= min_parallel), or whole on this thread when there
+// is no pool. Either way fn is called through the same out-of-line std::function call: a copy
+// of it that the compiler inlined at the caller could contract its products into FMAs
+// differently, and results would then depend on the thread count.
+void run_parallel(ThreadPool* pool, size_t n, const std::function<void(int, size_t, size_t)>& fn,
+                  size_t min_parallel = 128);
+
 }  // namespace pliant
