@@ -309,7 +309,7 @@ void expect_pack_matches_scalar_kernel(int n) {
   const Mat6 at = model->compliance * 3600.0;
   std::vector<Vec3> xp = x;
   std::vector<Vec6> lp = lambda;
-  detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0, false);
+  detail::project_pack(packed.packs[0], xp, lp, &dl, *model, at, 1.0, 0.0, false);
   for (int t = 0; t < n; ++t) {
     const int32_t slot = model->tet_slot[t];
     const TetRest& tet = model->tets[t];
@@ -369,8 +369,8 @@ TEST(StrainConstraint, TheKernelSkipsOnlyTheComplianceEntriesThatAreZero) {
     for (bool line_search : {false, true}) {
       std::vector<Vec3> xa = x, xb = x;
       std::vector<Vec6> la = lambda, lb = lambda, da(lambda.size()), db(lambda.size());
-      detail::project_pack(pack, xa, la, da, *body, skipping, 1.0, 0.0, line_search);
-      detail::project_pack(pack, xb, lb, db, *body, full, 1.0, 0.0, line_search);
+      detail::project_pack(pack, xa, la, &da, *body, skipping, 1.0, 0.0, line_search);
+      detail::project_pack(pack, xb, lb, &db, *body, full, 1.0, 0.0, line_search);
       EXPECT_EQ(xa, xb) << int(model) << line_search;
       EXPECT_EQ(la, lb) << int(model) << line_search;
       EXPECT_EQ(da, db) << int(model) << line_search;
@@ -431,8 +431,8 @@ TEST(StrainConstraint, LineSearchKeepsASquashedTetFromOvershooting) {
   };
   std::vector<Vec3> with = x, without = x;
   std::vector<Vec6> lw = lambda, lo = lambda, dl(packed.slot_count(), Vec6::Zero());
-  detail::project_pack(packed.packs[0], with, lw, dl, *model, at, 1.0, 0.0, true);
-  detail::project_pack(packed.packs[0], without, lo, dl, *model, at, 1.0, 0.0, false);
+  detail::project_pack(packed.packs[0], with, lw, &dl, *model, at, 1.0, 0.0, true);
+  detail::project_pack(packed.packs[0], without, lo, &dl, *model, at, 1.0, 0.0, false);
   for (int t = 0; t < 3; ++t) {
     const TetRest& tet = model->tets[t];
     const double before = detail::residual_squared(tet, x, lambda[t], at);
@@ -646,10 +646,10 @@ TEST(Corotated, BothKernelsSolveTheLinearisedSystem) {
   const Mat6 at = model->compliance * 3600.0;
   std::vector<Vec3> xp = x;
   std::vector<Vec6> lp = lambda;
-  detail::project_pack(packed.packs[0], xp, lp, dl, *model, at, 1.0, 0.0, false);
+  detail::project_pack(packed.packs[0], xp, lp, &dl, *model, at, 1.0, 0.0, false);
   std::vector<Vec3> xs = x;  // the pack with the line search
   std::vector<Vec6> ls = lambda, dls(packed.slot_count(), Vec6::Zero());
-  detail::project_pack(packed.packs[0], xs, ls, dls, *model, at, 1.0, 0.0, true);
+  detail::project_pack(packed.packs[0], xs, ls, &dls, *model, at, 1.0, 0.0, true);
   for (int t = 0; t < 3; ++t) {
     const TetRest& tet = model->tets[t];
     const auto xt = gather(x, tet.v);
@@ -707,8 +707,8 @@ TEST(Corotated, LineSearchShortensStepsThatWouldRaiseTheResidual) {
     const std::vector<Vec6> lambda(4, Vec6::Zero());
     std::vector<Vec3> with = x, without = x;
     std::vector<Vec6> lw = lambda, lo = lambda, dl(4, Vec6::Zero()), dlo(4, Vec6::Zero());
-    detail::project_pack(packed.packs[0], with, lw, dl, *model, at, 1.0, 0.0, true);
-    detail::project_pack(packed.packs[0], without, lo, dlo, *model, at, 1.0, 0.0, false);
+    detail::project_pack(packed.packs[0], with, lw, &dl, *model, at, 1.0, 0.0, true);
+    detail::project_pack(packed.packs[0], without, lo, &dlo, *model, at, 1.0, 0.0, false);
     for (int t = 0; t < 4; ++t) {
       const TetRest& tet = model->tets[t];
       const double before = detail::residual_squared(tet, x, lambda[t], at, ElasticModel::Corotated);

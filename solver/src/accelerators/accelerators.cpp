@@ -92,6 +92,7 @@ class MultiplierAcceleration final : public Accelerator {
   MultiplierAcceleration(const SolverSettings& s, Form form, double omega)
       : form_(form), omega_(omega), window_(s.window),
         mixer_(s.window, s.condition_limit, form == Form::TypeII ? omega : 0.0) {}
+  bool needs_increments() const override { return true; }
   void begin_substep(size_t, size_t tets) override {
     mixer_.reset(6 * tets);
     increment_.resize(tets);

@@ -41,6 +41,8 @@ class Accelerator {
   virtual double increment_scale() const { return 1.0; }
   // Whether x_before must be kept (position-space methods).
   virtual bool needs_previous() const { return false; }
+  // Whether it reads SweepResult::dlambda (a sweep that keeps no increment writes less).
+  virtual bool needs_increments() const { return false; }
   // Returns true when it made a proposal that must pass the residual check.
   virtual bool after_sweep(SweepResult& it, AcceleratorServices& services) = 0;
 };

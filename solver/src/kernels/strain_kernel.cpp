@@ -714,7 +714,7 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6
 }
 
 template <class T>
-int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda, std::vector<Vec6>& dlambda,
+int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda, std::vector<Vec6>* dlambda,
                   const BodyModel& model, const KernelCompliance& at, double lambda_scale, double inversion_floor, bool line_search) {
   T lam[6];
   gather_slots(p, lambda, lam);
@@ -726,7 +726,7 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
     if (st.ok == 0xF) {
       T sum[6];
       for (int r = 0; r < 6; ++r) sum[r] = lam[r] + st.dlambda[r];
-      slots_of_rows(st.dlambda, dlambda[size_t(p.slot)].data());
+      if (dlambda) slots_of_rows(st.dlambda, (*dlambda)[size_t(p.slot)].data());
       slots_of_rows(sum, lambda[size_t(p.slot)].data());
       slots_written = true;
     }
@@ -734,12 +734,13 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
   int floor_hits = 0;
   for (int l = 0; l < p.lanes; ++l) {
     if (!slots_written) {
-      Vec6& dl = dlambda[p.slot + l];
       if (!(st.ok & (1 << l))) {  // not positive definite (cannot happen with alpha~ > 0): skip the tet
-        dl.setZero();
+        if (dlambda) (*dlambda)[p.slot + l].setZero();
         continue;
       }
+      Vec6 dl;
       for (int r = 0; r < 6; ++r) dl[r] = get_lane(st.dlambda[r], l);
+      if (dlambda) (*dlambda)[p.slot + l] = dl;
       lambda[p.slot + l] += dl;
     }
     for (int k = 0; k < 4; ++k) {
@@ -876,7 +877,7 @@ double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, 
   template void strain_step(const TetLanes<T>&, const std::vector<Vec3>&, const T[6], ElasticModel,               \
                             const KernelCompliance&,                                                         \
                             double, bool, StrainStep<T>&);                                                         \
-  template int project_lanes(const TetLanes<T>&, std::vector<Vec3>&, std::vector<Vec6>&, std::vector<Vec6>&,       \
+  template int project_lanes(const TetLanes<T>&, std::vector<Vec3>&, std::vector<Vec6>&, std::vector<Vec6>*,       \
                              const BodyModel&, const KernelCompliance&, double, double, bool);                                 \
   template void apply_increment_lanes(const TetLanes<T>&, std::vector<Vec3>&, const std::vector<Vec6>&,            \
                                       ElasticModel);                                                               \

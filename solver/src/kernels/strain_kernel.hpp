@@ -148,11 +148,13 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lambd
                  const KernelCompliance& alpha_tilde, double lambda_scale, bool line_search, StrainStep<T>& out);
 
 // Gauss-Seidel projection of the real lanes: x, lambda and dlambda (slot order) updated; a lane
-// whose system is not positive definite is skipped (dlambda zero). Then the inversion floor for
+// whose system is not positive definite is skipped (dlambda zero). dlambda may be null when no
+// one reads the increments (only the multiplier accelerators do): a sweep then writes a sixth
+// less memory. Then the inversion floor for
 // the lanes whose det F was below it before the projection; returns how many it corrected.
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
-                  std::vector<Vec6>& dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
+                  std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
                   double lambda_scale, double inversion_floor, bool line_search);
 
 // x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update; dl in slots).
@@ -221,7 +223,7 @@ inline void prefetch_ahead(const PackedModel& pm, size_t i, size_t e, const std:
 
 // The pack-of-four names the sweeps use.
 inline int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
-                        std::vector<Vec6>& dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
+                        std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
                         double lambda_scale, double inversion_floor, bool line_search) {
   return project_lanes(p, x, lambda, dlambda, model, alpha_tilde, lambda_scale, inversion_floor, line_search);
 }

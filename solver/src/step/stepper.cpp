@@ -134,16 +134,21 @@ struct Stepper::Impl {
   }
 
   // One Gauss-Seidel sweep in the model's solve order, four tets of a colour at a time; blocks
-  // or colours run in parallel (the result does not depend on the thread count).
+  // or colours run in parallel (the result does not depend on the thread count). The
+  // increments go to dlambda only when `keep_increments` (an accelerator reads them).
   int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
-                         const detail::ProjectionParams& params, ThreadPool& tp) {
+                         const detail::ProjectionParams& params, bool keep_increments, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     std::vector<int> floor_hits(tp.size(), 0);
+    std::vector<Vec6>* increments = keep_increments ? &dlambda : nullptr;
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
-        detail::prefetch_ahead(packed, i, e, x, lambda, dlambda);
-        hits += detail::project_pack(packed.packs[i], x, lambda, dlambda, m, params.alpha_tilde, params.lambda_scale,
+        if (increments)
+          detail::prefetch_ahead(packed, i, e, x, lambda, dlambda);
+        else
+          detail::prefetch_ahead(packed, i, e, x, lambda);
+        hits += detail::project_pack(packed.packs[i], x, lambda, increments, m, params.alpha_tilde, params.lambda_scale,
                                      params.inversion_floor, params.line_search);
       }
       floor_hits[chunk] += hits;
@@ -523,7 +528,9 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     {
       PhaseTimer t{rep.times.projection_ms};
       switch (s.sweep) {
-        case Sweep::GaussSeidel: rep.volume_corrections = I.sweep_gauss_seidel(m, x, lambda, params, tp); break;
+        case Sweep::GaussSeidel:
+          rep.volume_corrections = I.sweep_gauss_seidel(m, x, lambda, params, accel->needs_increments(), tp);
+          break;
         case Sweep::Jacobi:
           rep.volume_corrections = I.sweep_jacobi(m, x, lambda, params, s.jacobi_relaxation, tp);
           break;
