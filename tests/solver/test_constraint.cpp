@@ -256,6 +256,22 @@ TEST(StrainConstraint, EnergyEqualsVolumeTimesStvkDensity) {
   expect_energy_equals_density(ElasticModel::StVK, stvk_density, 4, 0, 1e-10);
 }
 
+namespace {
+
+// The projection by its definition: [J W J^T + alpha~] dl = -C - alpha~ lambda, the vertices
+// moved by W J^T dl (in `move`).
+Vec6 defined_increment(const TetRest& tet, const std::array<Vec3, 4>& x, const double w[4], const Mat6& at,
+                       const Vec6& lambda, Vec12& move) {
+  const Mat6x12 J = strain_jacobian(tet, x);
+  Eigen::Matrix<double, 12, 12> W = Eigen::Matrix<double, 12, 12>::Zero();
+  for (int k = 0; k < 4; ++k) W.block<3, 3>(3 * k, 3 * k) = w[k] * Mat3::Identity();
+  const Vec6 dl = (J * W * J.transpose() + at).ldlt().solve(-strain_constraint(tet, x) - at * lambda);
+  move = W * J.transpose() * dl;
+  return dl;
+}
+
+}  // namespace
+
 TEST(StrainConstraint, FusedKernelMatchesDefinition) {
   // The solver's projection must solve [J W J^T + alpha~] dl = -C - alpha~ lambda and move the
   // vertices by W J^T dl.
@@ -274,13 +290,9 @@ TEST(StrainConstraint, FusedKernelMatchesDefinition) {
     Vec3 dx[4];
     detail::strain_increment(tet, p, w, lambda, params, dl, dx);
 
-    const Mat6x12 J = strain_jacobian(tet, x);
-    Eigen::Matrix<double, 12, 12> W = Eigen::Matrix<double, 12, 12>::Zero();
-    for (int k = 0; k < 4; ++k) W.block<3, 3>(3 * k, 3 * k) = w[k] * Mat3::Identity();
-    const Mat6 A = J * W * J.transpose() + at;
-    const Vec6 expected = A.ldlt().solve(-strain_constraint(tet, x) - at * lambda);
+    Vec12 move;
+    const Vec6 expected = defined_increment(tet, x, w, at, lambda, move);
     EXPECT_LT((dl - expected).norm(), 1e-10 * (1 + expected.norm()));
-    const Vec12 move = W * J.transpose() * expected;
     for (int k = 0; k < 4; ++k) EXPECT_LT((dx[k] - move.segment<3>(3 * k)).norm(), 1e-10 * (1 + move.norm()));
   }
 }
@@ -392,10 +404,8 @@ TEST(StrainConstraint, TheKernelSkipsOnlyTheComplianceEntriesThatAreZero) {
     const double w[4] = {1.3, 0.4, 2.1, 0.7};
     Vec6 lambda;
     lambda << 0.1, -0.2, 0.05, 0.3, -0.1, 0.02;
-    const Mat6x12 J = strain_jacobian(tet, x);
-    Eigen::Matrix<double, 12, 12> W = Eigen::Matrix<double, 12, 12>::Zero();
-    for (int k = 0; k < 4; ++k) W.block<3, 3>(3 * k, 3 * k) = w[k] * Mat3::Identity();
-    const Vec6 expected = (J * W * J.transpose() + coupled).ldlt().solve(-strain_constraint(tet, x) - coupled * lambda);
+    Vec12 move;
+    const Vec6 expected = defined_increment(tet, x, w, coupled, lambda, move);
     detail::ProjectionParams params;
     params.alpha_tilde = coupled;
     const Vec3* p[4] = {&x[0], &x[1], &x[2], &x[3]};
