@@ -270,6 +270,17 @@ Vec6 defined_increment(const TetRest& tet, const std::array<Vec3, 4>& x, const d
   return dl;
 }
 
+// The same by the kernel's one-tet entry point (line search off): the increment, the moves in dx.
+Vec6 kernel_increment(const TetRest& tet, const std::array<Vec3, 4>& x, const double w[4],
+                      const detail::KernelCompliance& at, const Vec6& lambda, Vec3 dx[4]) {
+  detail::ProjectionParams params;
+  params.alpha_tilde = at;
+  const Vec3* p[4] = {&x[0], &x[1], &x[2], &x[3]};
+  Vec6 dl;
+  detail::strain_increment(tet, p, w, lambda, params, dl, dx);
+  return dl;
+}
+
 }  // namespace
 
 TEST(StrainConstraint, FusedKernelMatchesDefinition) {
@@ -283,13 +294,8 @@ TEST(StrainConstraint, FusedKernelMatchesDefinition) {
     const Mat6 at = stvk_stiffness(lame_parameters(3.0, 0.35)).inverse() * 0.8;
     Vec6 lambda;
     lambda << 0.1, -0.2, 0.05, 0.3, -0.1, 0.02;
-    detail::ProjectionParams params;
-    params.alpha_tilde = at;
-    const Vec3* p[4] = {&x[0], &x[1], &x[2], &x[3]};
-    Vec6 dl;
     Vec3 dx[4];
-    detail::strain_increment(tet, p, w, lambda, params, dl, dx);
-
+    const Vec6 dl = kernel_increment(tet, x, w, at, lambda, dx);
     Vec12 move;
     const Vec6 expected = defined_increment(tet, x, w, at, lambda, move);
     EXPECT_LT((dl - expected).norm(), 1e-10 * (1 + expected.norm()));
@@ -406,16 +412,11 @@ TEST(StrainConstraint, TheKernelSkipsOnlyTheComplianceEntriesThatAreZero) {
     lambda << 0.1, -0.2, 0.05, 0.3, -0.1, 0.02;
     Vec12 move;
     const Vec6 expected = defined_increment(tet, x, w, coupled, lambda, move);
-    detail::ProjectionParams params;
-    params.alpha_tilde = coupled;
-    const Vec3* p[4] = {&x[0], &x[1], &x[2], &x[3]};
-    Vec6 dl;
     Vec3 dx[4];
-    detail::strain_increment(tet, p, w, lambda, params, dl, dx);
-    EXPECT_LT((dl - expected).norm(), 1e-10 * (1 + expected.norm())) << trial;
-    params.alpha_tilde.normal_and_shear = true;  // wrongly skipping the coupling: another step
-    detail::strain_increment(tet, p, w, lambda, params, dl, dx);
-    EXPECT_GT((dl - expected).norm(), 1e-6 * (1 + expected.norm())) << trial;
+    detail::KernelCompliance at(coupled);
+    EXPECT_LT((kernel_increment(tet, x, w, at, lambda, dx) - expected).norm(), 1e-10 * (1 + expected.norm())) << trial;
+    at.normal_and_shear = true;  // wrongly skipping the coupling: another step
+    EXPECT_GT((kernel_increment(tet, x, w, at, lambda, dx) - expected).norm(), 1e-6 * (1 + expected.norm())) << trial;
   }
 }
 
