@@ -196,7 +196,6 @@ struct FluidBody::Impl {
     run_parallel(pool.get(), n, [&](int, size_t b, size_t e) { fn(b, e); }, 256);
   }
 
-
   size_t n() const { return x.size(); }
   // The dimensional factors of the pair terms kept in units of h: poly6 pc h^6, the spiky
   // gradient sg h^2.
