@@ -150,8 +150,8 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lambd
 // Gauss-Seidel projection of the real lanes: x, lambda and dlambda (slot order) updated; a lane
 // whose system is not positive definite is skipped (dlambda zero). dlambda may be null when no
 // one reads the increments (only the multiplier accelerators do): a sweep then does not write
-// them. Then the inversion floor for
-// the lanes whose det F was below it before the projection; returns how many it corrected.
+// them. Then the inversion floor for the lanes whose det F was below it before the projection;
+// returns how many it corrected.
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                   std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
