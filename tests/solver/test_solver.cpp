@@ -251,3 +251,46 @@ TEST(Multipliers, AreHandedOutPerTetWhateverTheMeshNumbering) {
   }
   EXPECT_THROW(multipliers_in_slots(*model, std::vector<Vec6>(model->tet_count() + 1)), std::invalid_argument);
 }
+
+TEST(Multipliers, EachSubstepStartsFromZeroWhateverTheStateHeld) {
+  // A step does not zero the multipliers before each substep: the first Gauss-Seidel sweep
+  // takes them as zero and writes every slot, padding included, and anything that would read
+  // them first (a residual, another sweep, no iteration at all) gets them zeroed. A step from
+  // a state whose multipliers hold garbage must be the step from zero multipliers to the bit.
+  auto model = clamped_beam("beam1", 1e5);
+  BodyState bent = rest_state(*model);
+  bent.x = cantilever_bend(*model, default_clamp_x(model->rest_positions), 0.01);
+  ASSERT_NE(model->slot_count(), model->tet_count()) << "the test wants padding slots";
+  struct Case {
+    Method method;
+    Sweep sweep;
+    int iterations;
+    bool residuals;
+  };
+  for (const Case c : {Case{Method::Xpbd, Sweep::GaussSeidel, 2, false}, Case{Method::Xpbd, Sweep::GaussSeidel, 2, true},
+                       Case{Method::AndersonSor, Sweep::GaussSeidel, 8, false},
+                       Case{Method::Chebyshev, Sweep::GaussSeidel, 8, false}, Case{Method::Xpbd, Sweep::Jacobi, 2, false},
+                       Case{Method::Xpbd, Sweep::Sequential, 2, false}, Case{Method::Xpbd, Sweep::GaussSeidel, 0, false}}) {
+    SCOPED_TRACE(std::string(to_string(c.method)) + " " + std::string(to_string(c.sweep)) + " " + std::to_string(c.iterations));
+    SolverSettings s;
+    s.method = c.method;
+    s.sweep = c.sweep;
+    s.substeps = 1;  // (a later substep starts from the multipliers the one before left)
+    s.iterations = c.iterations;
+    s.record_residuals = c.residuals;
+    BodyState from_zero = bent, from_garbage = bent;
+    from_zero.lambda.assign(model->slot_count(), Vec6::Zero());
+    from_garbage.lambda.assign(model->slot_count(), Vec6::Constant(1e3));
+    Stepper a, b;
+    const StepReport ra = a.step(*model, from_zero, s);
+    const StepReport rb = b.step(*model, from_garbage, s);
+    EXPECT_EQ(rb.residual_initial, ra.residual_initial);
+    EXPECT_EQ(rb.residual_final, ra.residual_final);
+    EXPECT_EQ(from_garbage.x, from_zero.x);
+    EXPECT_EQ(from_garbage.v, from_zero.v);
+    EXPECT_EQ(from_garbage.lambda, from_zero.lambda);
+    if (c.iterations == 0) {
+      EXPECT_EQ(from_garbage.lambda, std::vector<Vec6>(model->slot_count(), Vec6::Zero()));
+    }
+  }
+}

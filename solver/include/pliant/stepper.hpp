@@ -131,10 +131,11 @@ class Stepper {
   void set_iteration_hook(IterationHook hook);
 
  private:
-  // The substep solve (multipliers in solve order) under a time budget (0: none).
+  // The substep solve (multipliers in solve order) under a time budget (0: none); with
+  // lambda_zero the multipliers start at zero whatever lambda holds.
   StepReport solve_in_slots(const BodyModel& model, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x,
                             std::vector<Vec6>& lambda, double h, const SolverSettings& settings,
-                            const StepInputs& inputs, double budget_ms);
+                            const StepInputs& inputs, double budget_ms, bool lambda_zero);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

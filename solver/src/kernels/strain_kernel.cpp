@@ -715,9 +715,15 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6
 
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda, std::vector<Vec6>* dlambda,
-                  const BodyModel& model, const KernelCompliance& at, double lambda_scale, double inversion_floor, bool line_search) {
+                  const BodyModel& model, const KernelCompliance& at, double lambda_scale, double inversion_floor, bool line_search,
+                  bool lambda_zero) {
   T lam[6];
-  gather_slots(p, lambda, lam);
+  if (lambda_zero) {
+    PLIANT_UNROLL
+    for (int r = 0; r < 6; ++r) lam[r] = splat<T>(0.0);
+  } else {
+    gather_slots(p, lambda, lam);
+  }
   StrainStep<T> st;
   strain_step(p, x, lam, model.material.model, at, lambda_scale, line_search, st);
   // A full pack whose every lane is positive definite writes its slots from the rows at once.
@@ -731,6 +737,9 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
       slots_written = true;
     }
   }
+  // Taken as zero, the slots are written whole: those of lanes skipped or padding get zero.
+  if (lambda_zero && !slots_written)
+    for (int l = 0; l < kLanes<T>; ++l) lambda[size_t(p.slot) + size_t(l)].setZero();
   int floor_hits = 0;
   for (int l = 0; l < p.lanes; ++l) {
     if (!slots_written) {
@@ -878,7 +887,7 @@ double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, 
                             const KernelCompliance&,                                                         \
                             double, bool, StrainStep<T>&);                                                         \
   template int project_lanes(const TetLanes<T>&, std::vector<Vec3>&, std::vector<Vec6>&, std::vector<Vec6>*,       \
-                             const BodyModel&, const KernelCompliance&, double, double, bool);                                 \
+                             const BodyModel&, const KernelCompliance&, double, double, bool, bool);                           \
   template void apply_increment_lanes(const TetLanes<T>&, std::vector<Vec3>&, const std::vector<Vec6>&,            \
                                       ElasticModel);                                                               \
   template T volume_ratio_lanes(const TetLanes<T>&, const std::vector<Vec3>&);                                     \

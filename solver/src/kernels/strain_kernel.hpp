@@ -151,11 +151,12 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lambd
 // whose system is not positive definite is skipped (dlambda zero). dlambda may be null when no
 // one reads the increments (only the multiplier accelerators do): a sweep then does not write
 // them. Then the inversion floor for the lanes whose det F was below it before the projection;
-// returns how many it corrected.
+// returns how many it corrected. With lambda_zero the multipliers are taken as zero whatever the
+// slots hold, and the pack's slots are all written (a substep's first sweep: no zeroing pass).
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                   std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
-                  double lambda_scale, double inversion_floor, bool line_search);
+                  double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false);
 
 // x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update; dl in slots).
 template <class T>
@@ -224,8 +225,9 @@ inline void prefetch_ahead(const PackedModel& pm, size_t i, size_t e, const std:
 // The pack-of-four names the sweeps use.
 inline int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                         std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
-                        double lambda_scale, double inversion_floor, bool line_search) {
-  return project_lanes(p, x, lambda, dlambda, model, alpha_tilde, lambda_scale, inversion_floor, line_search);
+                        double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false) {
+  return project_lanes(p, x, lambda, dlambda, model, alpha_tilde, lambda_scale, inversion_floor, line_search,
+                       lambda_zero);
 }
 
 }  // namespace pliant::detail

@@ -135,9 +135,11 @@ struct Stepper::Impl {
 
   // One Gauss-Seidel sweep in the model's solve order, four tets of a colour at a time; blocks
   // or colours run in parallel (the result does not depend on the thread count). The
-  // increments go to dlambda only when `keep_increments` (an accelerator reads them).
+  // increments go to dlambda only when `keep_increments` (an accelerator reads them); with
+  // `lambda_zero` the multipliers are taken as zero and written whole.
   int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
-                         const detail::ProjectionParams& params, bool keep_increments, ThreadPool& tp) {
+                         const detail::ProjectionParams& params, bool keep_increments, bool lambda_zero,
+                         ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     std::vector<int> floor_hits(tp.size(), 0);
     std::vector<Vec6>* increments = keep_increments ? &dlambda : nullptr;
@@ -149,7 +151,7 @@ struct Stepper::Impl {
         else
           detail::prefetch_ahead(packed, i, e, x, lambda);
         hits += detail::project_pack(packed.packs[i], x, lambda, increments, m, params.alpha_tilde, params.lambda_scale,
-                                     params.inversion_floor, params.line_search);
+                                     params.inversion_floor, params.line_search, lambda_zero);
       }
       floor_hits[chunk] += hits;
     });
@@ -473,13 +475,21 @@ StepReport Stepper::solve_substep(const BodyModel& m, const std::vector<Vec3>& x
   if (lambda.size() != m.slot_count())
     throw std::invalid_argument("lambda: " + std::to_string(lambda.size()) + " multipliers, expected " +
                                 std::to_string(m.slot_count()) + " (the model's solve slots) or none");
-  return solve_in_slots(m, x_prev, x, lambda, h, s, inputs, 0.0);
+  return solve_in_slots(m, x_prev, x, lambda, h, s, inputs, 0.0, false);
 }
 
 StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x,
                                    std::vector<Vec6>& lambda, double h, const SolverSettings& s,
-                                   const StepInputs& inputs, double budget_ms) {
+                                   const StepInputs& inputs, double budget_ms, bool lambda_zero) {
   Impl& I = *impl_;
+  // Multipliers to be read as zero: the first Gauss-Seidel sweep takes them so and writes every
+  // slot; anything else that would read them first gets them zeroed.
+  bool zero_pending = lambda_zero;
+  auto zero_lambda = [&] {
+    if (zero_pending) std::fill_n(lambda.data()->data(), 6 * lambda.size(), 0.0);
+    zero_pending = false;
+  };
+  if (s.record_residuals || s.sweep != Sweep::GaussSeidel || s.iterations <= 0) zero_lambda();
   const detail::PackedModel& packed = detail::packed(m);
   const auto t_start = Clock::now();
   StepReport rep;
@@ -529,7 +539,9 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       PhaseTimer t{rep.times.projection_ms};
       switch (s.sweep) {
         case Sweep::GaussSeidel:
-          rep.volume_corrections = I.sweep_gauss_seidel(m, x, lambda, params, accel->needs_increments(), tp);
+          rep.volume_corrections =
+              I.sweep_gauss_seidel(m, x, lambda, params, accel->needs_increments(), zero_pending, tp);
+          zero_pending = false;
           break;
         case Sweep::Jacobi:
           rep.volume_corrections = I.sweep_jacobi(m, x, lambda, params, s.jacobi_relaxation, tp);
@@ -628,6 +640,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       break;
     }
   }
+  zero_lambda();  // (no sweep ran)
   if (s.inversion_floor > 0) {
     // Neighbours projected later in a pass can push an earlier tet back under the floor:
     // repeat (kVolumePasses at most) until a pass finds nothing to do. The later passes belong
@@ -692,7 +705,9 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
   for (int sub = 0; sub < n; ++sub) {
     const auto t_other = Clock::now();
     detail::predict(m, state, s, inputs, h, I.v_prev);
-    state.lambda.assign(m.slot_count(), Vec6::Zero());
+    // Each substep's multipliers start at zero: its solve takes them so (no zeroing pass).
+    const bool lambda_sized = state.lambda.size() == m.slot_count();
+    if (!lambda_sized) state.lambda.assign(m.slot_count(), Vec6::Zero());
     state.lambda_h = h;
     total.times.other_ms += ms_since(t_other);
 
@@ -702,7 +717,7 @@ StepReport Stepper::step(const BodyModel& m, BodyState& state, const SolverSetti
     // compute residuals only when the method or a tolerance needs them.
     I.tool_time_offset = (sub + 1 - n) * h;
     StepReport r = solve_in_slots(m, I.v_prev, state.x, state.lambda, h, sub + 1 == n ? s : quiet, inputs,
-                                  s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0);
+                                  s.time_budget_ms > 0 ? std::max(budget, 1e-6) : 0.0, lambda_sized);
 
     const auto t_vel = Clock::now();
     detail::finish_substep(m, state, I.v_prev, s, h);
