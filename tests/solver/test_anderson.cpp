@@ -132,23 +132,33 @@ TEST(AndersonMixer, MatchesTheLeastSquaresMixAndDoesNotDependOnHowBlocksAreShare
 }
 
 TEST(AndersonMixer, AnIncrementPushIsAPushOfTheIteratesChange) {
+  // Pushed by increments the mixer keeps only the last residuals and forms the dR columns from
+  // them: the same bits as push() with the change as residual, with and without the beta term,
+  // over pushes that wrap its rings twice.
   const int n = 5000;
-  std::mt19937 rng(8);
-  std::normal_distribution<double> g;
-  AndersonMixer by_increment(3, 1e12, 0.0), explicit_residual(3, 1e12, 0.0);
-  by_increment.reset(n);
-  explicit_residual.reset(n);
-  Eigen::VectorXd previous = Eigen::VectorXd::NullaryExpr(n, [&] { return g(rng); });
-  by_increment.seed(previous.data());
-  for (int k = 0; k < 6; ++k) {
-    const Eigen::VectorXd y = Eigen::VectorXd::NullaryExpr(n, [&] { return g(rng); });
-    const Eigen::VectorXd r = y - previous;
-    by_increment.push_increment(y.data());
-    explicit_residual.push(y, r);
-    previous = y;
+  for (double beta : {0.0, 0.5}) {
+    std::mt19937 rng(8);
+    std::normal_distribution<double> g;
+    AndersonMixer by_increment(3, 1e12, beta), explicit_residual(3, 1e12, beta);
+    by_increment.reset(n);
+    explicit_residual.reset(n);
+    Eigen::VectorXd previous = Eigen::VectorXd::NullaryExpr(n, [&] { return g(rng); });
+    by_increment.seed(previous.data());
+    for (int k = 0; k < 9; ++k) {
+      const Eigen::VectorXd y = Eigen::VectorXd::NullaryExpr(n, [&] { return std::pow(0.8, k) * g(rng); });
+      const Eigen::VectorXd r = y - previous;
+      by_increment.push_increment(y.data());
+      explicit_residual.push(y, r);
+      previous = y;
+      if (!by_increment.ready()) continue;
+      Eigen::VectorXd a, b;
+      by_increment.accelerate(a);
+      explicit_residual.accelerate(b);
+      ASSERT_EQ(by_increment.columns_used(), explicit_residual.columns_used());
+      EXPECT_EQ(0, std::memcmp(a.data(), b.data(), sizeof(double) * size_t(n))) << "beta " << beta << " push " << k;
+    }
+    // A sequence is pushed one way.
+    EXPECT_THROW(by_increment.push(previous, previous), std::logic_error);
+    EXPECT_THROW(explicit_residual.push_increment(previous.data()), std::logic_error);
   }
-  Eigen::VectorXd a, b;
-  by_increment.accelerate(a);
-  explicit_residual.accelerate(b);
-  EXPECT_EQ(0, std::memcmp(a.data(), b.data(), sizeof(double) * size_t(n)));
 }

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <stdexcept>
 
 namespace pliant::detail {
 
@@ -194,12 +195,14 @@ AndersonMixer::AndersonMixer(int window, double condition_limit, double beta)
 void AndersonMixer::reset(size_t size) {
   count_ = 0;
   head_ = -1;
-  if (size_ != size || dy_.size() != size_t(m_)) {
+  e_head_ = -1;
+  if (size_ != size) {
     size_ = size;
     y_.resize(Eigen::Index(size));
-    r_.resize(Eigen::Index(size));
-    dy_.assign(m_, Eigen::VectorXd(Eigen::Index(size)));
-    dr_.assign(m_, Eigen::VectorXd(Eigen::Index(size)));
+    r_.resize(0);  // each kind of push sizes its own storage at its first push
+    dy_.clear();
+    dr_.clear();
+    e_.clear();
   }
   // Only columns already pushed are read (slot(a) for a < the count of differences).
   gram_.setZero(m_, m_);
@@ -242,6 +245,22 @@ double block_dot(const double* a, const double* b, size_t n) {
 }  // namespace
 
 void AndersonMixer::push_impl(const double* y, const double* r, const ParallelFor& parallel) {
+  if (count_ == 0) {
+    increments_ = r == nullptr;
+    const Eigen::Index n = Eigen::Index(size_);
+    if (increments_ && e_.size() != size_t(m_ + 1)) e_.assign(m_ + 1, Eigen::VectorXd(n));
+    if (!increments_ && dy_.size() != size_t(m_)) {
+      r_.resize(n);
+      dy_.assign(m_, Eigen::VectorXd(n));
+      dr_.assign(m_, Eigen::VectorXd(n));
+    }
+  } else if (increments_ != (r == nullptr)) {
+    throw std::logic_error("AndersonMixer: a sequence is pushed by push() or by push_increment(), not both");
+  }
+  if (increments_) {
+    push_increment_impl(y, parallel);
+    return;
+  }
   const bool differences = count_ > 0;
   const int h = differences ? (head_ + 1) % m_ : 0;
   // Columns after this push, newest (slot h) first.
@@ -297,6 +316,72 @@ void AndersonMixer::push_impl(const double* y, const double* r, const ParallelFo
   ++count_;
 }
 
+// push_impl by increments: the residual is the iterate's change, kept in the ring of m + 1; the
+// new dR column and the older ones are formed block by block from consecutive residuals (the
+// same subtractions push() stores), then dotted as push() dots its stored columns.
+void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& parallel) {
+  const bool differences = count_ > 0;
+  const int h = differences ? (head_ + 1) % m_ : 0;
+  const int eh = (e_head_ + 1) % (m_ + 1);
+  const int columns = differences ? std::min<int>(m_, int(count_)) : 0;
+  // Residuals after this push, newest (slot eh) first.
+  auto e_slot = [&](int a) { return ((eh - a) % (m_ + 1) + (m_ + 1)) % (m_ + 1); };
+  auto column_slot = [&](int a) { return ((h - a) % m_ + m_) % m_; };
+  const size_t nb = blocks(), stride = 2 * size_t(m_);
+  partial_.resize(nb * stride);
+  auto work = [&](size_t b0, size_t b1) {
+    double drh[kBlock], dj[kBlock];
+    for (size_t blk = b0; blk < b1; ++blk) {
+      const size_t i0 = blk * kBlock, n = std::min(kBlock, size_ - i0);
+      double* yp = y_.data() + i0;
+      double* en = e_[size_t(eh)].data() + i0;
+      const double* yn = y + i0;
+      if (!differences) {
+        for (size_t i = 0; i < n; ++i) {
+          en[i] = yn[i] - yp[i];
+          yp[i] = yn[i];
+        }
+        continue;
+      }
+      const double* ep = e_[size_t(e_slot(1))].data() + i0;
+      for (size_t i = 0; i < n; ++i) {
+        const double dy = yn[i] - yp[i];
+        en[i] = dy;
+        drh[i] = dy - ep[i];
+        yp[i] = yn[i];
+      }
+      double* out = partial_.data() + blk * stride;
+      for (int a = 0; a < columns; ++a) {
+        const double* column = drh;
+        if (a > 0) {
+          const double* e0 = e_[size_t(e_slot(a))].data() + i0;
+          const double* e1 = e_[size_t(e_slot(a + 1))].data() + i0;
+          for (size_t i = 0; i < n; ++i) dj[i] = e0[i] - e1[i];
+          column = dj;
+        }
+        out[a] = block_dot(drh, column, n);
+        out[m_ + a] = block_dot(column, en, n);
+      }
+    }
+  };
+  if (parallel && nb > 1) parallel(nb, work);
+  else work(0, nb);
+  e_head_ = eh;
+  if (differences) {
+    head_ = h;
+    for (int a = 0; a < columns; ++a) {
+      double g = 0, q = 0;
+      for (size_t blk = 0; blk < nb; ++blk) {
+        g += partial_[blk * stride + a];
+        q += partial_[blk * stride + m_ + a];
+      }
+      gram_(h, column_slot(a)) = gram_(column_slot(a), h) = g;
+      rhs_[column_slot(a)] = q;
+    }
+  }
+  ++count_;
+}
+
 int AndersonMixer::solve() {
   theta_.setZero(m_);
   columns_used_ = 0;
@@ -326,6 +411,22 @@ int AndersonMixer::solve() {
 void AndersonMixer::mixed(size_t begin, size_t end, double* out) const {
   const size_t n = end - begin;
   const double* yp = y_.data() + begin;
+  if (increments_) {
+    const double* rp = e_[size_t(residual_slot(0))].data() + begin;
+    if (beta_ != 0)
+      for (size_t i = 0; i < n; ++i) out[i] = yp[i] + beta_ * rp[i];
+    else
+      std::copy(yp, yp + n, out);
+    for (int a = 0; a < columns_used_; ++a) {
+      const double t = theta_[a], tb = theta_[a] * beta_;
+      const double* dy = e_[size_t(residual_slot(a))].data() + begin;
+      const double* older = e_[size_t(residual_slot(a + 1))].data() + begin;
+      for (size_t i = 0; i < n; ++i) out[i] -= t * dy[i];
+      if (beta_ != 0)
+        for (size_t i = 0; i < n; ++i) out[i] -= tb * (dy[i] - older[i]);
+    }
+    return;
+  }
   const double* rp = r_.data() + begin;
   if (beta_ != 0)
     for (size_t i = 0; i < n; ++i) out[i] = yp[i] + beta_ * rp[i];

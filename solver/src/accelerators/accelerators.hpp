@@ -62,6 +62,10 @@ AcceleratorKey accelerator_key(const SolverSettings& settings);
 // limit (keeping at least 2), as in thesis algorithm 2.3.
 // The vectors are walked in blocks of kBlock entries, each block's dot products summed on its
 // own and the blocks' sums added in block order: the same result for any number of threads.
+// Pushed by increments (push_increment: r_k = y_k - y_{k-1}), the newest residual is the newest
+// dY column and each dR column the difference of two consecutive ones: the mixer then keeps the
+// last m + 1 residuals only and forms dR's entries as it reads them (the same doubles as stored
+// ones, so the same results), writing one vector a push instead of four.
 class AndersonMixer {
  public:
   static constexpr size_t kBlock = 2048;
@@ -77,6 +81,7 @@ class AndersonMixer {
   void seed(const double* y);
   void push(const double* y, const double* r, const ParallelFor& parallel = {});
   // push(y, y - the previous iterate): the residual is the iterate's change (after seed() or a push).
+  // A sequence's pushes are all push() or all push_increment() (std::logic_error otherwise).
   void push_increment(const double* y, const ParallelFor& parallel = {});
   void push(const Eigen::Ref<const Eigen::VectorXd>& y, const Eigen::Ref<const Eigen::VectorXd>& r) {
     push(y.data(), r.data());
@@ -94,15 +99,21 @@ class AndersonMixer {
 
  private:
   int slot(int newest_first) const { return ((head_ - newest_first) % m_ + m_) % m_; }
+  // The ring slot of the residual pushed newest_first pushes ago (by increments).
+  int residual_slot(int newest_first) const { return ((e_head_ - newest_first) % (m_ + 1) + (m_ + 1)) % (m_ + 1); }
   void push_impl(const double* y, const double* r, const ParallelFor& parallel);
+  void push_increment_impl(const double* y, const ParallelFor& parallel);
 
   int m_;
   double condition_limit_;
   double beta_;
   size_t size_ = 0;
   size_t count_ = 0;
-  Eigen::VectorXd y_, r_;               // newest iterate and residual
-  std::vector<Eigen::VectorXd> dy_, dr_;  // rings of differences
+  bool increments_ = false;             // pushed by push_increment
+  Eigen::VectorXd y_, r_;               // newest iterate and residual (r_: pushed by push())
+  std::vector<Eigen::VectorXd> dy_, dr_;  // rings of differences (pushed by push())
+  std::vector<Eigen::VectorXd> e_;      // ring of the last m + 1 residuals (pushed by increments)
+  int e_head_ = -1;
   Eigen::MatrixXd gram_;                // dr^T dr by ring slot
   Eigen::VectorXd rhs_;                 // dr^T r_ by ring slot
   std::vector<double> partial_;         // per block: the new Gram row, then the right-hand side
