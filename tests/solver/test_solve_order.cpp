@@ -11,6 +11,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <climits>
+#include <cstring>
 #include <set>
 #include <string>
 #include <vector>
@@ -32,6 +35,50 @@ bool disjoint(const std::set<int32_t>& a, const std::set<int32_t>& b) {
   for (int32_t v : a)
     if (b.count(v)) return false;
   return true;
+}
+
+// The sweep's own vertex numbering: a permutation that numbers the vertices in the order the
+// packs (storage order) first reach them, the sweep's packs the packs with their corners so
+// renumbered (nothing else changed), the inverse masses carried along. So the groups of the
+// first phase (slabs, which share no vertex), each on its own thread, write disjoint ranges of
+// positions in order.
+void check_sweep_numbering(const BodyModel& m) {
+  const detail::PackedModel& pm = detail::packed(m);
+  const size_t nv = m.vertex_count();
+  ASSERT_EQ(pm.sweep_vertex.size(), nv);
+  ASSERT_EQ(pm.mesh_vertex.size(), nv);
+  for (size_t v = 0; v < nv; ++v) {
+    ASSERT_GE(pm.sweep_vertex[v], 0);
+    ASSERT_EQ(size_t(pm.mesh_vertex[size_t(pm.sweep_vertex[v])]), v);
+    EXPECT_EQ(pm.sweep_inv_mass[size_t(pm.sweep_vertex[v])], m.inv_mass[v]);
+  }
+  int32_t reached = 0;
+  for (const detail::TetPack& p : pm.packs)
+    for (int l = 0; l < p.lanes; ++l)
+      for (int k = 0; k < 4; ++k) {
+        const int32_t s = pm.sweep_vertex[size_t(p.v[k][l])];
+        ASSERT_LE(s, reached) << "vertex " << p.v[k][l] << " numbered before the packs reach it";
+        if (s == reached) ++reached;
+      }
+  ASSERT_EQ(pm.sweep_packs.size(), pm.packs.size());
+  for (size_t i = 0; i < pm.packs.size(); ++i) {
+    detail::TetPack renumbered = pm.packs[i];
+    for (auto& corner : renumbered.v)
+      for (int32_t& v : corner) v = pm.sweep_vertex[size_t(v)];
+    ASSERT_EQ(0, std::memcmp(&renumbered, &pm.sweep_packs[i], sizeof renumbered)) << "pack " << i;
+  }
+  if (pm.phases.empty() || pm.phases[0].split) return;
+  const auto& g = pm.phases[0].group_begin;
+  int32_t end = 0;
+  for (size_t a = 0; a + 1 < g.size(); ++a) {
+    int32_t lo = INT32_MAX, hi = -1;
+    for (int32_t v : vertices_of(pm, g[a], g[a + 1])) {
+      lo = std::min(lo, pm.sweep_vertex[size_t(v)]);
+      hi = std::max(hi, pm.sweep_vertex[size_t(v)]);
+    }
+    EXPECT_EQ(lo, end) << "group " << a;
+    end = hi + 1;
+  }
 }
 
 void check_order(const BodyModel& m, const std::string& name) {
@@ -81,6 +128,7 @@ void check_order(const BodyModel& m, const std::string& name) {
     }
   }
   EXPECT_EQ(next, pm.packs.size());
+  check_sweep_numbering(m);
 }
 
 std::shared_ptr<const BodyModel> builtin(const std::string& name) {

@@ -188,6 +188,30 @@ double longest_extent(const BodyModel& m, int& axis) {
   return (high - low).maxCoeff(&axis);
 }
 
+// PackedModel's sweep numbering: vertices in the order the packs first reach them, those of no
+// tet after.
+void number_sweep_vertices(const BodyModel& m, PackedModel& pm) {
+  const size_t nv = m.vertex_count();
+  pm.sweep_vertex.assign(nv, -1);
+  pm.mesh_vertex.clear();
+  pm.mesh_vertex.reserve(nv);
+  auto number = [&](int32_t v) {
+    if (pm.sweep_vertex[size_t(v)] >= 0) return;
+    pm.sweep_vertex[size_t(v)] = int32_t(pm.mesh_vertex.size());
+    pm.mesh_vertex.push_back(v);
+  };
+  for (const TetPack& p : pm.packs)
+    for (int l = 0; l < p.lanes; ++l)
+      for (int k = 0; k < 4; ++k) number(p.v[k][l]);
+  for (size_t v = 0; v < nv; ++v) number(int32_t(v));
+  pm.sweep_packs = pm.packs;
+  for (TetPack& p : pm.sweep_packs)
+    for (auto& corner : p.v)
+      for (int32_t& v : corner) v = pm.sweep_vertex[size_t(v)];  // padding lanes repeat a real one
+  pm.sweep_inv_mass.resize(nv);
+  for (size_t s = 0; s < nv; ++s) pm.sweep_inv_mass[s] = m.inv_mass[size_t(pm.mesh_vertex[s])];
+}
+
 constexpr int kMaxBlocks = 8;
 constexpr double kMinSlabLayers = 6;   // a slab at least this many mean edges thick
 constexpr size_t kMinBlockTets = 512;  // and holding this many tets on average
@@ -283,6 +307,7 @@ void compile_solve_order(BodyModel& m) {
     spdlog::debug("solve order: {} tets in {} packs ({} lanes of padding), {} blocks, {} phases, packs per block{}",
                   m.tets.size(), pm->packs.size(), 4 * pm->packs.size() - m.tets.size(), K, pm->phases.size(), sizes);
   }
+  number_sweep_vertices(m, *pm);
   pm->vertex_slot_entry.resize(m.vertex_tet_entry.size());
   for (size_t a = 0; a < m.vertex_tet_entry.size(); ++a)
     pm->vertex_slot_entry[a] = 4 * m.tet_slot[m.vertex_tet_entry[a] / 4] + m.vertex_tet_entry[a] % 4;
@@ -716,7 +741,7 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda, std::vector<Vec6>* dlambda,
                   const BodyModel& model, const KernelCompliance& at, double lambda_scale, double inversion_floor, bool line_search,
-                  bool lambda_zero) {
+                  bool lambda_zero, const PackedModel* sweep_order) {
   T lam[6];
   if (lambda_zero) {
     PLIANT_UNROLL
@@ -758,8 +783,14 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
       q[1] += get_lane(st.dx[k][1], l);
       q[2] += get_lane(st.dx[k][2], l);
     }
-    if (inversion_floor > 0 && get_lane(st.det, l) < inversion_floor)
+    if (!(inversion_floor > 0 && get_lane(st.det, l) < inversion_floor)) continue;
+    if (!sweep_order) {
       floor_hits += enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, inversion_floor);
+    } else {  // the tet with its corners in the sweep's numbering
+      TetRest tet = model.tets[p.tet[l]];
+      for (int k = 0; k < 4; ++k) tet.v[k] = sweep_order->sweep_vertex[size_t(tet.v[k])];
+      floor_hits += enforce_volume_floor(tet, x, sweep_order->sweep_inv_mass, inversion_floor);
+    }
   }
   return floor_hits;
 }
@@ -887,7 +918,8 @@ double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, 
                             const KernelCompliance&,                                                         \
                             double, bool, StrainStep<T>&);                                                         \
   template int project_lanes(const TetLanes<T>&, std::vector<Vec3>&, std::vector<Vec6>&, std::vector<Vec6>*,       \
-                             const BodyModel&, const KernelCompliance&, double, double, bool, bool);                           \
+                             const BodyModel&, const KernelCompliance&, double, double, bool, bool,                            \
+                             const PackedModel*);                                                                              \
   template void apply_increment_lanes(const TetLanes<T>&, std::vector<Vec3>&, const std::vector<Vec6>&,            \
                                       ElasticModel);                                                               \
   template T volume_ratio_lanes(const TetLanes<T>&, const std::vector<Vec3>&);                                     \

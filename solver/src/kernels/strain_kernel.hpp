@@ -97,6 +97,15 @@ struct PackedModel {
   int blocks = 1;  // slabs of the block order (1: colour by colour)
   // BodyModel::vertex_tet_entry addressed by slot (4 x slot + corner): the Jacobi gather.
   std::vector<int32_t> vertex_slot_entry;
+  // The Gauss-Seidel sweep's own numbering of the vertices: in the order the packs, in storage
+  // order, first reach them, so that each block's vertices lie together in memory. (A mesh's
+  // own numbering may scatter them: two threads then write positions that share cache lines.)
+  // The sweep projects sweep_packs, the packs with their corners so numbered, on the positions
+  // copied into that order; the same arithmetic on the same values as on packs.
+  std::vector<int32_t> sweep_vertex;  // per mesh vertex, its sweep index
+  std::vector<int32_t> mesh_vertex;   // per sweep index, its mesh vertex
+  std::vector<TetPack> sweep_packs;
+  std::vector<double> sweep_inv_mass;  // BodyModel::inv_mass in sweep order (the in-sweep floor)
   size_t slot_count() const { return 4 * packs.size(); }  // padding lanes' slots stay zero
 };
 
@@ -153,10 +162,12 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lambd
 // them. Then the inversion floor for the lanes whose det F was below it before the projection;
 // returns how many it corrected. With lambda_zero the multipliers are taken as zero whatever the
 // slots hold, and the pack's slots are all written (a substep's first sweep: no zeroing pass).
+// With sweep_order, p is one of its sweep_packs and x in its sweep order.
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                   std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
-                  double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false);
+                  double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false,
+                  const PackedModel* sweep_order = nullptr);
 
 // x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update; dl in slots).
 template <class T>
@@ -213,21 +224,22 @@ inline void prefetch_slots(const TetPack& p, const std::vector<Vec6>& slots) {
 // In a loop over packs i < e: the rest data four packs ahead, the corners and the slots of the
 // given multiplier vectors two ahead.
 template <class... Slots>
-inline void prefetch_ahead(const PackedModel& pm, size_t i, size_t e, const std::vector<Vec3>& x,
+inline void prefetch_ahead(const std::vector<TetPack>& packs, size_t i, size_t e, const std::vector<Vec3>& x,
                            const Slots&... slots) {
-  if (i + 4 < e) prefetch_pack(pm.packs[i + 4]);
+  if (i + 4 < e) prefetch_pack(packs[i + 4]);
   if (i + 2 < e) {
-    prefetch_corners(pm.packs[i + 2], x);
-    (prefetch_slots(pm.packs[i + 2], slots), ...);
+    prefetch_corners(packs[i + 2], x);
+    (prefetch_slots(packs[i + 2], slots), ...);
   }
 }
 
 // The pack-of-four names the sweeps use.
 inline int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                         std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
-                        double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false) {
+                        double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false,
+                        const PackedModel* sweep_order = nullptr) {
   return project_lanes(p, x, lambda, dlambda, model, alpha_tilde, lambda_scale, inversion_floor, line_search,
-                       lambda_zero);
+                       lambda_zero, sweep_order);
 }
 
 }  // namespace pliant::detail

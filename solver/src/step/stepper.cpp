@@ -123,7 +123,7 @@ struct Stepper::Impl {
     tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
       double s = 0;
       for (size_t i = b; i < e; ++i) {
-        detail::prefetch_ahead(packed, i, e, x, lambda);
+        detail::prefetch_ahead(packed.packs, i, e, x, lambda);
         s += detail::residual_squared_lanes(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
       }
       partial[chunk] = s;
@@ -136,28 +136,48 @@ struct Stepper::Impl {
   // One Gauss-Seidel sweep in the model's solve order, four tets of a colour at a time; blocks
   // or colours run in parallel (the result does not depend on the thread count). The
   // increments go to dlambda only when `keep_increments` (an accelerator reads them); with
-  // `lambda_zero` the multipliers are taken as zero and written whole.
+  // `lambda_zero` the multipliers are taken as zero and written whole. With several threads the
+  // sweep runs on the positions in its own vertex numbering (PackedModel::sweep_vertex).
   int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                          const detail::ProjectionParams& params, bool keep_increments, bool lambda_zero,
                          ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     std::vector<int> floor_hits(tp.size(), 0);
     std::vector<Vec6>* increments = keep_increments ? &dlambda : nullptr;
+    const bool renumbered = tp.size() > 1;
+    const std::vector<detail::TetPack>& packs = renumbered ? packed.sweep_packs : packed.packs;
+    if (renumbered) to_sweep_order(packed, x);
+    std::vector<Vec3>& xs = renumbered ? sweep_x : x;
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
         if (increments)
-          detail::prefetch_ahead(packed, i, e, x, lambda, dlambda);
+          detail::prefetch_ahead(packs, i, e, xs, lambda, dlambda);
         else
-          detail::prefetch_ahead(packed, i, e, x, lambda);
-        hits += detail::project_pack(packed.packs[i], x, lambda, increments, m, params.alpha_tilde, params.lambda_scale,
-                                     params.inversion_floor, params.line_search, lambda_zero);
+          detail::prefetch_ahead(packs, i, e, xs, lambda);
+        hits += detail::project_pack(packs[i], xs, lambda, increments, m, params.alpha_tilde, params.lambda_scale,
+                                     params.inversion_floor, params.line_search, lambda_zero,
+                                     renumbered ? &packed : nullptr);
       }
       floor_hits[chunk] += hits;
     });
+    if (renumbered) from_sweep_order(packed, x);
     int total = 0;
     for (int h : floor_hits) total += h;
     return total;
+  }
+
+  // Positions in the sweep's vertex numbering, copied in before a pass over sweep_packs and
+  // back after it. Threads writing positions that share cache lines slow each other down:
+  // with the armadillo's own numbering two threads swept no faster than one (docs/solver.md,
+  // "The sweep's own vertex numbering"). One thread gains nothing from it.
+  std::vector<Vec3> sweep_x;
+  void to_sweep_order(const detail::PackedModel& packed, const std::vector<Vec3>& x) {
+    sweep_x.resize(x.size());
+    for (size_t s = 0; s < x.size(); ++s) sweep_x[s] = x[size_t(packed.mesh_vertex[s])];
+  }
+  void from_sweep_order(const detail::PackedModel& packed, std::vector<Vec3>& x) const {
+    for (size_t s = 0; s < x.size(); ++s) x[size_t(packed.mesh_vertex[s])] = sweep_x[s];
   }
 
   // One Jacobi sweep: every tet computes its increment from the same positions, scaled by
@@ -354,12 +374,17 @@ struct Stepper::Impl {
 
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
+    const bool renumbered = tp.size() > 1;  // as the sweep
+    const std::vector<detail::TetPack>& packs = renumbered ? packed.sweep_packs : packed.packs;
+    if (renumbered) to_sweep_order(packed, x);
+    std::vector<Vec3>& xs = renumbered ? sweep_x : x;
     for_each_pack(packed, tp, [&](int, size_t b, size_t e) {
       for (size_t i = b; i < e; ++i) {
-        detail::prefetch_ahead(packed, i, e, x, dl);
-        detail::apply_increment_lanes(packed.packs[i], x, dl, m.material.model);
+        detail::prefetch_ahead(packs, i, e, xs, dl);
+        detail::apply_increment_lanes(packs[i], xs, dl, m.material.model);
       }
     });
+    if (renumbered) from_sweep_order(packed, x);
   }
 
   // Interaction scratch: per tool, the contact multiplier of each vertex in this substep
