@@ -301,19 +301,7 @@ void AndersonMixer::push_impl(const double* y, const double* r, const ParallelFo
   };
   if (parallel && nb > 1) parallel(nb, work);
   else work(0, nb);
-  if (differences) {
-    head_ = h;
-    for (int a = 0; a < columns; ++a) {
-      double g = 0, q = 0;
-      for (size_t blk = 0; blk < nb; ++blk) {
-        g += partial_[blk * stride + a];
-        q += partial_[blk * stride + m_ + a];
-      }
-      gram_(h, column_slot(a)) = gram_(column_slot(a), h) = g;
-      rhs_[column_slot(a)] = q;
-    }
-  }
-  ++count_;
+  end_push(differences, h, columns);
 }
 
 // push_impl by increments: the residual is the iterate's change, kept in the ring of m + 1; the
@@ -326,7 +314,6 @@ void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& para
   const int columns = differences ? std::min<int>(m_, int(count_)) : 0;
   // Residuals after this push, newest (slot eh) first.
   auto e_slot = [&](int a) { return ((eh - a) % (m_ + 1) + (m_ + 1)) % (m_ + 1); };
-  auto column_slot = [&](int a) { return ((h - a) % m_ + m_) % m_; };
   const size_t nb = blocks(), stride = 2 * size_t(m_);
   partial_.resize(nb * stride);
   auto work = [&](size_t b0, size_t b1) {
@@ -367,7 +354,14 @@ void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& para
   if (parallel && nb > 1) parallel(nb, work);
   else work(0, nb);
   e_head_ = eh;
+  end_push(differences, h, columns);
+}
+
+// A push's end: the blocks' partial sums added in block order into the new Gram row and the
+// right-hand side (the new column in ring slot h).
+void AndersonMixer::end_push(bool differences, int h, int columns) {
   if (differences) {
+    const size_t nb = blocks(), stride = 2 * size_t(m_);
     head_ = h;
     for (int a = 0; a < columns; ++a) {
       double g = 0, q = 0;
@@ -375,8 +369,8 @@ void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& para
         g += partial_[blk * stride + a];
         q += partial_[blk * stride + m_ + a];
       }
-      gram_(h, column_slot(a)) = gram_(column_slot(a), h) = g;
-      rhs_[column_slot(a)] = q;
+      gram_(h, slot(a)) = gram_(slot(a), h) = g;
+      rhs_[slot(a)] = q;
     }
   }
   ++count_;

@@ -103,6 +103,7 @@ class AndersonMixer {
   int residual_slot(int newest_first) const { return ((e_head_ - newest_first) % (m_ + 1) + (m_ + 1)) % (m_ + 1); }
   void push_impl(const double* y, const double* r, const ParallelFor& parallel);
   void push_increment_impl(const double* y, const ParallelFor& parallel);
+  void end_push(bool differences, int h, int columns);
 
   int m_;
   double condition_limit_;
