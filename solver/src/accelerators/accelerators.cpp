@@ -405,34 +405,24 @@ int AndersonMixer::solve() {
 void AndersonMixer::mixed(size_t begin, size_t end, double* out) const {
   const size_t n = end - begin;
   const double* yp = y_.data() + begin;
-  if (increments_) {
-    const double* rp = e_[size_t(residual_slot(0))].data() + begin;
-    if (beta_ != 0)
-      for (size_t i = 0; i < n; ++i) out[i] = yp[i] + beta_ * rp[i];
-    else
-      std::copy(yp, yp + n, out);
-    for (int a = 0; a < columns_used_; ++a) {
-      const double t = theta_[a], tb = theta_[a] * beta_;
-      const double* dy = e_[size_t(residual_slot(a))].data() + begin;
-      const double* older = e_[size_t(residual_slot(a + 1))].data() + begin;
-      for (size_t i = 0; i < n; ++i) out[i] -= t * dy[i];
-      if (beta_ != 0)
-        for (size_t i = 0; i < n; ++i) out[i] -= tb * (dy[i] - older[i]);
-    }
-    return;
-  }
-  const double* rp = r_.data() + begin;
+  const double* rp = (increments_ ? e_[size_t(residual_slot(0))].data() : r_.data()) + begin;
   if (beta_ != 0)
     for (size_t i = 0; i < n; ++i) out[i] = yp[i] + beta_ * rp[i];
   else
     std::copy(yp, yp + n, out);
   for (int a = 0; a < columns_used_; ++a) {
     const double t = theta_[a], tb = theta_[a] * beta_;
-    const double* dy = dy_[slot(a)].data() + begin;
-    const double* dr = dr_[slot(a)].data() + begin;
+    // By increments dY's column is a residual and dR's the difference with the one before.
+    const double* dy = (increments_ ? e_[size_t(residual_slot(a))] : dy_[size_t(slot(a))]).data() + begin;
     for (size_t i = 0; i < n; ++i) out[i] -= t * dy[i];
-    if (beta_ != 0)
+    if (beta_ == 0) continue;
+    if (increments_) {
+      const double* older = e_[size_t(residual_slot(a + 1))].data() + begin;
+      for (size_t i = 0; i < n; ++i) out[i] -= tb * (dy[i] - older[i]);
+    } else {
+      const double* dr = dr_[size_t(slot(a))].data() + begin;
       for (size_t i = 0; i < n; ++i) out[i] -= tb * dr[i];
+    }
   }
 }
 
