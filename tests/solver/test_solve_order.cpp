@@ -39,7 +39,8 @@ bool disjoint(const std::set<int32_t>& a, const std::set<int32_t>& b) {
 
 // The sweep's own vertex numbering: a permutation that numbers the vertices in the order the
 // packs (storage order) first reach them, the sweep's packs the packs with their corners so
-// renumbered (nothing else changed), the inverse masses carried along. So the groups of the
+// renumbered (nothing else changed), the inverse masses, the floor's checks and its vertex
+// adjacency carried along. So the groups of the
 // first phase (slabs, which share no vertex), each on its own thread, write disjoint ranges of
 // positions in order.
 void check_sweep_numbering(const BodyModel& m) {
@@ -66,6 +67,20 @@ void check_sweep_numbering(const BodyModel& m) {
     for (auto& corner : renumbered.v)
       for (int32_t& v : corner) v = pm.sweep_vertex[size_t(v)];
     ASSERT_EQ(0, std::memcmp(&renumbered, &pm.sweep_packs[i], sizeof renumbered)) << "pack " << i;
+    detail::FloorCheck check = pm.floor_checks[i];
+    for (auto& corner : check.v)
+      for (int32_t& v : corner) v = pm.sweep_vertex[size_t(v)];
+    ASSERT_EQ(0, std::memcmp(&check, &pm.sweep_floor_checks[i], sizeof check)) << "floor check " << i;
+  }
+  // The floor's adjacency: sweep index s has mesh vertex mesh_vertex[s]'s entries, in order.
+  ASSERT_EQ(pm.sweep_slot_start.size(), nv + 1);
+  for (size_t sv = 0; sv < nv; ++sv) {
+    const size_t v = size_t(pm.mesh_vertex[sv]);
+    const std::vector<int32_t> mesh_row(pm.vertex_slot_entry.begin() + m.vertex_tet_start[v],
+                                        pm.vertex_slot_entry.begin() + m.vertex_tet_start[v + 1]);
+    const std::vector<int32_t> sweep_row(pm.sweep_slot_entry.begin() + pm.sweep_slot_start[sv],
+                                         pm.sweep_slot_entry.begin() + pm.sweep_slot_start[sv + 1]);
+    ASSERT_EQ(sweep_row, mesh_row) << "sweep vertex " << sv;
   }
   if (pm.phases.empty() || pm.phases[0].split) return;
   const auto& g = pm.phases[0].group_begin;

@@ -210,6 +210,19 @@ void number_sweep_vertices(const BodyModel& m, PackedModel& pm) {
       for (int32_t& v : corner) v = pm.sweep_vertex[size_t(v)];  // padding lanes repeat a real one
   pm.sweep_inv_mass.resize(nv);
   for (size_t s = 0; s < nv; ++s) pm.sweep_inv_mass[s] = m.inv_mass[size_t(pm.mesh_vertex[s])];
+  pm.sweep_floor_checks = pm.floor_checks;
+  for (FloorCheck& c : pm.sweep_floor_checks)
+    for (auto& corner : c.v)
+      for (int32_t& v : corner) v = pm.sweep_vertex[size_t(v)];
+  pm.sweep_slot_start.assign(1, 0);
+  pm.sweep_slot_entry.clear();
+  pm.sweep_slot_entry.reserve(pm.vertex_slot_entry.size());
+  for (size_t s = 0; s < nv; ++s) {
+    const size_t v = size_t(pm.mesh_vertex[s]);
+    pm.sweep_slot_entry.insert(pm.sweep_slot_entry.end(), pm.vertex_slot_entry.begin() + m.vertex_tet_start[v],
+                               pm.vertex_slot_entry.begin() + m.vertex_tet_start[v + 1]);
+    pm.sweep_slot_start.push_back(int32_t(pm.sweep_slot_entry.size()));
+  }
 }
 
 constexpr int kMaxBlocks = 8;
@@ -307,10 +320,10 @@ void compile_solve_order(BodyModel& m) {
     spdlog::debug("solve order: {} tets in {} packs ({} lanes of padding), {} blocks, {} phases, packs per block{}",
                   m.tets.size(), pm->packs.size(), 4 * pm->packs.size() - m.tets.size(), K, pm->phases.size(), sizes);
   }
-  number_sweep_vertices(m, *pm);
   pm->vertex_slot_entry.resize(m.vertex_tet_entry.size());
   for (size_t a = 0; a < m.vertex_tet_entry.size(); ++a)
     pm->vertex_slot_entry[a] = 4 * m.tet_slot[m.vertex_tet_entry[a] / 4] + m.vertex_tet_entry[a] % 4;
+  number_sweep_vertices(m, *pm);
   m.packed = std::move(pm);
 }
 

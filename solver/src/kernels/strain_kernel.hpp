@@ -106,6 +106,10 @@ struct PackedModel {
   std::vector<int32_t> mesh_vertex;   // per sweep index, its mesh vertex
   std::vector<TetPack> sweep_packs;
   std::vector<double> sweep_inv_mass;  // BodyModel::inv_mass in sweep order (the in-sweep floor)
+  // The floor's passes in the same numbering: floor_checks renumbered, and per sweep index its
+  // entries of vertex_slot_entry ([sweep_slot_start[s], sweep_slot_start[s + 1])).
+  std::vector<FloorCheck> sweep_floor_checks;
+  std::vector<int32_t> sweep_slot_start, sweep_slot_entry;
   size_t slot_count() const { return 4 * packs.size(); }  // padding lanes' slots stay zero
 };
 

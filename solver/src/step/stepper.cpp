@@ -253,16 +253,18 @@ struct Stepper::Impl {
     for (auto& v : floor_moved_chunks) v.clear();
     for (auto& v : floor_acted_chunks) v.clear();
     const double trigger = floor * (1 - kFloorSlack);
+    const std::vector<detail::TetPack>& packs = floor_packs(packed);
+    const std::vector<detail::FloorCheck>& checks = floor_renumbered ? packed.sweep_floor_checks : packed.floor_checks;
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
-        const detail::FloorCheck& c = packed.floor_checks[i];
-        if (all && i + 2 < e) detail::prefetch_corners(packed.floor_checks[i + 2], x);  // (a later pass skips most)
+        const detail::FloorCheck& c = checks[i];
+        if (all && i + 2 < e) detail::prefetch_corners(checks[i + 2], x);  // (a later pass skips most)
         if (!all && !pack_moved(c, serial - 1)) continue;
         // In the first pass most packs are far above the floor: told so from a sixth of their
         // data. (A later pass visits the packs around corrections, which mostly act.)
         if (all && !detail::floor_may_act(c, x, trigger)) continue;
-        const int h = correct_pack(packed.packs[i], x, floor, serial, floor_moved_chunks[chunk]);
+        const int h = correct_pack(packs[i], x, floor, serial, floor_moved_chunks[chunk]);
         if (h) floor_acted_chunks[chunk].push_back(int32_t(i));
         hits += h;
       }
@@ -283,9 +285,12 @@ struct Stepper::Impl {
   int volume_pass_from_moved(const BodyModel& m, std::vector<Vec3>& x, double floor, uint32_t serial) {
     const detail::PackedModel& packed = detail::packed(m);
     size_t first = floor_queued.size();  // the lowest word queued into
+    const std::vector<int32_t>& start = floor_renumbered ? packed.sweep_slot_start : m.vertex_tet_start;
+    const std::vector<int32_t>& entry = floor_renumbered ? packed.sweep_slot_entry : packed.vertex_slot_entry;
+    const std::vector<detail::TetPack>& packs = floor_packs(packed);
     auto queue_around = [&](int32_t v, int64_t after) {
-      for (int32_t a = m.vertex_tet_start[v]; a < m.vertex_tet_start[v + 1]; ++a) {
-        const int32_t q = packed.vertex_slot_entry[a] / 16;  // 4 x slot + corner; 4 slots per pack
+      for (int32_t a = start[size_t(v)]; a < start[size_t(v) + 1]; ++a) {
+        const int32_t q = entry[size_t(a)] / 16;  // 4 x slot + corner; 4 slots per pack
         if (q <= after) continue;
         floor_queued[size_t(q) >> 6] |= uint64_t(1) << (q & 63);
         first = std::min(first, size_t(q) >> 6);
@@ -299,7 +304,7 @@ struct Stepper::Impl {
         const int32_t q = int32_t(w * 64 + size_t(std::countr_zero(floor_queued[w])));
         floor_queued[w] &= floor_queued[w] - 1;
         const size_t before = floor_moved.size();
-        const int h = correct_pack(packed.packs[size_t(q)], x, floor, serial, floor_moved);
+        const int h = correct_pack(packs[size_t(q)], x, floor, serial, floor_moved);
         if (h) note_acted(q);
         hits += h;
         for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], q);
@@ -325,11 +330,20 @@ struct Stepper::Impl {
     for (int pass = 0; pass < kSettlePasses && floor_settle_visits >= floor_acted.size() && !stop(); ++pass) {
       floor_settle_visits -= floor_acted.size();
       int hits = 0;
-      for (int32_t q : floor_acted) hits += correct_pack(packed.packs[size_t(q)], x, floor, floor_serial, floor_moved);
+      for (int32_t q : floor_acted)
+        hits += correct_pack(floor_packs(packed)[size_t(q)], x, floor, floor_serial, floor_moved);
       total += hits;
       if (!hits) break;
     }
     return total;
+  }
+
+  // The floor's passes after the iterations run, with several threads, on the positions in the
+  // sweep's numbering (to_sweep_order), on its packs, checks and adjacency: the passes' threads
+  // correct tets across the body, and with the mesh's numbering their writes share cache lines.
+  bool floor_renumbered = false;
+  const std::vector<detail::TetPack>& floor_packs(const detail::PackedModel& packed) const {
+    return floor_renumbered ? packed.sweep_packs : packed.packs;
   }
 
   void note_acted(int32_t q) {
@@ -684,14 +698,19 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       return false;
     };
     I.forget_acted(m);
-    int hits = I.volume_pass(m, x, s.inversion_floor, tp);
+    I.floor_renumbered = tp.size() > 1;
+    if (I.floor_renumbered) I.to_sweep_order(packed, x);
+    std::vector<Vec3>& xf = I.floor_renumbered ? I.sweep_x : x;
+    int hits = I.volume_pass(m, xf, s.inversion_floor, tp);
     rep.volume_corrections += hits;
     int pass = 1;
     for (; pass < kVolumePasses && hits > 0 && !stop(); ++pass) {
-      hits = I.volume_pass(m, x, s.inversion_floor, tp, false);
-      if (hits > 0 && pass >= kSettleAfter) hits += I.settle_acted(m, x, s.inversion_floor, stop);
+      hits = I.volume_pass(m, xf, s.inversion_floor, tp, false);
+      if (hits > 0 && pass >= kSettleAfter) hits += I.settle_acted(m, xf, s.inversion_floor, stop);
       rep.volume_corrections += hits;
     }
+    if (I.floor_renumbered) I.from_sweep_order(packed, x);
+    I.floor_renumbered = false;
     spdlog::trace("inversion floor: {} passes, {} corrections in the last", pass, hits);
   }
   if (interacting) I.finish_interaction(x, inputs, h, rep);
