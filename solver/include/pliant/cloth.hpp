@@ -97,7 +97,6 @@ class ConstraintBody : public ParticleBody {
                              SurfaceBoundary* surface, ToolBoundary* tools) override;
   void set_gravity(const Vec3& gravity) override;
 
-
   // Pins particle i where it is (inverse mass 0) or frees it again with its mass.
   void pin(size_t i);
   void unpin(size_t i);
@@ -183,7 +182,6 @@ class ConstraintBody : public ParticleBody {
   bool self_thickness_said_ = false;  // logged that self-collision keeps less than the thickness
                                       // (finish runs twice for a grid with shear diagonals)
   std::unique_ptr<ThreadPool> pool_;
-
 
   // self-collision: triangle candidates by hashed cell, rebuilt every step
   double cell_ = 0.0;

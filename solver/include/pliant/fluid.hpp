@@ -124,7 +124,6 @@ class FluidBody final : public ParticleBody {
                              SurfaceBoundary* surface, ToolBoundary* tools) override;
   void set_gravity(const Vec3& gravity) override;
 
-
   const FluidSettings& settings() const;
   double particle_mass() const;    // kg
   double support_radius() const;   // h, m
