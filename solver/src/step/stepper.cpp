@@ -144,10 +144,9 @@ struct Stepper::Impl {
     const detail::PackedModel& packed = detail::packed(m);
     std::vector<int> floor_hits(tp.size(), 0);
     std::vector<Vec6>* increments = keep_increments ? &dlambda : nullptr;
-    const bool renumbered = tp.size() > 1;
-    const std::vector<detail::TetPack>& packs = renumbered ? packed.sweep_packs : packed.packs;
-    if (renumbered) to_sweep_order(packed, x);
-    std::vector<Vec3>& xs = renumbered ? sweep_x : x;
+    SweepOrder order(*this, packed, x, tp.size() > 1);
+    const std::vector<detail::TetPack>& packs = order.packs();
+    std::vector<Vec3>& xs = order.positions();
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
@@ -157,28 +156,48 @@ struct Stepper::Impl {
           detail::prefetch_ahead(packs, i, e, xs, lambda);
         hits += detail::project_pack(packs[i], xs, lambda, increments, m, params.alpha_tilde, params.lambda_scale,
                                      params.inversion_floor, params.line_search, lambda_zero,
-                                     renumbered ? &packed : nullptr);
+                                     in_sweep_order ? &packed : nullptr);
       }
       floor_hits[chunk] += hits;
     });
-    if (renumbered) from_sweep_order(packed, x);
     int total = 0;
     for (int h : floor_hits) total += h;
     return total;
   }
 
-  // Positions in the sweep's vertex numbering, copied in before a pass over sweep_packs and
-  // back after it. Threads writing positions that share cache lines slow each other down:
-  // with the armadillo's own numbering two threads swept no faster than one (docs/solver.md,
-  // "The sweep's own vertex numbering"). One thread gains nothing from it.
+  // With several threads the passes over the packs (the sweep, the position update, the floor's
+  // passes) run on the positions in the sweep's vertex numbering (PackedModel::sweep_vertex):
+  // for the scope of a SweepOrder they are copied into sweep_x, and back when it ends. Threads
+  // writing positions that share cache lines slow each other down: with the armadillo's own
+  // numbering two threads swept no faster than one (docs/solver.md, "The sweep's own vertex
+  // numbering"). One thread gains nothing from it and keeps the mesh's numbering.
   std::vector<Vec3> sweep_x;
-  void to_sweep_order(const detail::PackedModel& packed, const std::vector<Vec3>& x) {
-    sweep_x.resize(x.size());
-    for (size_t s = 0; s < x.size(); ++s) sweep_x[s] = x[size_t(packed.mesh_vertex[s])];
-  }
-  void from_sweep_order(const detail::PackedModel& packed, std::vector<Vec3>& x) const {
-    for (size_t s = 0; s < x.size(); ++s) x[size_t(packed.mesh_vertex[s])] = sweep_x[s];
-  }
+  bool in_sweep_order = false;  // while a SweepOrder holds the positions in sweep_x
+  class SweepOrder {
+   public:
+    SweepOrder(Impl& impl, const detail::PackedModel& packed, std::vector<Vec3>& x, bool renumber)
+        : impl_(impl), packed_(packed), x_(x), on_(renumber) {
+      if (!on_) return;
+      impl_.sweep_x.resize(x_.size());
+      for (size_t s = 0; s < x_.size(); ++s) impl_.sweep_x[s] = x_[size_t(packed_.mesh_vertex[s])];
+      impl_.in_sweep_order = true;
+    }
+    ~SweepOrder() {
+      if (!on_) return;
+      for (size_t s = 0; s < x_.size(); ++s) x_[size_t(packed_.mesh_vertex[s])] = impl_.sweep_x[s];
+      impl_.in_sweep_order = false;
+    }
+    SweepOrder(const SweepOrder&) = delete;
+    SweepOrder& operator=(const SweepOrder&) = delete;
+    std::vector<Vec3>& positions() { return on_ ? impl_.sweep_x : x_; }
+    const std::vector<detail::TetPack>& packs() const { return on_ ? packed_.sweep_packs : packed_.packs; }
+
+   private:
+    Impl& impl_;
+    const detail::PackedModel& packed_;
+    std::vector<Vec3>& x_;
+    bool on_;
+  };
 
   // One Jacobi sweep: every tet computes its increment from the same positions, scaled by
   // relaxation / (largest number of tets at one of its corners), so that no vertex moves more
@@ -254,7 +273,7 @@ struct Stepper::Impl {
     for (auto& v : floor_acted_chunks) v.clear();
     const double trigger = floor * (1 - kFloorSlack);
     const std::vector<detail::TetPack>& packs = floor_packs(packed);
-    const std::vector<detail::FloorCheck>& checks = floor_renumbered ? packed.sweep_floor_checks : packed.floor_checks;
+    const std::vector<detail::FloorCheck>& checks = in_sweep_order ? packed.sweep_floor_checks : packed.floor_checks;
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
@@ -285,8 +304,8 @@ struct Stepper::Impl {
   int volume_pass_from_moved(const BodyModel& m, std::vector<Vec3>& x, double floor, uint32_t serial) {
     const detail::PackedModel& packed = detail::packed(m);
     size_t first = floor_queued.size();  // the lowest word queued into
-    const std::vector<int32_t>& start = floor_renumbered ? packed.sweep_slot_start : m.vertex_tet_start;
-    const std::vector<int32_t>& entry = floor_renumbered ? packed.sweep_slot_entry : packed.vertex_slot_entry;
+    const std::vector<int32_t>& start = in_sweep_order ? packed.sweep_slot_start : m.vertex_tet_start;
+    const std::vector<int32_t>& entry = in_sweep_order ? packed.sweep_slot_entry : packed.vertex_slot_entry;
     const std::vector<detail::TetPack>& packs = floor_packs(packed);
     auto queue_around = [&](int32_t v, int64_t after) {
       for (int32_t a = start[size_t(v)]; a < start[size_t(v) + 1]; ++a) {
@@ -338,12 +357,10 @@ struct Stepper::Impl {
     return total;
   }
 
-  // The floor's passes after the iterations run, with several threads, on the positions in the
-  // sweep's numbering (to_sweep_order), on its packs, checks and adjacency: the passes' threads
-  // correct tets across the body, and with the mesh's numbering their writes share cache lines.
-  bool floor_renumbered = false;
+  // The floor's passes after the iterations run in a SweepOrder too, on its packs, checks and
+  // adjacency: their threads correct tets across the body.
   const std::vector<detail::TetPack>& floor_packs(const detail::PackedModel& packed) const {
-    return floor_renumbered ? packed.sweep_packs : packed.packs;
+    return in_sweep_order ? packed.sweep_packs : packed.packs;
   }
 
   void note_acted(int32_t q) {
@@ -388,17 +405,15 @@ struct Stepper::Impl {
 
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
-    const bool renumbered = tp.size() > 1;  // as the sweep
-    const std::vector<detail::TetPack>& packs = renumbered ? packed.sweep_packs : packed.packs;
-    if (renumbered) to_sweep_order(packed, x);
-    std::vector<Vec3>& xs = renumbered ? sweep_x : x;
+    SweepOrder order(*this, packed, x, tp.size() > 1);
+    const std::vector<detail::TetPack>& packs = order.packs();
+    std::vector<Vec3>& xs = order.positions();
     for_each_pack(packed, tp, [&](int, size_t b, size_t e) {
       for (size_t i = b; i < e; ++i) {
         detail::prefetch_ahead(packs, i, e, xs, dl);
         detail::apply_increment_lanes(packs[i], xs, dl, m.material.model);
       }
     });
-    if (renumbered) from_sweep_order(packed, x);
   }
 
   // Interaction scratch: per tool, the contact multiplier of each vertex in this substep
@@ -698,9 +713,8 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       return false;
     };
     I.forget_acted(m);
-    I.floor_renumbered = tp.size() > 1;
-    if (I.floor_renumbered) I.to_sweep_order(packed, x);
-    std::vector<Vec3>& xf = I.floor_renumbered ? I.sweep_x : x;
+    Impl::SweepOrder order(I, packed, x, tp.size() > 1);
+    std::vector<Vec3>& xf = order.positions();
     int hits = I.volume_pass(m, xf, s.inversion_floor, tp);
     rep.volume_corrections += hits;
     int pass = 1;
@@ -709,8 +723,6 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       if (hits > 0 && pass >= kSettleAfter) hits += I.settle_acted(m, xf, s.inversion_floor, stop);
       rep.volume_corrections += hits;
     }
-    if (I.floor_renumbered) I.from_sweep_order(packed, x);
-    I.floor_renumbered = false;
     spdlog::trace("inversion floor: {} passes, {} corrections in the last", pass, hits);
   }
   if (interacting) I.finish_interaction(x, inputs, h, rep);
