@@ -310,10 +310,8 @@ void AndersonMixer::push_impl(const double* y, const double* r, const ParallelFo
 void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& parallel) {
   const bool differences = count_ > 0;
   const int h = differences ? (head_ + 1) % m_ : 0;
-  const int eh = (e_head_ + 1) % (m_ + 1);
   const int columns = differences ? std::min<int>(m_, int(count_)) : 0;
-  // Residuals after this push, newest (slot eh) first.
-  auto e_slot = [&](int a) { return ((eh - a) % (m_ + 1) + (m_ + 1)) % (m_ + 1); };
+  e_head_ = (e_head_ + 1) % (m_ + 1);  // this push's residual: residual_slot(0)
   const size_t nb = blocks(), stride = 2 * size_t(m_);
   partial_.resize(nb * stride);
   auto work = [&](size_t b0, size_t b1) {
@@ -321,7 +319,7 @@ void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& para
     for (size_t blk = b0; blk < b1; ++blk) {
       const size_t i0 = blk * kBlock, n = std::min(kBlock, size_ - i0);
       double* yp = y_.data() + i0;
-      double* en = e_[size_t(eh)].data() + i0;
+      double* en = e_[size_t(residual_slot(0))].data() + i0;
       const double* yn = y + i0;
       if (!differences) {
         for (size_t i = 0; i < n; ++i) {
@@ -330,7 +328,7 @@ void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& para
         }
         continue;
       }
-      const double* ep = e_[size_t(e_slot(1))].data() + i0;
+      const double* ep = e_[size_t(residual_slot(1))].data() + i0;
       for (size_t i = 0; i < n; ++i) {
         const double dy = yn[i] - yp[i];
         en[i] = dy;
@@ -341,8 +339,8 @@ void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& para
       for (int a = 0; a < columns; ++a) {
         const double* column = drh;
         if (a > 0) {
-          const double* e0 = e_[size_t(e_slot(a))].data() + i0;
-          const double* e1 = e_[size_t(e_slot(a + 1))].data() + i0;
+          const double* e0 = e_[size_t(residual_slot(a))].data() + i0;
+          const double* e1 = e_[size_t(residual_slot(a + 1))].data() + i0;
           for (size_t i = 0; i < n; ++i) dj[i] = e0[i] - e1[i];
           column = dj;
         }
@@ -353,7 +351,6 @@ void AndersonMixer::push_increment_impl(const double* y, const ParallelFor& para
   };
   if (parallel && nb > 1) parallel(nb, work);
   else work(0, nb);
-  e_head_ = eh;
   end_push(differences, h, columns);
 }
 
