@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // The step does not depend on how many threads run it: every family splits its loops over
 // work that shares no vertex (a slab's or a colour's tets, a colour's vertices) and reduces in
-// a fixed order, so one thread, two and four reach the same state bit for bit. Short steps on
+// fixed blocks in a fixed order, so one thread, two and four reach the same state and report the
+// same residuals bit for bit. Short steps on
 // beam3 (3,120 tets: four slabs in the sweeps' block order, colours large enough to be split
 // in the other loops), with a tool and a grab in play.
 // CI also runs these under ThreadSanitizer (scripts/sanitize.sh, SANITIZER=thread): they
@@ -42,7 +43,12 @@ std::shared_ptr<const BodyModel> beam3(double young) {
   return build_model(mesh, Material{young, 0.45, 1000}, clamp_below_x(default_clamp_x(mesh.vertices)));
 }
 
-BodyState run(const BodyModel& m, const Case& c, int threads) {
+struct Outcome {
+  BodyState state;
+  StepReport last;  // the last step's report
+};
+
+Outcome run(const BodyModel& m, const Case& c, int threads) {
   SolverSettings s;
   s.method = c.method;
   s.sweep = c.sweep;
@@ -55,13 +61,13 @@ BodyState run(const BodyModel& m, const Case& c, int threads) {
   in.tools.push_back(RigidTool::sphere(Vec3(0.095, 0.0155, 0.006), 0.006));
   const int32_t grabbed = int32_t(m.vertex_count() / 2);
   in.attachments.push_back(Attachment::vertex(grabbed, m.rest_positions[grabbed] + Vec3(0, 0.003, 0), 1e-4));
-  BodyState st = rest_state(m);
+  Outcome out{rest_state(m), {}};
   Stepper stepper;
   for (int k = 0; k < 2; ++k) {
-    const StepReport r = stepper.step(m, st, s, in);
-    EXPECT_FALSE(r.diverged) << c.name << " threads " << threads << " step " << k;
+    out.last = stepper.step(m, out.state, s, in);
+    EXPECT_FALSE(out.last.diverged) << c.name << " threads " << threads << " step " << k;
   }
-  return st;
+  return out;
 }
 
 class ThreadCount : public ::testing::TestWithParam<Case> {};
@@ -69,16 +75,21 @@ class ThreadCount : public ::testing::TestWithParam<Case> {};
 TEST_P(ThreadCount, DoesNotChangeTheStep) {
   const Case& c = GetParam();
   auto m = beam3(1e6);
-  const BodyState one = run(*m, c, 1);
+  const Outcome one = run(*m, c, 1);
   double scale = 0;
-  for (size_t i = 0; i < one.x.size(); ++i) scale = std::max(scale, (one.x[i] - m->rest_positions[i]).norm());
+  for (size_t i = 0; i < one.state.x.size(); ++i)
+    scale = std::max(scale, (one.state.x[i] - m->rest_positions[i]).norm());
   ASSERT_GT(scale, 1e-5) << "the body did not move: nothing was compared";
+  // The residuals too (sums over the body, formed per fixed block of its work).
+  ASSERT_FALSE(one.last.residuals.empty()) << "no residual was recorded: nothing was compared";
   for (int threads : {2, 4}) {
-    const BodyState many = run(*m, c, threads);
-    for (size_t i = 0; i < one.x.size(); ++i) {
-      ASSERT_EQ(one.x[i], many.x[i]) << c.name << ", vertex " << i << ", " << threads << " threads";
-      ASSERT_EQ(one.v[i], many.v[i]) << c.name << ", vertex " << i << ", " << threads << " threads";
+    const Outcome many = run(*m, c, threads);
+    for (size_t i = 0; i < one.state.x.size(); ++i) {
+      ASSERT_EQ(one.state.x[i], many.state.x[i]) << c.name << ", vertex " << i << ", " << threads << " threads";
+      ASSERT_EQ(one.state.v[i], many.state.v[i]) << c.name << ", vertex " << i << ", " << threads << " threads";
     }
+    EXPECT_EQ(one.last.residual_initial, many.last.residual_initial) << c.name << ", " << threads << " threads";
+    EXPECT_EQ(one.last.residuals, many.last.residuals) << c.name << ", " << threads << " threads";
   }
 }
 

@@ -65,6 +65,9 @@ constexpr double kMaxForcing = 0.5;
 // left the sag 7% short (0.1: creeping 8% long after the first swing; 0.01: within 0.1%).
 constexpr double kTwoLevelForcing = 0.01;
 constexpr int kMaxCgIterations = 2000;
+// Tets a block of the elastic energy's sum (per block, then in block order: the same bits with
+// any thread count).
+constexpr size_t kEnergyBlock = 2048;
 // Up to this many free dofs CG is preconditioned by a factorisation of an earlier Hessian (the
 // hippo's costs a few ticks' budget, once; the armadillo's 1.8 s and each of its solves tens of
 // ms, so it gets the 3x3 vertex blocks unless newton_linear_solver is cg-factor); it is refreshed
@@ -792,16 +795,13 @@ void NewtonFamily::add_interaction(const BodyModel& m, const std::vector<Vec3>& 
 }
 
 double NewtonFamily::elastic_energy(const BodyModel& m, const std::vector<Vec3>& x) const {
-  // Per chunk of tets, summed in chunk order: the same result for the same thread count.
-  std::vector<double> part(size_t(pool_->size()), 0.0);
-  pool_->parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
+  // Per block of tets, summed in block order: the same bits with any thread count.
+  std::vector<double> part;
+  return block_sum(*pool_, m.tets.size(), kEnergyBlock, part, [&](size_t b, size_t e) {
     double sum = 0;
     for (size_t t = b; t < e; ++t) sum += strain_energy(m.tets[t], m.stiffness, gather(x, m.tets[t].v), m.material.model);
-    part[size_t(chunk)] = sum;
-  }, 2048);
-  double e = 0;
-  for (double p : part) e += p;
-  return e;
+    return sum;
+  });
 }
 
 double NewtonFamily::inertial_elastic_energy(const BodyModel& m, const std::vector<Vec3>& x, double h) const {
@@ -819,11 +819,11 @@ void NewtonFamily::warm_start_pass(const BodyModel& m,
     std::array<double, kCandidates> elastic{};
     std::array<bool, kCandidates> kept{true, true, true};
   };
-  std::vector<Part> parts(size_t(pool_->size()));
-  // Chunked as elastic_energy() chunks the tets and summed in the same order, so that each
-  // candidate's energy is the bits potential() gives for it.
-  pool_->parallel_for(m.tets.size(), [&](int chunk, size_t b, size_t e) {
-    // Summed here and stored once: the chunks' parts share cache lines.
+  std::vector<Part> parts(block_count(m.tets.size(), kEnergyBlock));
+  // In elastic_energy()'s blocks, summed in the same order, so that each candidate's energy is
+  // the bits potential() gives for it.
+  for_each_block(*pool_, m.tets.size(), kEnergyBlock, [&](size_t block, size_t b, size_t e) {
+    // Summed here and stored once: the blocks' parts share cache lines.
     Part part;
     for (size_t t = b; t < e; ++t) {
       const TetRest& tet = m.tets[t];
@@ -838,8 +838,8 @@ void NewtonFamily::warm_start_pass(const BodyModel& m,
         else if (ratio < std::min(floor, start_ratio)) part.kept[size_t(c)] = false;
       }
     }
-    parts[size_t(chunk)] = part;
-  }, 2048);
+    parts[block] = part;
+  });
   for (int c = 0; c < kCandidates; ++c) {
     double e = 0;
     bool k = true;

@@ -43,6 +43,9 @@ constexpr int kSettlePasses = 100;
 // each tet on the floor to rounding, then stops acting.
 constexpr double kFloorSlack = 1e-6;
 
+// Packs a block of the residual's sum (per block, then in block order: ThreadPool's block_sum).
+constexpr size_t kResidualBlock = 64;
+
 // Adds the elapsed time of a scope to a counter.
 struct PhaseTimer {
   double& sink;
@@ -84,7 +87,7 @@ struct Stepper::Impl {
   std::vector<Vec3> x_before, x_saved, v_prev;
   std::vector<Vec6> lambda_saved;
   std::vector<Vec3> jacobi_dx;  // 4 per slot
-  std::vector<double> partial;  // per-thread sums
+  std::vector<double> partial;  // per-block sums
   std::vector<int> floor_hits_per_chunk;  // per-thread corrections of a floor pass
   std::vector<uint32_t> floor_stamp;      // per vertex: the floor pass (serial) that last moved it
   uint32_t floor_serial = 0;              // floor passes made (with this vertex count)
@@ -119,18 +122,15 @@ struct Stepper::Impl {
   double residual(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
                   const detail::KernelCompliance& alpha_tilde, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
-    partial.assign(tp.size(), 0.0);
-    tp.parallel_for(packed.packs.size(), [&](int chunk, size_t b, size_t e) {
+    // Summed per block of packs: the same bits with any thread count.
+    return std::sqrt(block_sum(tp, packed.packs.size(), kResidualBlock, partial, [&](size_t b, size_t e) {
       double s = 0;
       for (size_t i = b; i < e; ++i) {
         detail::prefetch_ahead(packed.packs, i, e, x, lambda);
         s += detail::residual_squared_lanes(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
       }
-      partial[chunk] = s;
-    }, 32);
-    double sum = 0;
-    for (double s : partial) sum += s;
-    return std::sqrt(sum);
+      return s;
+    }));
   }
 
   // One Gauss-Seidel sweep in the model's solve order, four tets of a colour at a time; blocks

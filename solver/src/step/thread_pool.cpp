@@ -54,6 +54,21 @@ void ThreadPool::run_claimed(int index, uint64_t generation) {
     fn(0, 0, n);
 }
 
+void for_each_block(ThreadPool& pool, size_t n, size_t block, const std::function<void(size_t, size_t, size_t)>& fn) {
+  pool.parallel_for(block_count(n, block), [&](int, size_t first, size_t end) {
+    for (size_t k = first; k < end; ++k) fn(k, k * block, std::min(n, (k + 1) * block));
+  }, 2);
+}
+
+double block_sum(ThreadPool& pool, size_t n, size_t block, std::vector<double>& partial,
+                 const std::function<double(size_t, size_t)>& term_sum) {
+  partial.assign(block_count(n, block), 0.0);
+  for_each_block(pool, n, block, [&](size_t k, size_t b, size_t e) { partial[k] = term_sum(b, e); });
+  double sum = 0;
+  for (double p : partial) sum += p;
+  return sum;
+}
+
 void ThreadPool::parallel_for(size_t n, const std::function<void(int, size_t, size_t)>& fn,
                               size_t min_parallel) {
   if (workers_.empty() || n < min_parallel) {

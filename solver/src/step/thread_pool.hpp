@@ -60,4 +60,16 @@ class ThreadPool {
 void run_parallel(ThreadPool* pool, size_t n, const std::function<void(int, size_t, size_t)>& fn,
                   size_t min_parallel = 128);
 
+// Calls fn(k, begin, end) for the blocks k = 0, 1, ... of `block` items of [0, n) (the last one
+// shorter), blocks in parallel. The blocks do not depend on the thread count, so a sum kept per
+// block and added in block order has the same bits with any number of threads (a sum per chunk
+// does not).
+void for_each_block(ThreadPool& pool, size_t n, size_t block, const std::function<void(size_t, size_t, size_t)>& fn);
+inline size_t block_count(size_t n, size_t block) { return (n + block - 1) / block; }
+
+// The sum over [0, n) of term_sum(begin, end) (a block's sum), formed per block of `block` items
+// and added in block order: the same bits with any thread count. partial: scratch.
+double block_sum(ThreadPool& pool, size_t n, size_t block, std::vector<double>& partial,
+                 const std::function<double(size_t, size_t)>& term_sum);
+
 }  // namespace pliant

@@ -333,8 +333,8 @@ void VbdFamily::sweep(const BodyModel& m, std::vector<Vec3>& x, ThreadPool& tp) 
 }
 
 double VbdFamily::gradient_norm(const BodyModel& m, const std::vector<Vec3>& x, ThreadPool& tp) {
-  partial_.assign(tp.size(), 0.0);
-  tp.parallel_for(m.vertex_count(), [&](int chunk, size_t b, size_t e) {
+  // Summed per block of vertices: the same bits with any thread count.
+  return std::sqrt(block_sum(tp, m.vertex_count(), 256, partial_, [&](size_t b, size_t e) {
     double sum = 0;
     for (size_t i = b; i < e; ++i) {
       if (m.inv_mass[i] == 0) continue;
@@ -342,11 +342,8 @@ double VbdFamily::gradient_norm(const BodyModel& m, const std::vector<Vec3>& x, 
       vertex_system(m, int32_t(i), x, gather_tets(int32_t(i), x), x[i], f, nullptr);
       sum += f.squaredNorm();
     }
-    partial_[chunk] = sum;
-  }, 256);
-  double sum = 0;
-  for (double p : partial_) sum += p;
-  return std::sqrt(sum);
+    return sum;
+  }));
 }
 
 // x <- omega (x - x_{k-1}) + x_{k-1} over the free vertices, x_{k-1} the iterate before last.
