@@ -148,6 +148,7 @@ int main(int argc, char** argv) {
       sum.projection_ms += r.times.projection_ms;
       sum.residual_ms += r.times.residual_ms;
       sum.other_ms += r.times.other_ms;
+      sum.floor_ms += r.times.floor_ms;
       sum.update_ms += r.times.update_ms + r.times.anderson_ms;
       corrections += r.volume_corrections;
       iterations_done += r.iterations;
@@ -178,6 +179,7 @@ int main(int argc, char** argv) {
                                                    {"projection_ms", sum.projection_ms / ticks},
                                                    {"residual_ms", sum.residual_ms / ticks},
                                                    {"other_ms", sum.other_ms / ticks},
+                                                   {"floor_ms", sum.floor_ms / ticks},
                                                    {"update_ms", sum.update_ms / ticks},
                                                    {"volume_corrections_per_tick", corrections / ticks},
                                                    {"time_budget_ms", budget_ms},

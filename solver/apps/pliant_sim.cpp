@@ -431,7 +431,8 @@ int cmd_static(const cli::Args& a) {
                                                         {"accelerator", r.last_report.times.anderson_ms},
                                                         {"update", r.last_report.times.update_ms},
                                                         {"residual", r.last_report.times.residual_ms},
-                                                        {"other", r.last_report.times.other_ms}});
+                                                        {"other", r.last_report.times.other_ms},
+                                                        {"floor", r.last_report.times.floor_ms}});
   if (s.method == Method::Newton)
     j.add("newton_linear_solver",
           std::string(to_string(newton_uses_cg(*model, s) ? NewtonLinearSolver::Cg : NewtonLinearSolver::Direct)))

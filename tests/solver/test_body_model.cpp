@@ -156,6 +156,33 @@ TEST(Inversion, FloorPassesGiveTheSameResultForAnyThreadCount) {
   }
 }
 
+// The report's floor time is the floor's share of the time outside the iterations: measured
+// when the floor acts (the squashed beam of the test above), zero when it is off, and never
+// more than other_ms, for each family that has the floor.
+TEST(Inversion, TheReportTimesTheFloorWithinTheOtherTime) {
+  TetMesh mesh = *builtin_mesh("beam3");
+  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+  BodyState start = rest_state(*model);
+  squash_and_shake(start.x, 11);
+  for (Method method : {Method::Xpbd, Method::Vbd, Method::Newton}) {
+    SolverSettings s;
+    s.method = method;
+    s.gravity.setZero();
+    s.substeps = 1;
+    s.iterations = 1;
+    BodyState state = start;
+    Stepper stepper;
+    const StepReport on = stepper.step(*model, state, s);
+    EXPECT_GT(on.volume_corrections, 0) << to_string(method);
+    EXPECT_GT(on.times.floor_ms, 0.0) << to_string(method);
+    EXPECT_LE(on.times.floor_ms, on.times.other_ms) << to_string(method);
+    s.inversion_floor = 0;
+    state = start;
+    const StepReport off = stepper.step(*model, state, s);
+    EXPECT_EQ(off.times.floor_ms, 0.0) << to_string(method);
+  }
+}
+
 TEST(State, KineticEnergyAndRmsSpeedCountOnlyTheFreeVertices) {
   // Every vertex moving at the same velocity: E = 1/2 M_free |v|^2 and the mass-weighted RMS
   // speed is |v|, whatever the clamped vertices carry (their velocity is not motion).

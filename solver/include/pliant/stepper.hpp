@@ -24,7 +24,8 @@ struct PhaseTimes {
   double anderson_ms = 0;    // the accelerator's own work (least squares, extrapolation)
   double update_ms = 0;      // position updates from accelerated multipliers / relaxation
   double residual_ms = 0;    // residual evaluation
-  double other_ms = 0;       // prediction, contacts, velocity update, damping
+  double other_ms = 0;       // prediction, contacts, velocity update, damping, the inversion floor
+  double floor_ms = 0;       // of other_ms: the inversion floor's passes after the iterations
 };
 
 struct StepReport {

@@ -1033,6 +1033,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
       // Inversion safety as in the projection family: tets pushed under the floor are pushed back
       // by the unilateral volume constraint (repeated while a pass still acts, at most 20).
       if (moved && s.inversion_floor > 0) {
+        const auto t_floor = Clock::now();
         const int hits = volume_floor_.enforce(m, x, s.inversion_floor, kVolumePasses, tp, [&] {
           return (in.cancel && in.cancel->load(std::memory_order_relaxed)) || (budget > 0 && ms_since(t_sub) >= budget);
         });
@@ -1041,6 +1042,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
         if (volume_floor_.stopped() && !(in.cancel && in.cancel->load(std::memory_order_relaxed)))
           rep.floor_stopped_by_budget = true;
         if (hits > 0) full_step = false;
+        rep.times.floor_ms += ms_since(t_floor);
       }
       rep.times.other_ms += ms_since(t_ls);
       rep.iterations++;

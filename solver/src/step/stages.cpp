@@ -70,6 +70,7 @@ void add_substep(StepReport& total, StepReport&& r) {
   total.times.update_ms += r.times.update_ms;
   total.times.residual_ms += r.times.residual_ms;
   total.times.other_ms += r.times.other_ms;
+  total.times.floor_ms += r.times.floor_ms;
   total.residuals = std::move(r.residuals);
   total.residual_initial = r.residual_initial;
   total.residual_final = r.residual_final;

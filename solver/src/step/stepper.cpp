@@ -742,7 +742,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     // repeat (kVolumePasses at most) until a pass finds nothing to do. The later passes belong
     // to the step's time: they stop when the budget is spent or the step is cancelled (on a
     // tangled mesh they do not converge, and 40 of them can cost more than the sweeps).
-    PhaseTimer t{rep.times.other_ms};
+    PhaseTimer t{rep.times.other_ms}, t_floor{rep.times.floor_ms};
     auto stop = [&] {
       if (inputs.cancel && inputs.cancel->load(std::memory_order_relaxed)) {
         rep.cancelled = true;

@@ -500,6 +500,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
     }
     const auto t_end = Clock::now();
     if (s.inversion_floor > 0) {
+      const auto t_floor = Clock::now();
       // The later passes belong to the substep's time, as the iterations do.
       const auto cancelled = [&] { return inputs.cancel && inputs.cancel->load(std::memory_order_relaxed); };
       total.volume_corrections = volume_floor_.enforce(m, state.x, s.inversion_floor, kVolumePasses, tp, [&] {
@@ -507,6 +508,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
       });
       if (volume_floor_.stopped() && cancelled()) total.cancelled = true;
       else if (volume_floor_.stopped()) total.floor_stopped_by_budget = true;
+      total.times.floor_ms += ms_since(t_floor);
     }
     total.contacts = collider_contacts + obstacle_contacts;
     accumulate_reactions(m, state.x, inputs, total);
