@@ -54,23 +54,23 @@ struct PhaseTimer {
 };
 
 // The groups of a phase dealt to `chunks` threads: in runs of equal counts in storage order,
-// unless dealing them largest first, each to
-// the thread with the fewest packs so far, leaves the busiest thread fewer packs. The
-// armadillo's slabs hold 1,325 to 1,568 packs: in runs one thread had 6,045 of the first
-// phase's 11,509 and the other waited for it; dealt so, 5,788 (docs/solver.md, "Groups dealt
-// to the threads by their packs").
+// unless dealing them largest first, each to the thread with the fewest packs so far, leaves
+// the busiest thread fewer packs. The armadillo's slabs hold 1,325 to 1,568 packs: in runs one
+// thread had 6,045 of the first phase's 11,509 and the other waited for it; dealt so, 5,788
+// (docs/solver.md, "Groups dealt to the threads by their packs"). A lone group, or one thread:
+// everything to the calling thread.
 void deal_groups(const detail::SolvePhase& phase, int chunks, std::vector<int>& owner) {
   const std::vector<size_t>& g = phase.group_begin;
   const size_t groups = g.size() - 1, n = size_t(chunks);
+  owner.assign(groups, 0);
+  if (groups < 2 || n < 2) return;
   auto size = [&](size_t k) { return g[k + 1] - g[k]; };
   std::vector<size_t> load(n, 0);
-  owner.assign(groups, 0);
   for (size_t c = 0; c < n; ++c)  // as ThreadPool::parallel_for cuts [0, groups)
     for (size_t k = groups * c / n; k < groups * (c + 1) / n; ++k) {
       owner[k] = int(c);
       load[c] += size(k);
     }
-  if (groups == 1) owner[0] = 0;  // for_each_pack runs a lone group on the calling thread
   const size_t in_runs = *std::max_element(load.begin(), load.end());
   std::vector<size_t> order(groups);
   for (size_t k = 0; k < groups; ++k) order[k] = k;
