@@ -76,7 +76,7 @@ TEST(Inversion, FloorPassesLeaveNoTetBelowTheFloor) {
 // The later floor passes belong to the step's time, in every family: with a budget already spent
 // when the floor starts, only its first pass runs (fewer corrections, tets left under the floor,
 // the report says so); a cancelled step stops after it too; without either the passes run until
-// none acts.
+// none acts, and the report times them (floor_ms, within other_ms; zero with the floor off).
 TEST(Inversion, LaterFloorPassesStopAtTheBudgetAndOnCancel) {
   TetMesh mesh = *builtin_mesh("beam1");
   auto model = build_model(mesh, Material{1e5, 0.4, 1000});
@@ -97,6 +97,13 @@ TEST(Inversion, LaterFloorPassesStopAtTheBudgetAndOnCancel) {
     BodyState full = start;
     const StepReport all = Stepper().step(*model, full, s);
     EXPECT_FALSE(all.floor_stopped_by_budget);
+    // The report times the passes, as a part of the time outside the iterations.
+    EXPECT_GT(all.times.floor_ms, 0.0);
+    EXPECT_LE(all.times.floor_ms, all.times.other_ms);
+    SolverSettings no_floor = s;
+    no_floor.inversion_floor = 0;
+    BodyState unfloored = start;
+    EXPECT_EQ(Stepper().step(*model, unfloored, no_floor).times.floor_ms, 0.0);
     // The projection family's 40 passes bring every tet back here; vbd's 20 in mesh order leave
     // some (83), fewer than one pass does.
     if (method == Method::Xpbd) {
@@ -153,33 +160,6 @@ TEST(Inversion, FloorPassesGiveTheSameResultForAnyThreadCount) {
     size_t differing = 0;
     for (size_t i = 0; i < first.size(); ++i) differing += state.x[i] != first[i];
     EXPECT_EQ(differing, 0u) << threads << " threads";
-  }
-}
-
-// The report's floor time is the floor's share of the time outside the iterations: measured
-// when the floor acts (the squashed beam of the test above), zero when it is off, and never
-// more than other_ms, for each family that has the floor.
-TEST(Inversion, TheReportTimesTheFloorWithinTheOtherTime) {
-  TetMesh mesh = *builtin_mesh("beam3");
-  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
-  BodyState start = rest_state(*model);
-  squash_and_shake(start.x, 11);
-  for (Method method : {Method::Xpbd, Method::Vbd, Method::Newton}) {
-    SolverSettings s;
-    s.method = method;
-    s.gravity.setZero();
-    s.substeps = 1;
-    s.iterations = 1;
-    BodyState state = start;
-    Stepper stepper;
-    const StepReport on = stepper.step(*model, state, s);
-    EXPECT_GT(on.volume_corrections, 0) << to_string(method);
-    EXPECT_GT(on.times.floor_ms, 0.0) << to_string(method);
-    EXPECT_LE(on.times.floor_ms, on.times.other_ms) << to_string(method);
-    s.inversion_floor = 0;
-    state = start;
-    const StepReport off = stepper.step(*model, state, s);
-    EXPECT_EQ(off.times.floor_ms, 0.0) << to_string(method);
   }
 }
 
