@@ -226,7 +226,8 @@ struct Stepper::Impl {
     }
     ~SweepOrder() {
       if (!on_) return;
-      for (size_t s = 0; s < x_.size(); ++s) x_[size_t(packed_.mesh_vertex[s])] = impl_.sweep_x[s];
+      // Read through the numbering, written in order (a gather: cheaper than the scatter).
+      for (size_t v = 0; v < x_.size(); ++v) x_[v] = impl_.sweep_x[size_t(packed_.sweep_vertex[v])];
       impl_.in_sweep_order = false;
     }
     SweepOrder(const SweepOrder&) = delete;
