@@ -187,7 +187,7 @@ struct Stepper::Impl {
     std::vector<int> floor_hits(tp.size(), 0);
     std::vector<Vec6>* increments = keep_increments ? &dlambda : nullptr;
     SweepOrder order(*this, packed, x, tp.size() > 1);
-    const std::vector<detail::TetPack>& packs = order.packs();
+    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
     std::vector<Vec3>& xs = order.positions();
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
@@ -215,6 +215,10 @@ struct Stepper::Impl {
   // numbering"). One thread gains nothing from it and keeps the mesh's numbering.
   std::vector<Vec3> sweep_x;
   bool in_sweep_order = false;  // while a SweepOrder holds the positions in sweep_x
+  // The packs with their corners in the numbering the positions are in now.
+  const std::vector<detail::TetPack>& packs_in_order(const detail::PackedModel& packed) const {
+    return in_sweep_order ? packed.sweep_packs : packed.packs;
+  }
   class SweepOrder {
    public:
     SweepOrder(Impl& impl, const detail::PackedModel& packed, std::vector<Vec3>& x, bool renumber)
@@ -233,7 +237,6 @@ struct Stepper::Impl {
     SweepOrder(const SweepOrder&) = delete;
     SweepOrder& operator=(const SweepOrder&) = delete;
     std::vector<Vec3>& positions() { return on_ ? impl_.sweep_x : x_; }
-    const std::vector<detail::TetPack>& packs() const { return on_ ? packed_.sweep_packs : packed_.packs; }
 
    private:
     Impl& impl_;
@@ -315,7 +318,7 @@ struct Stepper::Impl {
     for (auto& v : floor_moved_chunks) v.clear();
     for (auto& v : floor_acted_chunks) v.clear();
     const double trigger = floor * (1 - kFloorSlack);
-    const std::vector<detail::TetPack>& packs = floor_packs(packed);
+    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
     const std::vector<detail::FloorCheck>& checks = in_sweep_order ? packed.sweep_floor_checks : packed.floor_checks;
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
@@ -349,7 +352,7 @@ struct Stepper::Impl {
     size_t first = floor_queued.size();  // the lowest word queued into
     const std::vector<int32_t>& start = in_sweep_order ? packed.sweep_slot_start : m.vertex_tet_start;
     const std::vector<int32_t>& entry = in_sweep_order ? packed.sweep_slot_entry : packed.vertex_slot_entry;
-    const std::vector<detail::TetPack>& packs = floor_packs(packed);
+    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
     auto queue_around = [&](int32_t v, int64_t after) {
       for (int32_t a = start[size_t(v)]; a < start[size_t(v) + 1]; ++a) {
         const int32_t q = entry[size_t(a)] / 16;  // 4 x slot + corner; 4 slots per pack
@@ -388,22 +391,17 @@ struct Stepper::Impl {
     // body, which the passes would not settle (docs/solver.md, "The floor pass").
     if (floor_acted.size() * 16 > packed.packs.size()) return 0;
     std::sort(floor_acted.begin(), floor_acted.end());
+    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
     int total = 0;
     for (int pass = 0; pass < kSettlePasses && floor_settle_visits >= floor_acted.size() && !stop(); ++pass) {
       floor_settle_visits -= floor_acted.size();
       int hits = 0;
       for (int32_t q : floor_acted)
-        hits += correct_pack(floor_packs(packed)[size_t(q)], x, floor, floor_serial, floor_moved);
+        hits += correct_pack(packs[size_t(q)], x, floor, floor_serial, floor_moved);
       total += hits;
       if (!hits) break;
     }
     return total;
-  }
-
-  // The floor's passes after the iterations run in a SweepOrder too, on its packs, checks and
-  // adjacency: their threads correct tets across the body.
-  const std::vector<detail::TetPack>& floor_packs(const detail::PackedModel& packed) const {
-    return in_sweep_order ? packed.sweep_packs : packed.packs;
   }
 
   void note_acted(int32_t q) {
@@ -449,7 +447,7 @@ struct Stepper::Impl {
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     SweepOrder order(*this, packed, x, tp.size() > 1);
-    const std::vector<detail::TetPack>& packs = order.packs();
+    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
     std::vector<Vec3>& xs = order.positions();
     for_each_pack(packed, tp, [&](int, size_t b, size_t e) {
       for (size_t i = b; i < e; ++i) {
