@@ -77,10 +77,10 @@ TEST(VolumeFloor, GivesThePlainSerialLoopsPositionsBitForBit) {
 }
 
 // The floor's passes skip a pack when floor_may_act says no lane can be below the trigger, from
-// det D_s det B and a rounding bound instead of the pack's own det F. It must never skip a pack
-// the floor would correct: here the trigger is put one ulp above each lane's own det F (the
-// floor acts on it), on bodies crushed at random into slivers and inverted tets and scaled far
-// from unit size.
+// the floor's own det F (det D_s det B) less a margin for rounding. It must never skip a pack
+// the floor would correct: here the trigger is put one ulp above each lane's det F as the floor
+// takes it (the floor acts on it), on bodies crushed at random into slivers and inverted tets
+// and scaled far from unit size.
 TEST(VolumeFloor, ThePreCheckNeverSkipsAPackTheFloorWouldCorrect) {
   const TetMesh mesh = *builtin_mesh("beam3");
   const auto model = build_model(mesh, Material{1e6, 0.4, 1000}, clamp_below_x(default_clamp_x(mesh.vertices)));
@@ -96,7 +96,7 @@ TEST(VolumeFloor, ThePreCheckNeverSkipsAPackTheFloorWouldCorrect) {
       for (Vec3& q : x) q = scale * (q + Vec3(noise(rng), noise(rng), noise(rng))) + Vec3(0.3, -2.0, 7.0);
       for (size_t i = 0; i < packed.packs.size(); ++i) {
         const detail::TetPack& p = packed.packs[i];
-        const detail::v4d J = detail::volume_ratio_lanes(p, x);  // the floor's own det F
+        const detail::v4d J = detail::floor_volume_ratio(packed.floor_checks[i], x);  // the floor's own det F
         for (int l = 0; l < p.lanes; ++l) {
           const double above = std::nextafter(J[l], INFINITY);
           ASSERT_TRUE(detail::floor_may_act(packed.floor_checks[i], x, above))

@@ -9,6 +9,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <string>
@@ -132,8 +133,12 @@ void append_pack(BodyModel& m, PackedModel& pm, const int32_t* tets, int n) {
     }
     c.det_b[l] = det3(b);
     c.b_norm3[l] = row_max * row_max * row_max;
-    for (int k = 0; k < 4; ++k) c.v[k][l] = p.v[k][l];
+    for (int k = 0; k < 4; ++k) {
+      c.v[k][l] = p.v[k][l];
+      c.w[k][l] = p.w[k][l];
+    }
   }
+  c.lanes = p.lanes;
   pm.floor_checks.push_back(c);
 }
 
@@ -208,8 +213,6 @@ void number_sweep_vertices(const BodyModel& m, PackedModel& pm) {
   for (TetPack& p : pm.sweep_packs)
     for (auto& corner : p.v)
       for (int32_t& v : corner) v = pm.sweep_vertex[size_t(v)];  // padding lanes repeat a real one
-  pm.sweep_inv_mass.resize(nv);
-  for (size_t s = 0; s < nv; ++s) pm.sweep_inv_mass[s] = m.inv_mass[size_t(pm.mesh_vertex[s])];
   pm.sweep_floor_checks = pm.floor_checks;
   for (FloorCheck& c : pm.sweep_floor_checks)
     for (auto& corner : c.v)
@@ -751,10 +754,95 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lam[6
   else strain_step_with<false>(p, x, lam, elastic, at, lambda_scale, line_search, out);
 }
 
+namespace {
+
+// det D_s of every lane (D_s's columns d_k = x_k - x_3) and its gradient's pieces, the rows
+// c_k = d det D_s / d x_k (k < 3: d_1 x d_2, d_2 x d_0, d_0 x d_1; x_3's is minus their sum).
+template <class T>
+struct FloorGeometry {
+  T d[3][3];
+  T c[3][3];
+  T det_d;
+};
+
+template <class T>
+inline void floor_geometry(const int32_t (&v)[4][kLanes<T>], const std::vector<Vec3>& x, FloorGeometry<T>& g) {
+  T p3[3];
+  for (int l = 0; l < kLanes<T>; ++l) {
+    const Vec3& q = x[size_t(v[3][l])];
+    for (int i = 0; i < 3; ++i) set_lane(p3[i], l, q[i]);
+  }
+  for (int k = 0; k < 3; ++k)
+    for (int l = 0; l < kLanes<T>; ++l) {
+      const Vec3& q = x[size_t(v[k][l])];
+      for (int i = 0; i < 3; ++i) set_lane(g.d[k][i], l, q[i]);
+    }
+  PLIANT_UNROLL
+  for (int k = 0; k < 3; ++k)
+    PLIANT_UNROLL
+    for (int i = 0; i < 3; ++i) g.d[k][i] -= p3[i];
+  cross(g.d[1], g.d[2], g.c[0]);
+  cross(g.d[2], g.d[0], g.c[1]);
+  cross(g.d[0], g.d[1], g.c[2]);
+  g.det_d = g.d[0][0] * g.c[0][0] + g.d[0][1] * g.c[0][1] + g.d[0][2] * g.c[0][2];
+}
+
+// The floor on the lanes of `lanes` (bit l) whose det F = det D_s det B is below trigger: each
+// takes the linearised correction towards the floor along grad det F = det B grad det D_s,
+// moving corner k by w_k. Returns the corrected lanes (bit l).
+template <class T>
+int floor_lanes(const T& det_b, const int32_t (&v)[4][kLanes<T>], const T (&w)[4], int lanes, std::vector<Vec3>& x,
+                double floor, double trigger) {
+  FloorGeometry<T> g;
+  floor_geometry(v, x, g);
+  const T J = g.det_d * det_b;
+  int below = 0;
+  for (int l = 0; l < kLanes<T>; ++l)
+    if ((lanes >> l & 1) && get_lane(J, l) < trigger) below |= 1 << l;
+  if (!below) return 0;
+  T grad[4][3];
+  PLIANT_UNROLL
+  for (int i = 0; i < 3; ++i) {
+    PLIANT_UNROLL
+    for (int k = 0; k < 3; ++k) grad[k][i] = det_b * g.c[k][i];
+    grad[3][i] = -(grad[0][i] + grad[1][i] + grad[2][i]);
+  }
+  T denom = splat<T>(0.0);
+  PLIANT_UNROLL
+  for (int k = 0; k < 4; ++k)
+    denom += w[k] * (grad[k][0] * grad[k][0] + grad[k][1] * grad[k][1] + grad[k][2] * grad[k][2]);
+  const T dl = (splat<T>(floor) - J) / denom;
+  int corrected = 0;
+  for (int l = 0; l < kLanes<T>; ++l) {
+    if (!(below & (1 << l)) || !(get_lane(denom, l) > 1e-300)) continue;
+    corrected |= 1 << l;
+    PLIANT_UNROLL
+    for (int k = 0; k < 4; ++k) {
+      const double s = get_lane(w[k], l) * get_lane(dl, l);
+      Vec3& q = x[size_t(v[k][l])];
+      q[0] += s * get_lane(grad[k][0], l);
+      q[1] += s * get_lane(grad[k][1], l);
+      q[2] += s * get_lane(grad[k][2], l);
+    }
+  }
+  return corrected;
+}
+
+// det B of every lane.
+template <class T>
+T det_b_lanes(const TetLanes<T>& p) {
+  T b[3][3];
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 3; ++i) b[k][i] = p.B[3 * k + i];
+  return det3(b);
+}
+
+}  // namespace
+
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda, std::vector<Vec6>* dlambda,
                   const BodyModel& model, const KernelCompliance& at, double lambda_scale, double inversion_floor, bool line_search,
-                  bool lambda_zero, const PackedModel* sweep_order) {
+                  bool lambda_zero) {
   T lam[6];
   if (lambda_zero) {
     PLIANT_UNROLL
@@ -778,7 +866,7 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
   // Taken as zero, the slots are written whole: those of lanes skipped or padding get zero.
   if (lambda_zero && !slots_written)
     for (int l = 0; l < kLanes<T>; ++l) lambda[size_t(p.slot) + size_t(l)].setZero();
-  int floor_hits = 0;
+  int floor_lanes_mask = 0;  // lanes below the floor before the projection: checked again after it
   for (int l = 0; l < p.lanes; ++l) {
     if (!slots_written) {
       if (!(st.ok & (1 << l))) {  // not positive definite (cannot happen with alpha~ > 0): skip the tet
@@ -796,16 +884,12 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
       q[1] += get_lane(st.dx[k][1], l);
       q[2] += get_lane(st.dx[k][2], l);
     }
-    if (!(inversion_floor > 0 && get_lane(st.det, l) < inversion_floor)) continue;
-    if (!sweep_order) {
-      floor_hits += enforce_volume_floor(model.tets[p.tet[l]], x, model.inv_mass, inversion_floor);
-    } else {  // the tet with its corners in the sweep's numbering
-      TetRest tet = model.tets[p.tet[l]];
-      for (int k = 0; k < 4; ++k) tet.v[k] = sweep_order->sweep_vertex[size_t(tet.v[k])];
-      floor_hits += enforce_volume_floor(tet, x, sweep_order->sweep_inv_mass, inversion_floor);
-    }
+    if (inversion_floor > 0 && get_lane(st.det, l) < inversion_floor) floor_lanes_mask |= 1 << l;
   }
-  return floor_hits;
+  // The floor from the pack's own rest data (in cache), all its lanes at once; the lanes share no
+  // corner, so flooring them after every lane's move is flooring each after its own.
+  if (!floor_lanes_mask) return 0;
+  return std::popcount(unsigned(floor_lanes(det_b_lanes(p), p.v, p.w, floor_lanes_mask, x, inversion_floor, inversion_floor)));
 }
 
 template <class T>
@@ -832,81 +916,31 @@ void apply_increment_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const std
     }
 }
 
-template <class T>
-T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x) {
-  T f[3][3];
-  deformation(p, x, f);
-  return det3(f);
+int volume_floor_pack(const FloorCheck& c, std::vector<Vec3>& x, double floor, double trigger) {
+  return floor_lanes(c.det_b, c.v, c.w, (1 << c.lanes) - 1, x, floor, trigger);
 }
 
-template <class T>
-int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor, double trigger) {
-  T f[3][3];
-  deformation(p, x, f);
-  const T J = det3(f);
-  int below = 0;
-  for (int l = 0; l < p.lanes; ++l)
-    if (get_lane(J, l) < trigger) below |= 1 << l;
-  if (!below) return 0;
-  // grad_k det F = cof(F) b_k, b_k the rows of D_m^-1 (b_3 = -(b_0 + b_1 + b_2)); the columns of
-  // cof(F) are f_1 x f_2, f_2 x f_0, f_0 x f_1.
-  T cof[3][3];
-  cross(f[1], f[2], cof[0]);
-  cross(f[2], f[0], cof[1]);
-  cross(f[0], f[1], cof[2]);
-  T grad[4][3];
-  PLIANT_UNROLL
-  for (int c = 0; c < 3; ++c) {
-    PLIANT_UNROLL
-    for (int k = 0; k < 3; ++k) grad[k][c] = cof[0][c] * p.B[3 * k] + cof[1][c] * p.B[3 * k + 1] + cof[2][c] * p.B[3 * k + 2];
-    grad[3][c] = -(grad[0][c] + grad[1][c] + grad[2][c]);
-  }
-  T denom = splat<T>(0.0);
-  PLIANT_UNROLL
-  for (int k = 0; k < 4; ++k)
-    denom += p.w[k] * (grad[k][0] * grad[k][0] + grad[k][1] * grad[k][1] + grad[k][2] * grad[k][2]);
-  const T dl = (splat<T>(floor) - J) / denom;
-  int corrected = 0;
-  for (int l = 0; l < p.lanes; ++l) {
-    if (!(below & (1 << l)) || !(get_lane(denom, l) > 1e-300)) continue;
-    corrected |= 1 << l;
-    PLIANT_UNROLL
-    for (int k = 0; k < 4; ++k) {
-      const double s = get_lane(p.w[k], l) * get_lane(dl, l);
-      Vec3& q = x[p.v[k][l]];
-      q[0] += s * get_lane(grad[k][0], l);
-      q[1] += s * get_lane(grad[k][1], l);
-      q[2] += s * get_lane(grad[k][2], l);
-    }
-  }
-  return corrected;
+v4d floor_volume_ratio(const FloorCheck& c, const std::vector<Vec3>& x) {
+  FloorGeometry<v4d> g;
+  floor_geometry(c.v, x, g);
+  return g.det_d * c.det_b;
 }
 
 bool floor_may_act(const FloorCheck& c, const std::vector<Vec3>& x, double trigger) {
-  v4d px[4][3];
-  for (int k = 0; k < 4; ++k)
-    for (int l = 0; l < 4; ++l) {
-      const Vec3& q = x[size_t(c.v[k][l])];
-      px[k][0][l] = q[0];
-      px[k][1][l] = q[1];
-      px[k][2][l] = q[2];
-    }
-  v4d d[3][3];  // d[k] = x_k - x_3, as deformation() takes them
-  for (int k = 0; k < 3; ++k)
-    for (int i = 0; i < 3; ++i) d[k][i] = px[k][i] - px[3][i];
-  // det D_s (columns d[k]) = det of the rows d[k]; ||D_s|| as max row sum of |D_s|.
-  const v4d det_d = det3(d);
+  FloorGeometry<v4d> g;
+  floor_geometry(c.v, x, g);
+  // ||D_s|| as max row sum of |D_s| (columns d[k]).
   v4d norm_d = splat<v4d>(0.0);
   for (int i = 0; i < 3; ++i) {
     v4d row = splat<v4d>(0.0);
-    for (int k = 0; k < 3; ++k) row += d[k][i] < 0 ? -d[k][i] : d[k][i];
+    for (int k = 0; k < 3; ++k) row += g.d[k][i] < 0 ? -g.d[k][i] : g.d[k][i];
     norm_d = norm_d > row ? norm_d : row;
   }
-  // Both this product and det3(D_s B) are within a few tens of ulps of ||D_s||^3 ||B||^3 of the
-  // exact det F (every term of either is a product of three entries bounded so); 1e-12 is
-  // thousands of ulps.
+  // The product is within a few tens of ulps of ||D_s||^3 ||B||^3 of the exact det F (every term
+  // is a product of three entries bounded so), whatever multiply-adds the compiler fuses; 1e-12
+  // is thousands of ulps.
   const v4d bound = 1e-12 * norm_d * norm_d * norm_d * c.b_norm3;
-  const v4d gap = det_d * c.det_b - (trigger + bound);
+  const v4d gap = g.det_d * c.det_b - (trigger + bound);
   for (int l = 0; l < 4; ++l)
     if (!(gap[l] >= 0)) return true;  // below, or not finite
   return false;
@@ -931,12 +965,9 @@ double residual_squared_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x, 
                             const KernelCompliance&,                                                         \
                             double, bool, StrainStep<T>&);                                                         \
   template int project_lanes(const TetLanes<T>&, std::vector<Vec3>&, std::vector<Vec6>&, std::vector<Vec6>*,       \
-                             const BodyModel&, const KernelCompliance&, double, double, bool, bool,                            \
-                             const PackedModel*);                                                                              \
+                             const BodyModel&, const KernelCompliance&, double, double, bool, bool);                           \
   template void apply_increment_lanes(const TetLanes<T>&, std::vector<Vec3>&, const std::vector<Vec6>&,            \
                                       ElasticModel);                                                               \
-  template T volume_ratio_lanes(const TetLanes<T>&, const std::vector<Vec3>&);                                     \
-  template int volume_floor_pack(const TetLanes<T>&, std::vector<Vec3>&, double, double);                        \
   template double residual_squared_lanes(const TetLanes<T>&, const std::vector<Vec3>&, const std::vector<Vec6>&,   \
                                          const KernelCompliance&, ElasticModel);
 #pragma GCC diagnostic push

@@ -79,13 +79,16 @@ struct SolvePhase {
   bool split = false;
 };
 
-// What the inversion floor's passes read of a pack to tell whether it may act (a sixth of the
-// pack's bytes): det F is det D_s det B, and a bound on how far that product and the floor's
-// own det F (from F = D_s B) can differ by rounding; padding lanes repeat a real one.
+// What the inversion floor reads of a pack (288 of its 768 bytes): det F is det D_s det B, so its
+// corners, their inverse masses and det B are all the floor needs, and a bound on how far that
+// product can be from the exact det F lets its pre-check skip packs far above the floor; padding
+// lanes repeat a real one.
 struct alignas(32) FloorCheck {
   v4d det_b;    // det B, B = D_m^-1
   v4d b_norm3;  // ||B||^3, max row sum of |B|
+  v4d w[4];     // inverse masses of the corners
   int32_t v[4][4];  // v[corner][lane], as the pack's
+  int lanes = 4;    // real lanes, as the pack's
 };
 
 // The model's packs, compiled with it (compile_solve_order). Running the phases in order gives
@@ -105,7 +108,6 @@ struct PackedModel {
   std::vector<int32_t> sweep_vertex;  // per mesh vertex, its sweep index
   std::vector<int32_t> mesh_vertex;   // per sweep index, its mesh vertex
   std::vector<TetPack> sweep_packs;
-  std::vector<double> sweep_inv_mass;  // BodyModel::inv_mass in sweep order (the in-sweep floor)
   // The floor's passes in the same numbering: floor_checks renumbered, and per sweep index its
   // entries of vertex_slot_entry ([sweep_slot_start[s], sweep_slot_start[s + 1])).
   std::vector<FloorCheck> sweep_floor_checks;
@@ -166,32 +168,28 @@ void strain_step(const TetLanes<T>& p, const std::vector<Vec3>& x, const T lambd
 // them. Then the inversion floor for the lanes whose det F was below it before the projection;
 // returns how many it corrected. With lambda_zero the multipliers are taken as zero whatever the
 // slots hold, and the pack's slots are all written (a substep's first sweep: no zeroing pass).
-// With sweep_order, p is one of its sweep_packs and x in its sweep order.
 template <class T>
 int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                   std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
-                  double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false,
-                  const PackedModel* sweep_order = nullptr);
+                  double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false);
 
 // x += M^-1 grad C(x)^T dl for the real lanes (the accelerators' position update; dl in slots).
 template <class T>
 void apply_increment_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const std::vector<Vec6>& dl,
                            ElasticModel model);
 
-// det F of each lane at x.
-template <class T>
-T volume_ratio_lanes(const TetLanes<T>& p, const std::vector<Vec3>& x);
+// The inversion floor on a pack's real lanes (tets of one colour) from its FloorCheck: each lane
+// with det F = det D_s det B below `trigger` (the floor, or a hair under it) takes the linearised
+// correction of enforce_volume_floor (projection.hpp) towards the floor, along
+// grad det F = det B grad det D_s, all lanes at once. Returns the corrected lanes as a bit mask.
+int volume_floor_pack(const FloorCheck& c, std::vector<Vec3>& x, double floor, double trigger);
 
-// The inversion floor on the real lanes (tets of one colour) from the pack's own rest data: each
-// lane with det F below `trigger` (the floor, or a hair under it) takes the linearised correction
-// of enforce_volume_floor (projection.hpp) towards the floor, all lanes at once. Returns the
-// corrected lanes as a bit mask.
-template <class T>
-int volume_floor_pack(const TetLanes<T>& p, std::vector<Vec3>& x, double floor, double trigger);
+// det F of each lane at x, as volume_floor_pack takes it (det D_s det B).
+v4d floor_volume_ratio(const FloorCheck& c, const std::vector<Vec3>& x);
 
 // False only when no lane of the pack can be below `trigger` at x: then volume_floor_pack with
-// that trigger would act on none (its det F and the one here differ by less than the bound
-// taken; tested), so a pass may skip the pack without reading its rest data.
+// that trigger would act on none (the same det F with a margin for rounding; tested), so a pass
+// may skip the pack after reading its corners alone.
 bool floor_may_act(const FloorCheck& c, const std::vector<Vec3>& x, double trigger);
 
 // Sum over the real lanes of ||C + alpha~ lambda||^2 (lambda in slots).
@@ -240,10 +238,9 @@ inline void prefetch_ahead(const std::vector<TetPack>& packs, size_t i, size_t e
 // The pack-of-four names the sweeps use.
 inline int project_pack(const TetPack& p, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                         std::vector<Vec6>* dlambda, const BodyModel& model, const KernelCompliance& alpha_tilde,
-                        double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false,
-                        const PackedModel* sweep_order = nullptr) {
+                        double lambda_scale, double inversion_floor, bool line_search, bool lambda_zero = false) {
   return project_lanes(p, x, lambda, dlambda, model, alpha_tilde, lambda_scale, inversion_floor, line_search,
-                       lambda_zero, sweep_order);
+                       lambda_zero);
 }
 
 }  // namespace pliant::detail

@@ -197,8 +197,7 @@ struct Stepper::Impl {
         else
           detail::prefetch_ahead(packs, i, e, xs, lambda);
         hits += detail::project_pack(packs[i], xs, lambda, increments, m, params.alpha_tilde, params.lambda_scale,
-                                     params.inversion_floor, params.line_search, lambda_zero,
-                                     in_sweep_order ? &packed : nullptr);
+                                     params.inversion_floor, params.line_search, lambda_zero);
       }
       floor_hits[chunk] += hits;
     });
@@ -218,6 +217,10 @@ struct Stepper::Impl {
   // The packs with their corners in the numbering the positions are in now.
   const std::vector<detail::TetPack>& packs_in_order(const detail::PackedModel& packed) const {
     return in_sweep_order ? packed.sweep_packs : packed.packs;
+  }
+  // The same for the floor's records of the packs.
+  const std::vector<detail::FloorCheck>& checks_in_order(const detail::PackedModel& packed) const {
+    return in_sweep_order ? packed.sweep_floor_checks : packed.floor_checks;
   }
   class SweepOrder {
    public:
@@ -318,8 +321,7 @@ struct Stepper::Impl {
     for (auto& v : floor_moved_chunks) v.clear();
     for (auto& v : floor_acted_chunks) v.clear();
     const double trigger = floor * (1 - kFloorSlack);
-    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
-    const std::vector<detail::FloorCheck>& checks = in_sweep_order ? packed.sweep_floor_checks : packed.floor_checks;
+    const std::vector<detail::FloorCheck>& checks = checks_in_order(packed);
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
       int hits = 0;
       for (size_t i = b; i < e; ++i) {
@@ -329,7 +331,7 @@ struct Stepper::Impl {
         // In the first pass most packs are far above the floor: told so from a sixth of their
         // data. (A later pass visits the packs around corrections, which mostly act.)
         if (all && !detail::floor_may_act(c, x, trigger)) continue;
-        const int h = correct_pack(packs[i], x, floor, serial, floor_moved_chunks[chunk]);
+        const int h = correct_pack(c, x, floor, serial, floor_moved_chunks[chunk]);
         if (h) floor_acted_chunks[chunk].push_back(int32_t(i));
         hits += h;
       }
@@ -352,7 +354,7 @@ struct Stepper::Impl {
     size_t first = floor_queued.size();  // the lowest word queued into
     const std::vector<int32_t>& start = in_sweep_order ? packed.sweep_slot_start : m.vertex_tet_start;
     const std::vector<int32_t>& entry = in_sweep_order ? packed.sweep_slot_entry : packed.vertex_slot_entry;
-    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
+    const std::vector<detail::FloorCheck>& checks = checks_in_order(packed);
     auto queue_around = [&](int32_t v, int64_t after) {
       for (int32_t a = start[size_t(v)]; a < start[size_t(v) + 1]; ++a) {
         const int32_t q = entry[size_t(a)] / 16;  // 4 x slot + corner; 4 slots per pack
@@ -369,7 +371,7 @@ struct Stepper::Impl {
         const int32_t q = int32_t(w * 64 + size_t(std::countr_zero(floor_queued[w])));
         floor_queued[w] &= floor_queued[w] - 1;
         const size_t before = floor_moved.size();
-        const int h = correct_pack(packs[size_t(q)], x, floor, serial, floor_moved);
+        const int h = correct_pack(checks[size_t(q)], x, floor, serial, floor_moved);
         if (h) note_acted(q);
         hits += h;
         for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], q);
@@ -391,13 +393,13 @@ struct Stepper::Impl {
     // body, which the passes would not settle (docs/solver.md, "The floor pass").
     if (floor_acted.size() * 16 > packed.packs.size()) return 0;
     std::sort(floor_acted.begin(), floor_acted.end());
-    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
+    const std::vector<detail::FloorCheck>& checks = checks_in_order(packed);
     int total = 0;
     for (int pass = 0; pass < kSettlePasses && floor_settle_visits >= floor_acted.size() && !stop(); ++pass) {
       floor_settle_visits -= floor_acted.size();
       int hits = 0;
       for (int32_t q : floor_acted)
-        hits += correct_pack(packs[size_t(q)], x, floor, floor_serial, floor_moved);
+        hits += correct_pack(checks[size_t(q)], x, floor, floor_serial, floor_moved);
       total += hits;
       if (!hits) break;
     }
@@ -420,7 +422,7 @@ struct Stepper::Impl {
 
   // The floor on one pack's lanes; stamps the corners it moved (appending those not yet moved in
   // this pass to moved). Returns the corrections.
-  int correct_pack(const detail::TetPack& p, std::vector<Vec3>& x, double floor, uint32_t serial,
+  int correct_pack(const detail::FloorCheck& p, std::vector<Vec3>& x, double floor, uint32_t serial,
                    std::vector<int32_t>& moved) {
     const int corrected = detail::volume_floor_pack(p, x, floor, floor * (1 - kFloorSlack));
     int hits = 0;
