@@ -113,6 +113,28 @@ inline v1::CreateSceneRequest rope_under_cloth_request(const std::string& id, do
   return r;
 }
 
+// Steps scene `id` one tick at a time, `ticks` times, handing each tick's frame (which must
+// carry `bodies` particle bodies) to on_frame, until it returns false. Returns the ticks run; a
+// failed step or a frame of another body count fails the test and ends the run.
+template <class OnFrame>
+int step_frames(client::Client& c, const std::string& id, int ticks, int bodies, OnFrame&& on_frame) {
+  int run = 0;
+  while (run < ticks) {
+    if (!c.step(id, 1).ok()) {
+      ADD_FAILURE() << id << ": step " << run << " failed";
+      break;
+    }
+    const v1::Frame f = latest_frame(c, id);
+    if (f.bodies_size() != bodies || f.solver().bodies_size() != bodies) {
+      ADD_FAILURE() << id << ": frame " << run << " has " << f.bodies_size() << " bodies";
+      break;
+    }
+    ++run;
+    if (!on_frame(f)) break;
+  }
+  return run;
+}
+
 // The rope's RMS stretch over a run of that scene: the mean over the ticks and the largest, and
 // the contacts the rope and the cloth made. `stop_above`: a run whose stretch passes it stops
 // there (an explosion; the mean is then over the ticks run).
@@ -126,23 +148,13 @@ inline RopeRun run_rope_under_cloth(client::Client& c, double cloth_y, double ro
   RopeRun run;
   EXPECT_TRUE(c.create_scene(rope_under_cloth_request("wrap", cloth_y, rope_z)).ok());
   double sum = 0;
-  for (int k = 0; k < ticks; ++k) {
-    if (!c.step("wrap", 1).ok()) {
-      ADD_FAILURE() << "step " << k << " failed";
-      break;
-    }
-    const v1::Frame f = latest_frame(c, "wrap");
-    if (f.solver().bodies_size() != 3) {
-      ADD_FAILURE() << "frame " << k << " has " << f.solver().bodies_size() << " bodies";
-      break;
-    }
+  run.ticks = step_frames(c, "wrap", ticks, 3, [&](const v1::Frame& f) {
     const double stretch = f.solver().bodies(0).constraint_error();
     run.worst = std::max(run.worst, stretch);
     sum += stretch;
     run.contacts += f.solver().bodies(0).body_contacts() + f.solver().bodies(1).body_contacts();
-    ++run.ticks;
-    if (stretch > stop_above) break;
-  }
+    return !(stretch > stop_above);
+  });
   run.mean = run.ticks > 0 ? sum / run.ticks : 0.0;
   return run;
 }
@@ -180,16 +192,7 @@ inline SagRun run_sagging_beam_on_cloth(client::Client& c, double young, double 
   SagRun run;
   EXPECT_TRUE(c.create_scene(sagging_beam_on_cloth_request("press", young, cloth_z)).ok());
   std::vector<float> before;
-  for (int k = 0; k < ticks; ++k) {
-    if (!c.step("press", 1).ok()) {
-      ADD_FAILURE() << "step " << k << " failed";
-      break;
-    }
-    const v1::Frame f = latest_frame(c, "press");
-    if (f.bodies_size() != 1) {
-      ADD_FAILURE() << "frame " << k << " has " << f.bodies_size() << " bodies";
-      break;
-    }
+  step_frames(c, "press", ticks, 1, [&](const v1::Frame& f) {
     const auto& x = f.bodies(0).positions();
     if (!before.empty())
       for (int i = 0; i + 2 < x.size(); i += 3)
@@ -197,8 +200,8 @@ inline SagRun run_sagging_beam_on_cloth(client::Client& c, double young, double 
             run.fastest, std::hypot(x[i] - before[i], x[i + 1] - before[i + 1], x[i + 2] - before[i + 2]) * 60);
     before.assign(x.begin(), x.end());
     run.touched += f.solver().bodies(0).soft_body_contacts();
-    if (run.fastest > stop_above) break;
-  }
+    return !(run.fastest > stop_above);
+  });
   return run;
 }
 
