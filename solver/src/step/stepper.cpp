@@ -420,18 +420,18 @@ struct Stepper::Impl {
     floor_settle_visits = detail::packed(m).packs.size();
   }
 
-  // The floor on one pack's lanes; stamps the corners it moved (appending those not yet moved in
-  // this pass to moved). Returns the corrections.
-  int correct_pack(const detail::FloorCheck& p, std::vector<Vec3>& x, double floor, uint32_t serial,
+  // The floor on one pack's lanes, from its record; stamps the corners it moved (appending those
+  // not yet moved in this pass to moved). Returns the corrections.
+  int correct_pack(const detail::FloorCheck& c, std::vector<Vec3>& x, double floor, uint32_t serial,
                    std::vector<int32_t>& moved) {
-    const int corrected = detail::volume_floor_pack(p, x, floor, floor * (1 - kFloorSlack));
+    const int corrected = detail::volume_floor_pack(c, x, floor, floor * (1 - kFloorSlack));
     int hits = 0;
-    for (int l = 0; l < p.lanes; ++l) {
+    for (int l = 0; l < c.lanes; ++l) {
       if (!(corrected & (1 << l))) continue;
       ++hits;
       for (int k = 0; k < 4; ++k) {
-        const int32_t v = p.v[k][l];
-        if (!(p.w[k][l] > 0) || floor_stamp[v] == serial) continue;
+        const int32_t v = c.v[k][l];
+        if (!(c.w[k][l] > 0) || floor_stamp[v] == serial) continue;
         floor_stamp[v] = serial;
         moved.push_back(v);
       }
