@@ -332,23 +332,29 @@ void compile_solve_order(BodyModel& m) {
 
 namespace {
 
-// F's columns of the lanes' tets at x.
+// The rows d_k = x_k - x_3 (k < 3; D_s's columns) of the lanes' corners v[corner][lane] at x.
 template <class T>
-inline void deformation(const TetLanes<T>& p, const std::vector<Vec3>& x, T f[3][3]) {
+inline void edge_rows(const int32_t (&v)[4][kLanes<T>], const std::vector<Vec3>& x, T d[3][3]) {
   T px[4][3];
   PLIANT_UNROLL
   for (int k = 0; k < 4; ++k)
     for (int l = 0; l < kLanes<T>; ++l) {
-      const Vec3& q = x[p.v[k][l]];
+      const Vec3& q = x[size_t(v[k][l])];
       set_lane(px[k][0], l, q[0]);
       set_lane(px[k][1], l, q[1]);
       set_lane(px[k][2], l, q[2]);
     }
-  T d[3][3];
   PLIANT_UNROLL
   for (int k = 0; k < 3; ++k)
     PLIANT_UNROLL
     for (int c = 0; c < 3; ++c) d[k][c] = px[k][c] - px[3][c];
+}
+
+// F's columns of the lanes' tets at x.
+template <class T>
+inline void deformation(const TetLanes<T>& p, const std::vector<Vec3>& x, T f[3][3]) {
+  T d[3][3];
+  edge_rows(p.v, x, d);
   PLIANT_UNROLL
   for (int i = 0; i < 3; ++i)
     PLIANT_UNROLL
@@ -767,20 +773,7 @@ struct FloorGeometry {
 
 template <class T>
 inline void floor_geometry(const int32_t (&v)[4][kLanes<T>], const std::vector<Vec3>& x, FloorGeometry<T>& g) {
-  T p3[3];
-  for (int l = 0; l < kLanes<T>; ++l) {
-    const Vec3& q = x[size_t(v[3][l])];
-    for (int i = 0; i < 3; ++i) set_lane(p3[i], l, q[i]);
-  }
-  for (int k = 0; k < 3; ++k)
-    for (int l = 0; l < kLanes<T>; ++l) {
-      const Vec3& q = x[size_t(v[k][l])];
-      for (int i = 0; i < 3; ++i) set_lane(g.d[k][i], l, q[i]);
-    }
-  PLIANT_UNROLL
-  for (int k = 0; k < 3; ++k)
-    PLIANT_UNROLL
-    for (int i = 0; i < 3; ++i) g.d[k][i] -= p3[i];
+  edge_rows(v, x, g.d);
   cross(g.d[1], g.d[2], g.c[0]);
   cross(g.d[2], g.d[0], g.c[1]);
   cross(g.d[0], g.d[1], g.c[2]);
