@@ -115,3 +115,45 @@ TEST(VolumeFloor, ThePreCheckNeverSkipsAPackTheFloorWouldCorrect) {
   }
   EXPECT_GT(acting, 1000);
 }
+
+// volume_floor_pack moves each lane under the trigger along grad det F by relax times the
+// linearised step to target: det F lands on target (relax 1) or past it by (relax - 1) times the
+// deficit (the tangled body's passes), to first order. Lanes above the trigger are not moved. A
+// deficit of 1% of the floor keeps the cubic's second-order terms near 1e-4 of it.
+TEST(VolumeFloor, APackCorrectionLandsOnItsTargetTimesItsRelaxation) {
+  const TetMesh mesh = *builtin_mesh("beam1");
+  const auto model = build_model(mesh, Material{1e6, 0.4, 1000});
+  const BodyModel& m = *model;
+  const detail::PackedModel& packed = detail::packed(m);
+  const double floor = 0.2;
+  int checked = 0;
+  for (size_t i = 0; i < packed.floor_checks.size() && checked < 40; ++i) {
+    const detail::FloorCheck& c = packed.floor_checks[i];
+    if (c.lanes < 2) continue;
+    // Lane 0 crushed to 0.99 of the floor along its own axis (its corner 0 moved towards the
+    // opposite face); the other lanes at rest (det F 1).
+    std::vector<Vec3> x = m.rest_positions;
+    {
+      const double J0 = detail::floor_volume_ratio(c, x)[0];
+      ASSERT_NEAR(J0, 1.0, 1e-9);
+      const Vec3 a = x[c.v[0][0]], centroid = (x[c.v[1][0]] + x[c.v[2][0]] + x[c.v[3][0]]) / 3.0;
+      // det F is affine in corner 0's move towards the opposite face.
+      x[c.v[0][0]] = centroid + 0.99 * floor * (a - centroid);
+    }
+    const double J0 = detail::floor_volume_ratio(c, x)[0];
+    ASSERT_NEAR(J0, 0.99 * floor, 1e-9);
+    for (const auto& [target, relax] : {std::pair{floor, 1.0}, std::pair{1.05 * floor, 1.5}}) {
+      std::vector<Vec3> y = x;
+      const int corrected = detail::volume_floor_pack(c, y, floor * (1 - 1e-6), target, relax);
+      const bool free = c.w[0][0] + c.w[1][0] + c.w[2][0] + c.w[3][0] > 0;
+      EXPECT_EQ(corrected, free ? 1 : 0) << "only the crushed lane acts";
+      if (!free) continue;
+      const double J = detail::floor_volume_ratio(c, y)[0];
+      const double expected = J0 + relax * (target - J0);
+      EXPECT_NEAR(J, expected, 1e-3 * floor) << "pack " << i << " target " << target << " relax " << relax;
+      for (int l = 1; l < c.lanes; ++l) EXPECT_NEAR(detail::floor_volume_ratio(c, y)[l], 1.0, 1e-9);
+      ++checked;
+    }
+  }
+  EXPECT_GE(checked, 40);
+}

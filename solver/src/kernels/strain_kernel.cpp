@@ -781,11 +781,11 @@ inline void floor_geometry(const int32_t (&v)[4][kLanes<T>], const std::vector<V
 }
 
 // The floor on the lanes of `lanes` (bit l) whose det F = det D_s det B is below trigger: each
-// takes the linearised correction towards the floor along grad det F = det B grad det D_s,
-// moving corner k by w_k. Returns the corrected lanes (bit l).
+// takes the linearised correction towards `target` along grad det F = det B grad det D_s, times
+// `relax`, moving corner k by w_k. Returns the corrected lanes (bit l).
 template <class T>
 int floor_lanes(const T& det_b, const int32_t (&v)[4][kLanes<T>], const T (&w)[4], int lanes, std::vector<Vec3>& x,
-                double floor, double trigger) {
+                double trigger, double target, double relax) {
   FloorGeometry<T> g;
   floor_geometry(v, x, g);
   const T J = g.det_d * det_b;
@@ -804,7 +804,7 @@ int floor_lanes(const T& det_b, const int32_t (&v)[4][kLanes<T>], const T (&w)[4
   PLIANT_UNROLL
   for (int k = 0; k < 4; ++k)
     denom += w[k] * (grad[k][0] * grad[k][0] + grad[k][1] * grad[k][1] + grad[k][2] * grad[k][2]);
-  const T dl = (splat<T>(floor) - J) / denom;
+  const T dl = relax * (splat<T>(target) - J) / denom;
   int corrected = 0;
   for (int l = 0; l < kLanes<T>; ++l) {
     if (!(below & (1 << l)) || !(get_lane(denom, l) > 1e-300)) continue;
@@ -882,7 +882,7 @@ int project_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, std::vector<Vec6>&
   // The floor from the pack's own rest data (in cache), all its lanes at once; the lanes share no
   // corner, so flooring them after every lane's move is flooring each after its own.
   if (!floor_lanes_mask) return 0;
-  return std::popcount(unsigned(floor_lanes(det_b_lanes(p), p.v, p.w, floor_lanes_mask, x, inversion_floor, inversion_floor)));
+  return std::popcount(unsigned(floor_lanes(det_b_lanes(p), p.v, p.w, floor_lanes_mask, x, inversion_floor, inversion_floor, 1.0)));
 }
 
 template <class T>
@@ -909,8 +909,8 @@ void apply_increment_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const std
     }
 }
 
-int volume_floor_pack(const FloorCheck& c, std::vector<Vec3>& x, double floor, double trigger) {
-  return floor_lanes(c.det_b, c.v, c.w, (1 << c.lanes) - 1, x, floor, trigger);
+int volume_floor_pack(const FloorCheck& c, std::vector<Vec3>& x, double trigger, double target, double relax) {
+  return floor_lanes(c.det_b, c.v, c.w, (1 << c.lanes) - 1, x, trigger, target, relax);
 }
 
 v4d floor_volume_ratio(const FloorCheck& c, const std::vector<Vec3>& x) {

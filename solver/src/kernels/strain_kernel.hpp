@@ -180,9 +180,10 @@ void apply_increment_lanes(const TetLanes<T>& p, std::vector<Vec3>& x, const std
 
 // The inversion floor on a pack's real lanes (tets of one colour) from its FloorCheck: each lane
 // with det F = det D_s det B below `trigger` (the floor, or a hair under it) takes the linearised
-// correction of enforce_volume_floor (projection.hpp) towards the floor, along
-// grad det F = det B grad det D_s, all lanes at once. Returns the corrected lanes as a bit mask.
-int volume_floor_pack(const FloorCheck& c, std::vector<Vec3>& x, double floor, double trigger);
+// correction of enforce_volume_floor (projection.hpp) along grad det F = det B grad det D_s,
+// towards `target` (the floor) and scaled by `relax` (1; over-relaxed in a tangled body), all
+// lanes at once. Returns the corrected lanes as a bit mask.
+int volume_floor_pack(const FloorCheck& c, std::vector<Vec3>& x, double trigger, double target, double relax);
 
 // det F of each lane at x, as volume_floor_pack takes it (det D_s det B).
 v4d floor_volume_ratio(const FloorCheck& c, const std::vector<Vec3>& x);

@@ -42,6 +42,16 @@ constexpr int kSettlePasses = 100;
 // A tet acts when det F is under the floor by more than this fraction of it: a settled cluster,
 // each tet on the floor to rounding, then stops acting.
 constexpr double kFloorSlack = 1e-6;
+// A later pass that scans every pack (the pass before it moved an eighth of the pack count in
+// vertices or more) is in a tangled body, whose passes do not converge: each correction, aimed at
+// the floor, is undone in part by its neighbours', and a crushed region comes back by a few
+// percent a pass. There the corrections are projected SOR: aimed at kTangledAim x the floor and
+// over-relaxed by kTangledRelaxation. Elsewhere a tet under the floor goes to the floor itself: a
+// sliver resting just under it is then a fixed point (both rules in every pass kept the hippo and
+// the armadillo at 10 and 100 kPa from coming to rest). docs/solver.md, "The floor in a tangled
+// body".
+constexpr double kTangledAim = 1.05;
+constexpr double kTangledRelaxation = 1.5;
 
 // Packs a block of the residual's sum (per block, then in block order: ThreadPool's block_sum).
 constexpr size_t kResidualBlock = 64;
@@ -302,7 +312,8 @@ struct Stepper::Impl {
   // only when a corner moves). When few vertices moved it queues their packs by colour range on
   // this thread (volume_pass_from_moved); otherwise it checks every pack's corners, phase by
   // phase like a sweep (the result does not depend on the thread count); the same packs either
-  // way (docs/solver.md, "The floor pass"). Returns the corrections made.
+  // way (docs/solver.md, "The floor pass"); the scan's corrections are projected SOR (kTangledAim).
+  // Returns the corrections made.
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp, bool all = true) {
     const detail::PackedModel& packed = detail::packed(m);
     if (floor_stamp.size() != m.vertex_count() || floor_acted_mark.size() != packed.packs.size() ||
@@ -331,7 +342,7 @@ struct Stepper::Impl {
         // In the first pass most packs are far above the floor: told so from a sixth of their
         // data. (A later pass visits the packs around corrections, which mostly act.)
         if (all && !detail::floor_may_act(c, x, trigger)) continue;
-        const int h = correct_pack(c, x, floor, serial, floor_moved_chunks[chunk]);
+        const int h = correct_pack(c, x, floor, serial, floor_moved_chunks[chunk], !all);
         if (h) floor_acted_chunks[chunk].push_back(int32_t(i));
         hits += h;
       }
@@ -420,11 +431,13 @@ struct Stepper::Impl {
     floor_settle_visits = detail::packed(m).packs.size();
   }
 
-  // The floor on one pack's lanes, from its record; stamps the corners it moved (appending those
-  // not yet moved in this pass to moved). Returns the corrections.
+  // The floor on one pack's lanes, from its record (projected SOR with sor: kTangledAim); stamps
+  // the corners it moved (appending those not yet moved in this pass to moved). Returns the
+  // corrections.
   int correct_pack(const detail::FloorCheck& c, std::vector<Vec3>& x, double floor, uint32_t serial,
-                   std::vector<int32_t>& moved) {
-    const int corrected = detail::volume_floor_pack(c, x, floor, floor * (1 - kFloorSlack));
+                   std::vector<int32_t>& moved, bool sor = false) {
+    const int corrected = detail::volume_floor_pack(c, x, floor * (1 - kFloorSlack), sor ? kTangledAim * floor : floor,
+                                                    sor ? kTangledRelaxation : 1.0);
     int hits = 0;
     for (int l = 0; l < c.lanes; ++l) {
       if (!(corrected & (1 << l))) continue;
