@@ -431,9 +431,9 @@ struct Stepper::Impl {
     floor_settle_visits = detail::packed(m).packs.size();
   }
 
-  // The floor on one pack's lanes, from its record (projected SOR with sor: kTangledAim); stamps
-  // the corners it moved (appending those not yet moved in this pass to moved). Returns the
-  // corrections.
+  // The floor on one pack's lanes, from its record (with sor, a tangled body's scan: aimed at
+  // kTangledAim x the floor and over-relaxed); stamps the corners it moved (appending those not yet
+  // moved in this pass to moved). Returns the corrections.
   int correct_pack(const detail::FloorCheck& c, std::vector<Vec3>& x, double floor, uint32_t serial,
                    std::vector<int32_t>& moved, bool sor = false) {
     const int corrected = detail::volume_floor_pack(c, x, floor * (1 - kFloorSlack), sor ? kTangledAim * floor : floor,
