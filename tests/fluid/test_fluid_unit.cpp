@@ -3,6 +3,7 @@
 // the neighbour grid against brute force, momentum of the internal corrections, the state's
 // round trip and bad input.
 #include "fluid/neighbour_grid.hpp"
+#include "fluid/pair_gather.hpp"
 #include "fluid/sph_kernels.hpp"
 #include "pliant/fluid.hpp"
 #include "step/thread_pool.hpp"
@@ -11,6 +12,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <functional>
 #include <numbers>
@@ -201,6 +203,32 @@ TEST(FluidNeighbours, MatchBruteForceAndDoNotDependOnThreads) {
   EXPECT_EQ(g.size(), y.size());
 }
 
+// A compact cloud's points are counted into the box of their cells; one point far away makes
+// that box too large, and the grid sorts and hashes the cells instead. The two ways give the
+// same lists in the same order (the far point, last, has no neighbours).
+TEST(FluidNeighbours, TheBoxOfCellsAndTheHashOfCellsGiveTheSameLists) {
+  const double h = 0.05;
+  const std::vector<Vec3> x = random_points(3000, 0.5, 23);
+  std::vector<Vec3> y = x;
+  y.push_back(Vec3(40.0, -25.0, 3.0));
+  ThreadPool pool(2);
+  for (ThreadPool* p : {static_cast<ThreadPool*>(nullptr), &pool}) {
+    fluid::NeighbourGrid compact, spread;
+    compact.build(x, h, p);
+    spread.build(y, h, p);
+    ASSERT_EQ(spread.pairs(), compact.pairs());
+    EXPECT_TRUE(spread.neighbours(x.size()).empty());
+    for (size_t i = 0; i < x.size(); ++i) {
+      const auto a = compact.neighbours(i), b = spread.neighbours(i);
+      ASSERT_TRUE(std::equal(a.begin(), a.end(), b.begin(), b.end())) << "point " << i;
+    }
+    std::vector<uint32_t> order = fluid::NeighbourGrid::cell_order(y, h, p);
+    ASSERT_EQ(order.back(), uint32_t(x.size())) << "the far point's cell comes last";
+    order.pop_back();
+    EXPECT_EQ(order, fluid::NeighbourGrid::cell_order(x, h, p));
+  }
+}
+
 TEST(FluidNeighbours, SlotViewIsTheSameListsInCellOrder) {
   const double h = 0.05;
   const std::vector<Vec3> x = random_points(2000, 0.4, 17);
@@ -270,6 +298,48 @@ Vec3 momentum(const FluidBody& f) {
 }
 
 }  // namespace
+
+// The pair loops' gathers (four neighbours by masked loads and a transpose where AVX is there)
+// give the bits of the plain expressions, for every neighbour count's tail and for the last
+// particle of the array (the masked load must not read past it).
+TEST(FluidGather, OffsetsAndVectorsAreThePlainExpressionsBitForBit) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<Vec3> P(301);
+  for (size_t i = 0; i < P.size(); ++i) {
+    const double scale = i % 3 == 0 ? 1e-3 : (i % 3 == 1 ? 1.0 : 250.0);  // offsets rounding differently
+    P[i] = scale * Vec3(u(rng), u(rng), u(rng));
+  }
+  std::uniform_int_distribution<uint32_t> pick(0, uint32_t(P.size() - 1));
+  const double inv_h = 1.0 / 0.04;
+  size_t checked = 0;
+  for (size_t m = 0; m <= 37; ++m) {
+    std::vector<uint32_t> J(m);
+    for (uint32_t& j : J) j = pick(rng);
+    if (m) J[m - 1] = uint32_t(P.size() - 1);
+    const Vec3& c = P[m % P.size()];
+    std::vector<float> rx(m + 1, -7.f), ry(m + 1, -7.f), rz(m + 1, -7.f);
+    fluid::pair_offsets(c, P.data(), J.data(), m, inv_h, rx.data(), ry.data(), rz.data());
+    for (size_t q = 0; q < m; ++q) {
+      const Vec3& pj = P[J[q]];
+      EXPECT_EQ(std::bit_cast<uint32_t>(rx[q]), std::bit_cast<uint32_t>(static_cast<float>((c.x() - pj.x()) * inv_h)));
+      EXPECT_EQ(std::bit_cast<uint32_t>(ry[q]), std::bit_cast<uint32_t>(static_cast<float>((c.y() - pj.y()) * inv_h)));
+      EXPECT_EQ(std::bit_cast<uint32_t>(rz[q]), std::bit_cast<uint32_t>(static_cast<float>((c.z() - pj.z()) * inv_h)));
+      ++checked;
+    }
+    EXPECT_EQ(rx[m], -7.f) << "wrote past the " << m << " offsets";
+    EXPECT_EQ(rz[m], -7.f) << "wrote past the " << m << " offsets";
+    for (size_t q = 0; q + 4 <= m; q += 4) {
+      const fluid::Lanes3 g = fluid::gather4(P.data(), J.data() + q);
+      for (int l = 0; l < 4; ++l) {
+        EXPECT_EQ(g.x[l], P[J[q + l]].x());
+        EXPECT_EQ(g.y[l], P[J[q + l]].y());
+        EXPECT_EQ(g.z[l], P[J[q + l]].z());
+      }
+    }
+  }
+  EXPECT_EQ(checked, 37u * 38u / 2u);
+}
 
 TEST(FluidBody, InternalCorrectionsConserveMomentum) {
   FluidSettings s = free_settings();

@@ -6,6 +6,7 @@
 #include "pliant/fluid.hpp"
 
 #include "fluid/neighbour_grid.hpp"
+#include "fluid/pair_gather.hpp"
 #include "fluid/sph_kernels.hpp"
 #include "particles/surface_contact.hpp"
 #include "particles/tool_meeting.hpp"
@@ -23,6 +24,7 @@
 #include <numeric>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 namespace pliant {
 
@@ -55,8 +57,8 @@ using PairReal = float;
 
 // Four doubles in one vector register (GCC and Clang vector extensions), and four pair terms
 // widened into one.
-using Double4 = double __attribute__((vector_size(32)));
-using Float4 = float __attribute__((vector_size(16)));
+using fluid::Double4;
+using fluid::Float4;
 inline Double4 widen4(const PairReal* a) {
   Float4 f;
   std::memcpy(&f, a, sizeof f);
@@ -215,22 +217,20 @@ struct FluidBody::Impl {
     }
   };
   // The offsets of particle i to its neighbours nb in units of h, from scratch index `at` on,
-  // taken in double and rounded. The gather stays scalar (no vector gathers for this target);
-  // the arithmetic after it is SIMD.
+  // taken in double and rounded (fluid::pair_offsets: four neighbours a masked load each and a
+  // transpose); the arithmetic after it is SIMD.
   void gather(size_t i, std::span<const uint32_t> nb, PairScratch& ps, size_t at) const {
-    const uint32_t* J = nb.data();
-    const size_t m = nb.size();
-    // From p itself: a neighbour's three coordinates share a cache line.
-    const double xi = p[i].x(), yi = p[i].y(), zi = p[i].z(), inv_h = 1.0 / k.h;
-    const Vec3* P = p.data();
-    PairReal* rx = ps.rx.data() + at;
-    PairReal* ry = ps.ry.data() + at;
-    PairReal* rz = ps.rz.data() + at;
-    for (size_t q = 0; q < m; ++q) {
-      const uint32_t j = J[q];
-      rx[q] = static_cast<PairReal>((xi - P[j].x()) * inv_h);
-      ry[q] = static_cast<PairReal>((yi - P[j].y()) * inv_h);
-      rz[q] = static_cast<PairReal>((zi - P[j].z()) * inv_h);
+    const double inv_h = 1.0 / k.h;
+    if constexpr (std::is_same_v<PairReal, float>) {
+      fluid::pair_offsets(p[i], p.data(), nb.data(), nb.size(), inv_h, ps.rx.data() + at, ps.ry.data() + at,
+                          ps.rz.data() + at);
+    } else {
+      for (size_t q = 0; q < nb.size(); ++q) {
+        const Vec3 r = (p[i] - p[nb[q]]) * inv_h;
+        ps.rx[at + q] = r.x();
+        ps.ry[at + q] = r.y();
+        ps.rz[at + q] = r.z();
+      }
     }
   }
 
@@ -675,11 +675,11 @@ struct FluidBody::Impl {
           Double4 l_x{}, l_y{}, l_z{};
           size_t q = 0;
           for (; q + 4 <= m; q += 4) {
-            const Vec3 &v0 = v[J[q]], &v1 = v[J[q + 1]], &v2 = v[J[q + 2]], &v3 = v[J[q + 3]];
+            const fluid::Lanes3 vj = fluid::gather4(v.data(), J + q);
             const Double4 w = widen4(W + q);
-            l_x += (Double4{v0.x(), v1.x(), v2.x(), v3.x()} - vi.x()) * w;
-            l_y += (Double4{v0.y(), v1.y(), v2.y(), v3.y()} - vi.y()) * w;
-            l_z += (Double4{v0.z(), v1.z(), v2.z(), v3.z()} - vi.z()) * w;
+            l_x += (vj.x - vi.x()) * w;
+            l_y += (vj.y - vi.y()) * w;
+            l_z += (vj.z - vi.z()) * w;
           }
           double ax = lanes4(l_x), ay = lanes4(l_y), az = lanes4(l_z);
           for (; q < m; ++q) {

@@ -8,7 +8,9 @@
 #endif
 
 #include <algorithm>
+#include <array>
 #include <bit>
+#include <climits>
 #include <cmath>
 #include <limits>
 #include <functional>
@@ -110,17 +112,85 @@ void sort_parallel(std::vector<T>& a, ThreadPool* pool) {
                          a.begin() + static_cast<ptrdiff_t>(end[c]));
 }
 
+// The cell coordinates of a key.
+int64_t key_x(uint64_t k) { return static_cast<int64_t>(k & 0x1FFFFF); }
+int64_t key_y(uint64_t k) { return static_cast<int64_t>((k >> 21) & 0x1FFFFF); }
+int64_t key_z(uint64_t k) { return static_cast<int64_t>(k >> 42); }
+
 }  // namespace
+
+int64_t NeighbourGrid::DenseBox::index(int64_t x, int64_t y, int64_t z) const {
+  return ((z - lz) * ny + (y - ly)) * nx + (x - lx);
+}
+
+// The points' (cell key, index) pairs in ascending order. When the box of the occupied cells,
+// padded for the neighbour rows, has at most kDenseCellsPerPoint cells a point, they are counted
+// into its cells (a counting sort, stable by index: the order std::sort gives the pairs) and box
+// keeps where each cell's points start; otherwise (points spread far apart) the pairs are
+// sorted and box.start is left empty.
+void NeighbourGrid::sort_by_cell(std::span<const Vec3> x, double h, ThreadPool* pool,
+                                 std::vector<std::pair<uint64_t, uint32_t>>& sorted, DenseBox& box,
+                                 std::vector<std::pair<uint64_t, uint32_t>>& scratch) {
+  constexpr double kDenseCellsPerPoint = 8.0;
+  constexpr double kDenseCellsAlways = 4096.0;  // a small cloud's box in any case
+  const size_t n = x.size();
+  const double inv_h = 1.0 / h;
+  const int chunks = pool ? pool->size() : 1;
+  // Per chunk: the lowest and highest cell coordinates (x, y, z).
+  std::vector<std::array<int64_t, 6>> range(static_cast<size_t>(chunks),
+                                            {INT64_MAX, INT64_MAX, INT64_MAX, INT64_MIN, INT64_MIN, INT64_MIN});
+  scratch.resize(n);
+  run_parallel(pool, n, [&](int c, size_t b, size_t e) {
+    std::array<int64_t, 6>& r = range[static_cast<size_t>(c)];
+    for (size_t i = b; i < e; ++i) {
+      const uint64_t k = cell_key(x[i], inv_h);
+      scratch[i] = {k, static_cast<uint32_t>(i)};
+      const int64_t a[3] = {key_x(k), key_y(k), key_z(k)};
+      for (int d = 0; d < 3; ++d) {
+        r[size_t(d)] = std::min(r[size_t(d)], a[d]);
+        r[size_t(d) + 3] = std::max(r[size_t(d) + 3], a[d]);
+      }
+    }
+  }, 1024);
+  box.start.clear();
+  std::array<int64_t, 6> all = range[0];
+  for (const auto& r : range)
+    for (int d = 0; d < 3; ++d) {
+      all[size_t(d)] = std::min(all[size_t(d)], r[size_t(d)]);
+      all[size_t(d) + 3] = std::max(all[size_t(d) + 3], r[size_t(d) + 3]);
+    }
+  if (n > 0) {
+    // One empty cell below each axis's lowest and above its highest (the rows around a cell), a
+    // second above along x (a row's range ends where the cell after x + 1 starts).
+    const int64_t lx = all[0] - 1, ly = all[1] - 1, lz = all[2] - 1;
+    const int64_t nx = all[3] - all[0] + 4, ny = all[4] - all[1] + 3, nz = all[5] - all[2] + 3;
+    const double cells = double(nx) * double(ny) * double(nz);
+    if (cells <= std::max(kDenseCellsPerPoint * double(n), kDenseCellsAlways)) {
+      box.lx = lx;
+      box.ly = ly;
+      box.lz = lz;
+      box.nx = nx;
+      box.ny = ny;
+      box.nz = nz;
+      const size_t total = static_cast<size_t>(nx * ny * nz);
+      box.start.assign(total + 1, 0);
+      for (const auto& [k, i] : scratch) ++box.start[static_cast<size_t>(box.index(key_x(k), key_y(k), key_z(k))) + 1];
+      for (size_t c = 0; c < total; ++c) box.start[c + 1] += box.start[c];
+      box.fill.assign(box.start.begin(), box.start.end() - 1);
+      sorted.resize(n);
+      for (const auto& e : scratch) sorted[box.fill[static_cast<size_t>(box.index(key_x(e.first), key_y(e.first), key_z(e.first)))]++] = e;
+      return;
+    }
+  }
+  sorted.swap(scratch);
+  sort_parallel(sorted, pool);
+}
 
 void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
   const size_t n = x.size();
-  const double inv_h = 1.0 / h;
   const double h2 = h * h;
-  sorted_.resize(n);
-  run_parallel(pool, n, [&](int, size_t b, size_t e) {
-    for (size_t i = b; i < e; ++i) sorted_[i] = {cell_key(x[i], inv_h), static_cast<uint32_t>(i)};
-  }, 1024);
-  sort_parallel(sorted_, pool);
+  sort_by_cell(x, h, pool, sorted_, box_, scratch_);
+  const bool dense = !box_.start.empty();
   slot_.resize(n);
   cells_.clear();
   for (size_t s = 0; s < n; ++s) {
@@ -129,11 +199,12 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
       cells_.push_back(Cell{sorted_[s].first, static_cast<uint32_t>(s), static_cast<uint32_t>(s)});
     cells_.back().end = static_cast<uint32_t>(s + 1);
   }
+  // Without the dense box, the occupied cells are found through a hash table.
   size_t tsize = 64;
-  while (tsize < 2 * cells_.size()) tsize *= 2;
+  while (!dense && tsize < 2 * cells_.size()) tsize *= 2;
   const uint64_t mask = tsize - 1;
-  table_.assign(tsize, -1);
-  for (size_t c = 0; c < cells_.size(); ++c) {
+  table_.assign(dense ? 0 : tsize, -1);
+  for (size_t c = 0; !dense && c < cells_.size(); ++c) {
     uint64_t slot = key_hash(cells_[c].key) & mask;
     while (table_[slot] >= 0) slot = (slot + 1) & mask;
     table_[slot] = static_cast<int32_t>(c);
@@ -190,20 +261,31 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
       for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy) {
           const int64_t ay = cy + dy, az = cz + dz;
-          if (ay < 0 || az < 0 || ay > 0x1FFFFF || az > 0x1FFFFF) continue;
-          const Cell* first = nullptr;
-          const Cell* last = nullptr;
-          for (int dx = -1; dx <= 1; ++dx) {
-            const int64_t ax = cx + dx;
-            if (ax < 0 || ax > 0x1FFFFF) continue;
-            const Cell* nb = find((static_cast<uint64_t>(az) << 42) | (static_cast<uint64_t>(ay) << 21) |
-                                  static_cast<uint64_t>(ax));
-            if (!nb) continue;
-            if (!first) first = nb;
-            last = nb;
+          uint32_t rb = 0, re = 0;
+          if (dense) {
+            // From where cell x - 1 starts to where cell x + 2 starts (empty cells start where
+            // the next occupied one does).
+            const size_t at = static_cast<size_t>(box_.index(cx - 1, ay, az));
+            rb = box_.start[at];
+            re = box_.start[at + 3];
+          } else {
+            if (ay < 0 || az < 0 || ay > 0x1FFFFF || az > 0x1FFFFF) continue;
+            const Cell* first = nullptr;
+            const Cell* last = nullptr;
+            for (int dx = -1; dx <= 1; ++dx) {
+              const int64_t ax = cx + dx;
+              if (ax < 0 || ax > 0x1FFFFF) continue;
+              const Cell* nb = find((static_cast<uint64_t>(az) << 42) | (static_cast<uint64_t>(ay) << 21) |
+                                    static_cast<uint64_t>(ax));
+              if (!nb) continue;
+              if (!first) first = nb;
+              last = nb;
+            }
+            if (!first) continue;
+            rb = first->begin;
+            re = last->end;
           }
-          if (!first) continue;
-          const uint32_t rb = first->begin, re = last->end;
+          if (rb == re) continue;
           if (dy == 0 && dz == 0) own = m - rb;  // slot s sits at own + s
           bx.insert(bx.end(), sx_.begin() + rb, sx_.begin() + re);
           by.insert(by.end(), sy_.begin() + rb, sy_.begin() + re);
@@ -243,10 +325,9 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
 }
 
 std::vector<uint32_t> NeighbourGrid::cell_order(std::span<const Vec3> x, double h, ThreadPool* pool) {
-  const double inv_h = 1.0 / h;
-  std::vector<std::pair<uint64_t, uint32_t>> key(x.size());
-  for (size_t i = 0; i < x.size(); ++i) key[i] = {cell_key(x[i], inv_h), static_cast<uint32_t>(i)};
-  sort_parallel(key, pool);
+  std::vector<std::pair<uint64_t, uint32_t>> key, scratch;
+  DenseBox box;
+  sort_by_cell(x, h, pool, key, box, scratch);
   std::vector<uint32_t> order(x.size());
   for (size_t i = 0; i < x.size(); ++i) order[i] = key[i].second;
   return order;

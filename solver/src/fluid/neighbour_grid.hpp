@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // Fixed-radius neighbour search on a uniform grid of cell h: the points sorted by cell (z, y,
-// x), the occupied cells found through a hash table, and for every cell the points of its 27
+// x) by counting into the box of the occupied cells (or, for points spread far apart, sorted
+// and the occupied cells found through a hash table), and for every cell the points of its 27
 // neighbouring cells (9 rows of three consecutive cells, each a range of sorted points)
 // copied once into contiguous arrays that each of its points scans 8 candidates at a time.
 // Each point's neighbours (distance < h, itself excluded) come in a fixed order (cells in z,
@@ -45,11 +46,24 @@ class NeighbourGrid {
   static std::vector<uint32_t> cell_order(std::span<const Vec3> x, double h, ThreadPool* pool = nullptr);
 
  private:
+  // The box of the occupied cells with a cell of padding (two above along x), and where each of
+  // its cells starts in the sorted points (start, nx ny nz + 1 entries; empty without the box).
+  struct DenseBox {
+    int64_t lx = 0, ly = 0, lz = 0, nx = 0, ny = 0, nz = 0;
+    std::vector<uint32_t> start, fill;
+    int64_t index(int64_t x, int64_t y, int64_t z) const;
+  };
+  static void sort_by_cell(std::span<const Vec3> x, double h, ThreadPool* pool,
+                           std::vector<std::pair<uint64_t, uint32_t>>& sorted, DenseBox& box,
+                           std::vector<std::pair<uint64_t, uint32_t>>& scratch);
+
   struct Cell {
     uint64_t key;
     uint32_t begin, end;  // in sorted_
   };
   std::vector<std::pair<uint64_t, uint32_t>> sorted_;  // (cell key, point), ascending
+  std::vector<std::pair<uint64_t, uint32_t>> scratch_;  // the pairs in point order, before sorting
+  DenseBox box_;
   std::vector<uint32_t> slot_;                         // point -> place in sorted_
   std::vector<Cell> cells_;
   std::vector<int32_t> table_;  // open addressing: cell key -> index in cells_ (-1 empty)
