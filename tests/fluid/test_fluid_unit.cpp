@@ -229,6 +229,42 @@ TEST(FluidNeighbours, TheBoxOfCellsAndTheHashOfCellsGiveTheSameLists) {
   }
 }
 
+// Degenerate clouds in either way of finding cells: none, one point, every point on one spot,
+// every point non-finite (one clamped cell), a line of points a cell apart. Lists as brute force.
+TEST(FluidNeighbours, DegenerateCloudsGiveTheBruteForceLists) {
+  const double h = 0.05;
+  const double nan = std::nan("");
+  std::vector<std::vector<Vec3>> clouds = {
+      {},
+      {Vec3(0.3, -0.2, 7.0)},
+      std::vector<Vec3>(9, Vec3(0.01, 0.02, 0.03)),
+      std::vector<Vec3>(5, Vec3(nan, nan, nan)),
+  };
+  std::vector<Vec3> line;
+  for (int k = 0; k < 40; ++k) line.push_back(Vec3(k * 0.049, 0.0, 0.0));
+  clouds.push_back(line);
+  ThreadPool pool(2);
+  for (size_t c = 0; c < clouds.size(); ++c) {
+    const std::vector<Vec3>& x = clouds[c];
+    fluid::NeighbourGrid g;
+    g.build(x, h, &pool);
+    ASSERT_EQ(g.size(), x.size()) << "cloud " << c;
+    size_t total = 0;
+    for (size_t i = 0; i < x.size(); ++i) {
+      std::vector<uint32_t> brute;
+      for (size_t j = 0; j < x.size(); ++j)
+        if (j != i && (x[i] - x[j]).squaredNorm() < h * h) brute.push_back(static_cast<uint32_t>(j));
+      const auto a = g.neighbours(i);
+      std::vector<uint32_t> got(a.begin(), a.end());
+      std::sort(got.begin(), got.end());
+      EXPECT_EQ(got, brute) << "cloud " << c << ", point " << i;
+      total += brute.size();
+    }
+    EXPECT_EQ(g.pairs(), total) << "cloud " << c;
+    EXPECT_EQ(fluid::NeighbourGrid::cell_order(x, h, &pool).size(), x.size());
+  }
+}
+
 TEST(FluidNeighbours, SlotViewIsTheSameListsInCellOrder) {
   const double h = 0.05;
   const std::vector<Vec3> x = random_points(2000, 0.4, 17);
