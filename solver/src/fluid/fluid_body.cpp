@@ -18,7 +18,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstring>
 #include <functional>
 #include <map>
 #include <numeric>
@@ -54,21 +53,12 @@ void basis(const Vec3& n, Vec3& u, Vec3& w) {
 // and summed per particle in double with the dimensional factors. The pair's two entries stay
 // exactly opposite (the rounded offsets are), so momentum is still conserved.
 using PairReal = float;
+// The pair loops' loads (fluid/pair_gather.hpp) take and give single precision.
+static_assert(std::is_same_v<PairReal, float>);
 
-// Four doubles in one vector register (GCC and Clang vector extensions), and four pair terms
-// widened into one: with AVX one instruction (GCC 12 makes the generic conversion below two
-// conversions of two lanes and an insert, which cost the density and correction passes a tenth
-// of their time).
+// Four doubles in one vector register (GCC and Clang vector extensions).
 using fluid::Double4;
-using fluid::Float4;
-inline Double4 widen4(const PairReal* a) {
-#if defined(__AVX__)
-  if constexpr (std::is_same_v<PairReal, float>) return Double4(_mm256_cvtps_pd(_mm_loadu_ps(a)));
-#endif
-  Float4 f;
-  std::memcpy(&f, a, sizeof f);
-  return __builtin_convertvector(f, Double4);
-}
+using fluid::widen4;
 // The sum of the four lanes, in a fixed order.
 inline double lanes4(const Double4& a) { return (a[0] + a[1]) + (a[2] + a[3]); }
 
@@ -225,18 +215,8 @@ struct FluidBody::Impl {
   // taken in double and rounded (fluid::pair_offsets: four neighbours a masked load each and a
   // transpose); the arithmetic after it is SIMD.
   void gather(size_t i, std::span<const uint32_t> nb, PairScratch& ps, size_t at) const {
-    const double inv_h = 1.0 / k.h;
-    if constexpr (std::is_same_v<PairReal, float>) {
-      fluid::pair_offsets(p[i], p.data(), nb.data(), nb.size(), inv_h, ps.rx.data() + at, ps.ry.data() + at,
-                          ps.rz.data() + at);
-    } else {
-      for (size_t q = 0; q < nb.size(); ++q) {
-        const Vec3 r = (p[i] - p[nb[q]]) * inv_h;
-        ps.rx[at + q] = r.x();
-        ps.ry[at + q] = r.y();
-        ps.rz[at + q] = r.z();
-      }
-    }
+    fluid::pair_offsets(p[i], p.data(), nb.data(), nb.size(), 1.0 / k.h, ps.rx.data() + at, ps.ry.data() + at,
+                        ps.rz.data() + at);
   }
 
   // One particle's poly6 terms (XSPH), in units of pc h^6 (see density_terms).

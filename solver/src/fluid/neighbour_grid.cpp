@@ -162,23 +162,22 @@ void NeighbourGrid::sort_by_cell(std::span<const Vec3> x, double h, ThreadPool* 
   if (n > 0) {
     // One empty cell below each axis's lowest and above its highest (the rows around a cell), a
     // second above along x (a row's range ends where the cell after x + 1 starts).
-    const int64_t lx = all[0] - 1, ly = all[1] - 1, lz = all[2] - 1;
-    const int64_t nx = all[3] - all[0] + 4, ny = all[4] - all[1] + 3, nz = all[5] - all[2] + 3;
-    const double cells = double(nx) * double(ny) * double(nz);
+    box.lx = all[0] - 1;
+    box.ly = all[1] - 1;
+    box.lz = all[2] - 1;
+    box.nx = all[3] - all[0] + 4;
+    box.ny = all[4] - all[1] + 3;
+    box.nz = all[5] - all[2] + 3;
+    const double cells = double(box.nx) * double(box.ny) * double(box.nz);
     if (cells <= std::max(kDenseCellsPerPoint * double(n), kDenseCellsAlways)) {
-      box.lx = lx;
-      box.ly = ly;
-      box.lz = lz;
-      box.nx = nx;
-      box.ny = ny;
-      box.nz = nz;
-      const size_t total = static_cast<size_t>(nx * ny * nz);
+      const size_t total = static_cast<size_t>(box.nx * box.ny * box.nz);
+      auto cell = [&box](uint64_t k) { return static_cast<size_t>(box.index(key_x(k), key_y(k), key_z(k))); };
       box.start.assign(total + 1, 0);
-      for (const auto& [k, i] : scratch) ++box.start[static_cast<size_t>(box.index(key_x(k), key_y(k), key_z(k))) + 1];
+      for (const auto& e : scratch) ++box.start[cell(e.first) + 1];
       for (size_t c = 0; c < total; ++c) box.start[c + 1] += box.start[c];
       box.fill.assign(box.start.begin(), box.start.end() - 1);
       sorted.resize(n);
-      for (const auto& e : scratch) sorted[box.fill[static_cast<size_t>(box.index(key_x(e.first), key_y(e.first), key_z(e.first)))]++] = e;
+      for (const auto& e : scratch) sorted[box.fill[cell(e.first)]++] = e;
       return;
     }
   }
@@ -200,14 +199,18 @@ void NeighbourGrid::build(std::span<const Vec3> x, double h, ThreadPool* pool) {
     cells_.back().end = static_cast<uint32_t>(s + 1);
   }
   // Without the dense box, the occupied cells are found through a hash table.
-  size_t tsize = 64;
-  while (!dense && tsize < 2 * cells_.size()) tsize *= 2;
-  const uint64_t mask = tsize - 1;
-  table_.assign(dense ? 0 : tsize, -1);
-  for (size_t c = 0; !dense && c < cells_.size(); ++c) {
-    uint64_t slot = key_hash(cells_[c].key) & mask;
-    while (table_[slot] >= 0) slot = (slot + 1) & mask;
-    table_[slot] = static_cast<int32_t>(c);
+  uint64_t mask = 0;
+  table_.clear();
+  if (!dense) {
+    size_t tsize = 64;
+    while (tsize < 2 * cells_.size()) tsize *= 2;
+    mask = tsize - 1;
+    table_.assign(tsize, -1);
+    for (size_t c = 0; c < cells_.size(); ++c) {
+      uint64_t slot = key_hash(cells_[c].key) & mask;
+      while (table_[slot] >= 0) slot = (slot + 1) & mask;
+      table_[slot] = static_cast<int32_t>(c);
+    }
   }
   auto find = [&](uint64_t key) -> const Cell* {
     uint64_t slot = key_hash(key) & mask;

@@ -1,10 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
-// The gathers of the fluid's pair loops: four neighbours' 3-vectors as three vectors of four
-// doubles (x, y, z), and the offsets (c - p_j) / h of a particle's neighbours rounded to single
-// precision. With AVX a neighbour is one masked load (its x, y, z; the fourth lane is not read)
-// and four of them are transposed by shuffles, about half the instructions of three scalar
-// loads, subtractions, multiplications, roundings and stores a neighbour. Both forms compute the
-// same expressions in the same order, so they give the same bits (FluidGather tests).
+// The loads of the fluid's pair loops: four neighbours' 3-vectors as three vectors of four
+// doubles (x, y, z), the offsets (c - p_j) / h of a particle's neighbours rounded to single
+// precision, and four single-precision pair terms widened to doubles. With AVX a neighbour is one
+// masked load (its x, y, z; the fourth lane is not read) and four of them are transposed by
+// shuffles, about half the instructions of three scalar loads, subtractions, multiplications,
+// roundings and stores a neighbour. Both forms compute the same expressions in the same order, so
+// they give the same bits (FluidGather tests).
 #pragma once
 
 #include "pliant/mesh.hpp"
@@ -44,6 +45,19 @@ inline Lanes3 gather4(const Vec3* P, const uint32_t* J) {
   const Vec3 &a = P[J[0]], &b = P[J[1]], &c = P[J[2]], &d = P[J[3]];
   return {Double4{a.x(), b.x(), c.x(), d.x()}, Double4{a.y(), b.y(), c.y(), d.y()},
           Double4{a.z(), b.z(), c.z(), d.z()}};
+#endif
+}
+
+// Four single-precision values at a, exactly, as doubles: with AVX one instruction (GCC 12 makes
+// the generic conversion two conversions of two lanes and an insert, which cost the density and
+// correction passes a tenth of their time).
+inline Double4 widen4(const float* a) {
+#if defined(__AVX__)
+  return Double4(_mm256_cvtps_pd(_mm_loadu_ps(a)));
+#else
+  Float4 f;
+  std::memcpy(&f, a, sizeof f);
+  return __builtin_convertvector(f, Double4);
 #endif
 }
 
