@@ -130,36 +130,41 @@ TEST(Inversion, LaterFloorPassesStopAtTheBudgetAndOnCancel) {
   }
 }
 
-// The floor passes run colour by colour in parallel, the later ones over the tets whose corners a
-// correction moved: the same positions, to the last bit, for any thread count. beam3 is large
-// enough that its colours are split between threads (a colour of fewer than 32 packs runs on one).
+// The floor passes run phase by phase in parallel, the later ones over the tets whose corners a
+// correction moved: the same positions, to the last bit, for any thread count. beam3 is long
+// enough to be cut into slabs (groups of packs dealt to the threads); the 14 x 14 x 14 cube is
+// solved colour by colour, and its colours are large enough to be split between threads (a
+// colour of fewer than 32 packs, or with fewer than 32 queued, runs on one).
 TEST(Inversion, FloorPassesGiveTheSameResultForAnyThreadCount) {
-  TetMesh mesh = *builtin_mesh("beam3");
-  auto model = build_model(mesh, Material{1e5, 0.4, 1000});
-  BodyState start = rest_state(*model);
-  squash_and_shake(start.x, 11);
-  ASSERT_GT(count_inverted(*model, start.x), 100u);
-  SolverSettings s;
-  s.gravity.setZero();
-  s.substeps = 1;
-  s.iterations = 1;
-  std::vector<Vec3> first;
-  int first_corrections = 0;
-  for (int threads : {1, 2, 3}) {
-    s.threads = threads;
-    BodyState state = start;
-    Stepper stepper;
-    const StepReport r = stepper.step(*model, state, s);
-    if (threads == 1) {
-      first = state.x;
-      first_corrections = r.volume_corrections;
-      EXPECT_GT(first_corrections, 0);
-      continue;
+  for (const char* name : {"beam3", "cube"}) {
+    SCOPED_TRACE(name);
+    TetMesh mesh = std::string(name) == "cube" ? make_beam(14, 14, 14, 0.005) : *builtin_mesh(name);
+    auto model = build_model(mesh, Material{1e5, 0.4, 1000});
+    BodyState start = rest_state(*model);
+    squash_and_shake(start.x, 11);
+    ASSERT_GT(count_inverted(*model, start.x), 100u);
+    SolverSettings s;
+    s.gravity.setZero();
+    s.substeps = 1;
+    s.iterations = 1;
+    std::vector<Vec3> first;
+    int first_corrections = 0;
+    for (int threads : {1, 2, 3}) {
+      s.threads = threads;
+      BodyState state = start;
+      Stepper stepper;
+      const StepReport r = stepper.step(*model, state, s);
+      if (threads == 1) {
+        first = state.x;
+        first_corrections = r.volume_corrections;
+        EXPECT_GT(first_corrections, 0);
+        continue;
+      }
+      EXPECT_EQ(r.volume_corrections, first_corrections) << threads << " threads";
+      size_t differing = 0;
+      for (size_t i = 0; i < first.size(); ++i) differing += state.x[i] != first[i];
+      EXPECT_EQ(differing, 0u) << threads << " threads";
     }
-    EXPECT_EQ(r.volume_corrections, first_corrections) << threads << " threads";
-    size_t differing = 0;
-    for (size_t i = 0; i < first.size(); ++i) differing += state.x[i] != first[i];
-    EXPECT_EQ(differing, 0u) << threads << " threads";
   }
 }
 

@@ -5,6 +5,7 @@
 #include "kernels/projection.hpp"
 #include "kernels/strain_kernel.hpp"
 #include "step/family.hpp"
+#include "step/floor_queue.hpp"
 #include "step/obstacles.hpp"
 #include "step/sequential_sweep.hpp"
 #include "step/stages.hpp"
@@ -14,10 +15,10 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <bit>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <span>
 #include <stdexcept>
 
 namespace pliant {
@@ -52,6 +53,9 @@ constexpr double kFloorSlack = 1e-6;
 // body".
 constexpr double kTangledAim = 1.05;
 constexpr double kTangledRelaxation = 1.5;
+// A pass from the moved vertices shares a phase between the threads from this many packs queued
+// in it (or this many a chunk of a split phase).
+constexpr size_t kFloorPassGrain = 32;
 
 // Packs a block of the residual's sum (per block, then in block order: ThreadPool's block_sum).
 constexpr size_t kResidualBlock = 64;
@@ -93,6 +97,19 @@ void deal_groups(const detail::SolvePhase& phase, int chunks, std::vector<int>& 
     load[c] += size(k);
   }
   if (*std::max_element(load.begin(), load.end()) < in_runs) owner = std::move(dealt);
+}
+
+// Deals items of the given loads to n chunks, the largest first to the least loaded.
+void deal_by_load(const std::vector<size_t>& load, size_t n, std::vector<int>& owner) {
+  std::vector<size_t> order(load.size()), sum(n, 0);
+  for (size_t k = 0; k < load.size(); ++k) order[k] = k;
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return load[a] > load[b]; });
+  owner.assign(load.size(), 0);
+  for (size_t k : order) {
+    const size_t c = size_t(std::min_element(sum.begin(), sum.end()) - sum.begin());
+    owner[k] = int(c);
+    sum[c] += load[k];
+  }
 }
 
 // Calls fn(chunk, first, end) for every pack of the model's solve order (PackedModel::phases),
@@ -145,7 +162,9 @@ struct Stepper::Impl {
   uint32_t floor_serial = 0;              // floor passes made (with this vertex count)
   std::vector<int32_t> floor_moved;       // vertices the last floor pass moved
   std::vector<std::vector<int32_t>> floor_moved_chunks;  // per thread
-  std::vector<uint64_t> floor_queued;                  // per pack a bit: queued in this pass
+  detail::FloorQueue floor_queue;        // the later passes' packs around moved vertices
+  std::vector<size_t> floor_group_load;  // per group of a phase: packs queued
+  std::vector<int> floor_group_owner;    // per group of a phase: its chunk
   std::vector<int32_t> floor_acted;                    // packs the floor acted on in this substep
   std::vector<char> floor_acted_mark;                  // per pack: in floor_acted
   std::vector<std::vector<int32_t>> floor_acted_chunks;  // per thread
@@ -309,23 +328,23 @@ struct Stepper::Impl {
   // a substep (all = true) visits every pack (those a pre-check shows above the floor cost a
   // sixth of their data); a later one only the packs with a corner that a
   // floor correction moved in the previous pass or earlier in this one (a tet's det F changes
-  // only when a corner moves). When few vertices moved it queues their packs by colour range on
-  // this thread (volume_pass_from_moved); otherwise it checks every pack's corners, phase by
-  // phase like a sweep (the result does not depend on the thread count); the same packs either
-  // way (docs/solver.md, "The floor pass"); the scan's corrections are projected SOR (kTangledAim).
+  // only when a corner moves). When few vertices moved it queues their packs as bits
+  // (volume_pass_from_moved); otherwise it checks every pack's corners. Either way phase by
+  // phase like a sweep (the result does not depend on the thread count) and the same packs
+  // (docs/solver.md, "The floor pass"); the scan's corrections are projected SOR (kTangledAim).
   // Returns the corrections made.
   int volume_pass(const BodyModel& m, std::vector<Vec3>& x, double floor, ThreadPool& tp, bool all = true) {
     const detail::PackedModel& packed = detail::packed(m);
     if (floor_stamp.size() != m.vertex_count() || floor_acted_mark.size() != packed.packs.size() ||
         floor_serial >= UINT32_MAX - 1) {
       floor_stamp.assign(m.vertex_count(), 0);
-      floor_queued.assign((packed.packs.size() + 63) / 64, 0);
+      floor_queue.reset(packed.packs.size());
       floor_acted_mark.assign(packed.packs.size(), 0);
       floor_acted.clear();
       floor_serial = 0;
     }
     const uint32_t serial = ++floor_serial;  // stamps >= serial - 1: moved in the last pass or this one
-    if (!all && floor_moved.size() * 8 < packed.packs.size()) return volume_pass_from_moved(m, x, floor, serial);
+    if (!all && floor_moved.size() * 8 < packed.packs.size()) return volume_pass_from_moved(m, x, floor, serial, tp);
     floor_hits_per_chunk.assign(tp.size(), 0);
     floor_moved_chunks.resize(tp.size());
     floor_acted_chunks.resize(tp.size());
@@ -349,6 +368,7 @@ struct Stepper::Impl {
       floor_hits_per_chunk[chunk] += hits;
     });
     floor_moved.clear();
+    floor_queue.forget_next();
     for (const auto& v : floor_moved_chunks) floor_moved.insert(floor_moved.end(), v.begin(), v.end());
     for (const auto& v : floor_acted_chunks)
       for (int32_t q : v) note_acted(q);
@@ -357,37 +377,67 @@ struct Stepper::Impl {
     return total;
   }
 
-  // A later pass from the vertices the previous one moved: their packs are queued as bits and
-  // taken in storage order by a scan forward, and a correction queues the packs after it around
-  // the corners it moved (those before it are the next pass's).
-  int volume_pass_from_moved(const BodyModel& m, std::vector<Vec3>& x, double floor, uint32_t serial) {
+  // A later pass from the vertices the previous one moved (detail::FloorQueue), phase by phase:
+  // a phase's groups dealt to the threads by the packs queued in them, the most first (the
+  // floor's work gathers where the body is crushed, not spread as the groups' sizes are), a
+  // phase with few on one thread.
+  int volume_pass_from_moved(const BodyModel& m, std::vector<Vec3>& x, double floor, uint32_t serial,
+                             ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
-    size_t first = floor_queued.size();  // the lowest word queued into
-    const std::vector<int32_t>& start = in_sweep_order ? packed.sweep_slot_start : m.vertex_tet_start;
-    const std::vector<int32_t>& entry = in_sweep_order ? packed.sweep_slot_entry : packed.vertex_slot_entry;
+    const int32_t* start = (in_sweep_order ? packed.sweep_slot_start : m.vertex_tet_start).data();
+    const int32_t* entry = (in_sweep_order ? packed.sweep_slot_entry : packed.vertex_slot_entry).data();
     const std::vector<detail::FloorCheck>& checks = checks_in_order(packed);
-    auto queue_around = [&](int32_t v, int64_t after) {
-      for (int32_t a = start[size_t(v)]; a < start[size_t(v) + 1]; ++a) {
-        const int32_t q = entry[size_t(a)] / 16;  // 4 x slot + corner; 4 slots per pack
-        if (q <= after) continue;
-        floor_queued[size_t(q) >> 6] |= uint64_t(1) << (q & 63);
-        first = std::min(first, size_t(q) >> 6);
-      }
-    };
-    for (int32_t v : floor_moved) queue_around(v, -1);
+    const size_t chunks = size_t(tp.size());
+    floor_queue.start(floor_moved, start, entry, chunks);
     floor_moved.clear();
-    int hits = 0;
-    for (size_t w = first; w < floor_queued.size(); ++w) {
-      while (floor_queued[w]) {  // a correction may queue packs later in this word
-        const int32_t q = int32_t(w * 64 + size_t(std::countr_zero(floor_queued[w])));
-        floor_queued[w] &= floor_queued[w] - 1;
-        const size_t before = floor_moved.size();
-        const int h = correct_pack(checks[size_t(q)], x, floor, serial, floor_moved);
-        if (h) note_acted(q);
-        hits += h;
-        for (size_t j = before; j < floor_moved.size(); ++j) queue_around(floor_moved[j], q);
-      }
+    floor_hits_per_chunk.assign(chunks, 0);
+    floor_moved_chunks.resize(chunks);
+    floor_acted_chunks.resize(chunks);
+    for (size_t c = 0; c < chunks; ++c) {
+      floor_moved_chunks[c].clear();
+      floor_acted_chunks[c].clear();
     }
+    auto take = [&](int chunk, size_t b, size_t e) {
+      std::vector<int32_t>& moved = floor_moved_chunks[size_t(chunk)];
+      floor_queue.take(size_t(chunk), b, e, start, entry, [&](uint32_t q) {
+        const size_t before = moved.size();
+        const int h = correct_pack(checks[q], x, floor, serial, moved);
+        if (h) floor_acted_chunks[size_t(chunk)].push_back(int32_t(q));
+        floor_hits_per_chunk[size_t(chunk)] += h;
+        return std::span<const int32_t>(moved.data() + before, moved.size() - before);
+      });
+    };
+    std::vector<size_t>& load = floor_group_load;
+    std::vector<int>& owner = floor_group_owner;
+    for (const detail::SolvePhase& phase : packed.phases) {
+      const std::vector<size_t>& g = phase.group_begin;
+      if (phase.split) {
+        if (floor_queue.queued(g.front(), g.back()) < kFloorPassGrain) take(0, g.front(), g.back());
+        else
+          tp.parallel_for(g.back() - g.front(), [&](int chunk, size_t b, size_t e) { take(chunk, g.front() + b, g.front() + e); },
+                          kFloorPassGrain);
+      } else {
+        const size_t groups = g.size() - 1;
+        load.resize(groups);
+        size_t total = 0;
+        for (size_t k = 0; k < groups; ++k) total += load[k] = floor_queue.queued(g[k], g[k + 1]);
+        owner.assign(groups, 0);
+        const size_t n = total < kFloorPassGrain ? 1 : std::min(groups, chunks);
+        if (n > 1) deal_by_load(load, n, owner);
+        tp.parallel_for(n, [&](int chunk, size_t, size_t) {
+          for (size_t k = 0; k < groups; ++k)
+            if (owner[k] == chunk && load[k]) take(chunk, g[k], g[k + 1]);
+        }, 2);
+      }
+      floor_queue.end_phase();
+    }
+    int hits = 0;
+    for (size_t c = 0; c < chunks; ++c) {
+      floor_moved.insert(floor_moved.end(), floor_moved_chunks[c].begin(), floor_moved_chunks[c].end());
+      for (int32_t q : floor_acted_chunks[c]) note_acted(q);
+      hits += floor_hits_per_chunk[c];
+    }
+    floor_queue.end_pass(floor_moved.size());
     return hits;
   }
 
