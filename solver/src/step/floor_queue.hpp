@@ -137,7 +137,7 @@ class FloorQueue {
   size_t covers() const { return covers_; }
 
  private:
-  struct Chunk {
+  struct alignas(64) Chunk {  // (a cache line apart: each thread writes its own)
     std::vector<uint64_t> later, next;  // bits, zero outside a pass
     std::vector<uint64_t> own;          // the range being taken, from its first word
     size_t later_lo = 0, later_hi = 0, next_lo = 0;

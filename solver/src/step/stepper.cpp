@@ -157,17 +157,21 @@ struct Stepper::Impl {
   std::vector<Vec6> lambda_saved;
   std::vector<Vec3> jacobi_dx;  // 4 per slot
   std::vector<double> partial;  // per-block sums
-  std::vector<int> floor_hits_per_chunk;  // per-thread corrections of a floor pass
   std::vector<uint32_t> floor_stamp;      // per vertex: the floor pass (serial) that last moved it
   uint32_t floor_serial = 0;              // floor passes made (with this vertex count)
   std::vector<int32_t> floor_moved;       // vertices the last floor pass moved
-  std::vector<std::vector<int32_t>> floor_moved_chunks;  // per thread
+  // Per chunk of a floor pass, a cache line apart (the threads append to them pack after pack):
+  // the vertices it moved first in the pass, the packs that acted, the corrections.
+  struct alignas(64) FloorChunk {
+    std::vector<int32_t> moved, acted;
+    int hits = 0;
+  };
+  std::vector<FloorChunk> floor_chunks;
   detail::FloorQueue floor_queue;        // the later passes' packs around moved vertices
   std::vector<size_t> floor_group_load;  // per group of a phase: packs queued
   std::vector<int> floor_group_owner;    // per group of a phase: its chunk
   std::vector<int32_t> floor_acted;                    // packs the floor acted on in this substep
   std::vector<char> floor_acted_mark;                  // per pack: in floor_acted
-  std::vector<std::vector<int32_t>> floor_acted_chunks;  // per thread
   size_t floor_settle_visits = 0;                      // pack visits left to this substep's settling
 
   // The accelerator of the last substep, kept with its buffers while its settings stay.
@@ -345,11 +349,7 @@ struct Stepper::Impl {
     }
     const uint32_t serial = ++floor_serial;  // stamps >= serial - 1: moved in the last pass or this one
     if (!all && floor_moved.size() * 8 < packed.packs.size()) return volume_pass_from_moved(m, x, floor, serial, tp);
-    floor_hits_per_chunk.assign(tp.size(), 0);
-    floor_moved_chunks.resize(tp.size());
-    floor_acted_chunks.resize(tp.size());
-    for (auto& v : floor_moved_chunks) v.clear();
-    for (auto& v : floor_acted_chunks) v.clear();
+    start_floor_chunks(size_t(tp.size()));
     const double trigger = floor * (1 - kFloorSlack);
     const std::vector<detail::FloorCheck>& checks = checks_in_order(packed);
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
@@ -361,20 +361,36 @@ struct Stepper::Impl {
         // In the first pass most packs are far above the floor: told so from a sixth of their
         // data. (A later pass visits the packs around corrections, which mostly act.)
         if (all && !detail::floor_may_act(c, x, trigger)) continue;
-        const int h = correct_pack(c, x, floor, serial, floor_moved_chunks[chunk], !all);
-        if (h) floor_acted_chunks[chunk].push_back(int32_t(i));
+        const int h = correct_pack(c, x, floor, serial, floor_chunks[size_t(chunk)].moved, !all);
+        if (h) floor_chunks[size_t(chunk)].acted.push_back(int32_t(i));
         hits += h;
       }
-      floor_hits_per_chunk[chunk] += hits;
+      floor_chunks[size_t(chunk)].hits += hits;
     });
     floor_moved.clear();
     floor_queue.forget_next();
-    for (const auto& v : floor_moved_chunks) floor_moved.insert(floor_moved.end(), v.begin(), v.end());
-    for (const auto& v : floor_acted_chunks)
-      for (int32_t q : v) note_acted(q);
-    int total = 0;
-    for (int h : floor_hits_per_chunk) total += h;
-    return total;
+    return collect_floor_chunks();
+  }
+
+  void start_floor_chunks(size_t chunks) {
+    floor_chunks.resize(chunks);
+    for (FloorChunk& c : floor_chunks) {
+      c.moved.clear();
+      c.acted.clear();
+      c.hits = 0;
+    }
+  }
+
+  // Appends the chunks' moved vertices to floor_moved and notes the packs that acted, in chunk
+  // order; returns the corrections.
+  int collect_floor_chunks() {
+    int hits = 0;
+    for (const FloorChunk& c : floor_chunks) {
+      floor_moved.insert(floor_moved.end(), c.moved.begin(), c.moved.end());
+      for (int32_t q : c.acted) note_acted(q);
+      hits += c.hits;
+    }
+    return hits;
   }
 
   // A later pass from the vertices the previous one moved (detail::FloorQueue), phase by phase:
@@ -390,21 +406,15 @@ struct Stepper::Impl {
     const size_t chunks = size_t(tp.size());
     floor_queue.start(floor_moved, start, entry, chunks);
     floor_moved.clear();
-    floor_hits_per_chunk.assign(chunks, 0);
-    floor_moved_chunks.resize(chunks);
-    floor_acted_chunks.resize(chunks);
-    for (size_t c = 0; c < chunks; ++c) {
-      floor_moved_chunks[c].clear();
-      floor_acted_chunks[c].clear();
-    }
+    start_floor_chunks(chunks);
     auto take = [&](int chunk, size_t b, size_t e) {
-      std::vector<int32_t>& moved = floor_moved_chunks[size_t(chunk)];
+      FloorChunk& fc = floor_chunks[size_t(chunk)];
       floor_queue.take(size_t(chunk), b, e, start, entry, [&](uint32_t q) {
-        const size_t before = moved.size();
-        const int h = correct_pack(checks[q], x, floor, serial, moved);
-        if (h) floor_acted_chunks[size_t(chunk)].push_back(int32_t(q));
-        floor_hits_per_chunk[size_t(chunk)] += h;
-        return std::span<const int32_t>(moved.data() + before, moved.size() - before);
+        const size_t before = fc.moved.size();
+        const int h = correct_pack(checks[q], x, floor, serial, fc.moved);
+        if (h) fc.acted.push_back(int32_t(q));
+        fc.hits += h;
+        return std::span<const int32_t>(fc.moved.data() + before, fc.moved.size() - before);
       });
     };
     std::vector<size_t>& load = floor_group_load;
@@ -431,12 +441,7 @@ struct Stepper::Impl {
       }
       floor_queue.end_phase();
     }
-    int hits = 0;
-    for (size_t c = 0; c < chunks; ++c) {
-      floor_moved.insert(floor_moved.end(), floor_moved_chunks[c].begin(), floor_moved_chunks[c].end());
-      for (int32_t q : floor_acted_chunks[c]) note_acted(q);
-      hits += floor_hits_per_chunk[c];
-    }
+    const int hits = collect_floor_chunks();
     floor_queue.end_pass(floor_moved.size());
     return hits;
   }
