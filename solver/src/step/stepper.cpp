@@ -359,7 +359,8 @@ struct Stepper::Impl {
         if (all && i + 2 < e) detail::prefetch_corners(checks[i + 2], x);  // (a later pass skips most)
         if (!all && !pack_moved(c, serial - 1)) continue;
         // In the first pass most packs are far above the floor: told so from a sixth of their
-        // data. (A later pass visits the packs around corrections, which mostly act.)
+        // data. (A later pass visits only packs with a moved corner, and the correction itself
+        // starts from det F and returns when no lane is below: a pre-check would only repeat it.)
         if (all && !detail::floor_may_act(c, x, trigger)) continue;
         const int h = correct_pack(c, x, floor, serial, floor_chunks[size_t(chunk)].moved, !all);
         if (h) floor_chunks[size_t(chunk)].acted.push_back(int32_t(i));
