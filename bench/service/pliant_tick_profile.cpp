@@ -128,7 +128,7 @@ int main(int argc, char** argv) {
     RigidTool sphere = RigidTool::sphere(Eigen::Vector3d(0.2, 0.11, 0.025), 0.01);
     if (mu >= 0) sphere.static_friction = sphere.dynamic_friction = mu;
     PhaseTimes sum;
-    double wall = 0, corrections = 0, iterations_done = 0;
+    double wall = 0, corrections = 0, iterations_done = 0, floor_passes = 0, floor_scans = 0;
     int floor_cut = 0;  // ticks whose later floor passes the budget cut
     const int warmup = 30;  // the press reaches its depth
     for (int k = 0; k < warmup + ticks; ++k) {
@@ -149,6 +149,9 @@ int main(int argc, char** argv) {
       sum.residual_ms += r.times.residual_ms;
       sum.other_ms += r.times.other_ms;
       sum.floor_ms += r.times.floor_ms;
+      sum.floor_scan_ms += r.times.floor_scan_ms;
+      floor_passes += r.floor_passes;
+      floor_scans += r.floor_scan_passes;
       sum.update_ms += r.times.update_ms + r.times.anderson_ms;
       corrections += r.volume_corrections;
       iterations_done += r.iterations;
@@ -180,6 +183,9 @@ int main(int argc, char** argv) {
                                                    {"residual_ms", sum.residual_ms / ticks},
                                                    {"other_ms", sum.other_ms / ticks},
                                                    {"floor_ms", sum.floor_ms / ticks},
+                                                   {"floor_passes_per_tick", floor_passes / ticks},
+                                                   {"floor_scan_passes_per_tick", floor_scans / ticks},
+                                                   {"floor_scan_ms", sum.floor_scan_ms / ticks},
                                                    {"update_ms", sum.update_ms / ticks},
                                                    {"volume_corrections_per_tick", corrections / ticks},
                                                    {"time_budget_ms", budget_ms},

@@ -76,7 +76,8 @@ TEST(Inversion, FloorPassesLeaveNoTetBelowTheFloor) {
 // The later floor passes belong to the step's time, in every family: with a budget already spent
 // when the floor starts, only its first pass runs (fewer corrections, tets left under the floor,
 // the report says so); a cancelled step stops after it too; without either the passes run until
-// none acts, and the report times them (floor_ms, within other_ms; zero with the floor off).
+// none acts, and the report times and counts them (floor_ms, within other_ms; zero with the floor
+// off; the projection family's passes that checked every tet of this tangled body apart).
 TEST(Inversion, LaterFloorPassesStopAtTheBudgetAndOnCancel) {
   TetMesh mesh = *builtin_mesh("beam1");
   auto model = build_model(mesh, Material{1e5, 0.4, 1000});
@@ -100,6 +101,15 @@ TEST(Inversion, LaterFloorPassesStopAtTheBudgetAndOnCancel) {
     // The report times the passes, as a part of the time outside the iterations.
     EXPECT_GT(all.times.floor_ms, 0.0);
     EXPECT_LE(all.times.floor_ms, all.times.other_ms);
+    EXPECT_GT(all.floor_passes, 1) << "the first pass's corrections push neighbours under the floor";
+    EXPECT_LE(all.times.floor_scan_ms, all.times.floor_ms);
+    if (method == Method::Xpbd) {
+      // A squash that inverts a fifth of the tets moves most vertices: the next pass checks them all.
+      EXPECT_GE(all.floor_scan_passes, 1);
+      EXPECT_LT(all.floor_scan_passes, all.floor_passes) << "the first pass is not a later one";
+    } else {
+      EXPECT_EQ(all.floor_scan_passes, 0);
+    }
     SolverSettings no_floor = s;
     no_floor.inversion_floor = 0;
     BodyState unfloored = start;
@@ -118,6 +128,9 @@ TEST(Inversion, LaterFloorPassesStopAtTheBudgetAndOnCancel) {
     EXPECT_GT(budgeted.volume_corrections, 0) << "the first pass always runs";
     EXPECT_LT(budgeted.volume_corrections, all.volume_corrections);
     EXPECT_GT(below_floor(cut), below_floor(full)) << "one pass leaves tets that its later corrections pushed under";
+    if (method != Method::Newton) {  // (newton's floor runs after each of its iterations)
+      EXPECT_EQ(budgeted.floor_passes, 1);
+    }
 
     std::atomic<bool> cancel{true};
     StepInputs in;

@@ -26,6 +26,7 @@ struct PhaseTimes {
   double residual_ms = 0;    // residual evaluation
   double other_ms = 0;       // prediction, contacts, velocity update, damping, the inversion floor
   double floor_ms = 0;       // of other_ms: the inversion floor's passes after the iterations
+  double floor_scan_ms = 0;  // of floor_ms: its later passes that checked every tet (a tangled body)
 };
 
 struct StepReport {
@@ -46,6 +47,12 @@ struct StepReport {
   bool cancelled = false;              // StepInputs::cancel was set: the step stopped between sweeps
   int contacts = 0;                    // active contacts at the end of the step
   int volume_corrections = 0;          // inversion-floor projections in the last iteration
+  // The inversion floor's passes after the iterations, over all substeps (the first of each
+  // substep included), and of them the later ones that checked every tet instead of those around
+  // the last corrections (the constraint-projection methods' tangled-body passes; 0 for vbd and
+  // newton, whose passes follow the moved vertices only).
+  int floor_passes = 0;
+  int floor_scan_passes = 0;
   int linear_iterations = 0;           // method newton with cg: CG iterations over all substeps
   int hessian_reused = 0;              // method newton with cg: iterations that kept an earlier Hessian
   // One per StepInputs::tools, same order: force/torque on the tool averaged over the substeps

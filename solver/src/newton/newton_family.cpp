@@ -1038,6 +1038,7 @@ StepReport NewtonFamily::step(const BodyModel& m, BodyState& state, const Solver
           return (in.cancel && in.cancel->load(std::memory_order_relaxed)) || (budget > 0 && ms_since(t_sub) >= budget);
         });
         rep.volume_corrections += hits;
+        rep.floor_passes += volume_floor_.passes();
         // A cut floor is reported; the iteration's own checks below then stop the substep.
         if (volume_floor_.stopped() && !(in.cancel && in.cancel->load(std::memory_order_relaxed)))
           rep.floor_stopped_by_budget = true;

@@ -71,6 +71,9 @@ void add_substep(StepReport& total, StepReport&& r) {
   total.times.residual_ms += r.times.residual_ms;
   total.times.other_ms += r.times.other_ms;
   total.times.floor_ms += r.times.floor_ms;
+  total.times.floor_scan_ms += r.times.floor_scan_ms;
+  total.floor_passes += r.floor_passes;
+  total.floor_scan_passes += r.floor_scan_passes;
   total.residuals = std::move(r.residuals);
   total.residual_initial = r.residual_initial;
   total.residual_final = r.residual_final;

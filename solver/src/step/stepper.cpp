@@ -160,6 +160,7 @@ struct Stepper::Impl {
   std::vector<uint32_t> floor_stamp;      // per vertex: the floor pass (serial) that last moved it
   uint32_t floor_serial = 0;              // floor passes made (with this vertex count)
   std::vector<int32_t> floor_moved;       // vertices the last floor pass moved
+  bool floor_scanned = false;             // the last floor pass checked every pack
   // Per chunk of a floor pass, a cache line apart (the threads append to them pack after pack):
   // the vertices it moved first in the pass, the packs that acted, the corrections.
   struct alignas(64) FloorChunk {
@@ -348,7 +349,8 @@ struct Stepper::Impl {
       floor_serial = 0;
     }
     const uint32_t serial = ++floor_serial;  // stamps >= serial - 1: moved in the last pass or this one
-    if (!all && floor_moved.size() * 8 < packed.packs.size()) return volume_pass_from_moved(m, x, floor, serial, tp);
+    floor_scanned = all || floor_moved.size() * 8 >= packed.packs.size();
+    if (!floor_scanned) return volume_pass_from_moved(m, x, floor, serial, tp);
     start_floor_chunks(size_t(tp.size()));
     const double trigger = floor * (1 - kFloorSlack);
     const std::vector<detail::FloorCheck>& checks = checks_in_order(packed);
@@ -831,10 +833,16 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     rep.volume_corrections += hits;
     int pass = 1;
     for (; pass < kVolumePasses && hits > 0 && !stop(); ++pass) {
+      const auto t_pass = Clock::now();
       hits = I.volume_pass(m, xf, s.inversion_floor, tp, false);
+      if (I.floor_scanned) {
+        rep.floor_scan_passes++;
+        rep.times.floor_scan_ms += ms_since(t_pass);
+      }
       if (hits > 0 && pass >= kSettleAfter) hits += I.settle_acted(m, xf, s.inversion_floor, stop);
       rep.volume_corrections += hits;
     }
+    rep.floor_passes += pass;
     spdlog::trace("inversion floor: {} passes, {} corrections in the last", pass, hits);
   }
   if (interacting) I.finish_interaction(x, inputs, h, rep);

@@ -30,6 +30,7 @@ bool VolumeFloor::flag(const BodyModel& m, const std::vector<Vec3>& x, double fl
 int VolumeFloor::enforce(const BodyModel& m, std::vector<Vec3>& x, double floor, int max_passes,
                          ThreadPool& pool, const std::function<bool()>& stop) {
   stopped_ = false;
+  passes_ = 0;
   if (max_passes <= 0 || !flag(m, x, floor, pool)) return 0;
   // A tet's det F changes only when one of its corners moves: after the first pass, the tets to
   // visit are those with a corner the previous pass or this one moved (mark 2: moved in this
@@ -42,6 +43,7 @@ int VolumeFloor::enforce(const BodyModel& m, std::vector<Vec3>& x, double floor,
       break;
     }
     int hits = 0;
+    ++passes_;
     for (size_t t = 0; t < m.tets.size(); ++t) {
       const TetRest& tet = m.tets[t];
       const bool visit = pass == 0 ? flagged_[t] || moved_[tet.v[0]] || moved_[tet.v[1]] || moved_[tet.v[2]] ||

@@ -24,6 +24,8 @@ class VolumeFloor {
   int enforce(const BodyModel& model, std::vector<Vec3>& x, double floor, int max_passes, ThreadPool& pool,
               const std::function<bool()>& stop = nullptr);
   bool stopped() const { return stopped_; }
+  // The passes the last enforce made (0 when no tet was near the floor).
+  int passes() const { return passes_; }
 
  private:
   // Flags the tets with det F below the floor (plus a margin for the order of the arithmetic);
@@ -35,6 +37,7 @@ class VolumeFloor {
   std::vector<int32_t> moved_list_;
   std::vector<char> chunk_found_;
   bool stopped_ = false;
+  int passes_ = 0;
 };
 
 }  // namespace pliant::detail

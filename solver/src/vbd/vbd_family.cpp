@@ -506,6 +506,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
       total.volume_corrections = volume_floor_.enforce(m, state.x, s.inversion_floor, kVolumePasses, tp, [&] {
         return cancelled() || (budget > 0 && ms_since(t_sub) - hook_ms >= budget);
       });
+      total.floor_passes += volume_floor_.passes();
       if (volume_floor_.stopped() && cancelled()) total.cancelled = true;
       else if (volume_floor_.stopped()) total.floor_stopped_by_budget = true;
       total.times.floor_ms += ms_since(t_floor);
