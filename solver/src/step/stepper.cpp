@@ -67,40 +67,9 @@ struct PhaseTimer {
   ~PhaseTimer() { sink += ms_since(t0); }
 };
 
-// The groups of a phase dealt to `chunks` threads: in runs of equal counts in storage order,
-// unless dealing them largest first, each to the thread with the fewest packs so far, leaves
-// the busiest thread fewer packs. The armadillo's slabs hold 1,325 to 1,568 packs: in runs one
-// thread had 6,045 of the first phase's 11,509 and the other waited for it; dealt so, 5,788
-// (docs/solver.md, "Groups dealt to the threads by their packs"). A lone group, or one thread:
-// everything to the calling thread.
-void deal_groups(const detail::SolvePhase& phase, int chunks, std::vector<int>& owner) {
-  const std::vector<size_t>& g = phase.group_begin;
-  const size_t groups = g.size() - 1, n = size_t(chunks);
-  owner.assign(groups, 0);
-  if (groups < 2 || n < 2) return;
-  auto size = [&](size_t k) { return g[k + 1] - g[k]; };
-  std::vector<size_t> load(n, 0);
-  for (size_t c = 0; c < n; ++c)  // as ThreadPool::parallel_for cuts [0, groups)
-    for (size_t k = groups * c / n; k < groups * (c + 1) / n; ++k) {
-      owner[k] = int(c);
-      load[c] += size(k);
-    }
-  const size_t in_runs = *std::max_element(load.begin(), load.end());
-  std::vector<size_t> order(groups);
-  for (size_t k = 0; k < groups; ++k) order[k] = k;
-  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return size(a) > size(b); });
-  std::vector<int> dealt(groups, 0);
-  std::fill(load.begin(), load.end(), 0);
-  for (size_t k : order) {
-    const size_t c = size_t(std::min_element(load.begin(), load.end()) - load.begin());
-    dealt[k] = int(c);
-    load[c] += size(k);
-  }
-  if (*std::max_element(load.begin(), load.end()) < in_runs) owner = std::move(dealt);
-}
-
-// Deals items of the given loads to n chunks, the largest first to the least loaded.
-void deal_by_load(const std::vector<size_t>& load, size_t n, std::vector<int>& owner) {
+// Deals items of the given loads to n chunks, the largest first, each to the chunk with the
+// least so far; returns the largest chunk's load.
+size_t deal_by_load(const std::vector<size_t>& load, size_t n, std::vector<int>& owner) {
   std::vector<size_t> order(load.size()), sum(n, 0);
   for (size_t k = 0; k < load.size(); ++k) order[k] = k;
   std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return load[a] > load[b]; });
@@ -110,6 +79,29 @@ void deal_by_load(const std::vector<size_t>& load, size_t n, std::vector<int>& o
     owner[k] = int(c);
     sum[c] += load[k];
   }
+  return *std::max_element(sum.begin(), sum.end());
+}
+
+// The groups of a phase dealt to `chunks` threads: in runs of equal counts in storage order,
+// unless dealing them by their packs (deal_by_load) leaves the busiest thread fewer packs. The
+// armadillo's slabs hold 1,325 to 1,568 packs: in runs one thread had 6,045 of the first phase's
+// 11,509 and the other waited for it; dealt so, 5,788 (docs/solver.md, "Groups dealt to the
+// threads by their packs"). A lone group, or one thread: everything to the calling thread.
+void deal_groups(const detail::SolvePhase& phase, int chunks, std::vector<int>& owner) {
+  const std::vector<size_t>& g = phase.group_begin;
+  const size_t groups = g.size() - 1, n = size_t(chunks);
+  owner.assign(groups, 0);
+  if (groups < 2 || n < 2) return;
+  std::vector<size_t> size(groups), load(n, 0);
+  for (size_t k = 0; k < groups; ++k) size[k] = g[k + 1] - g[k];
+  for (size_t c = 0; c < n; ++c)  // as ThreadPool::parallel_for cuts [0, groups)
+    for (size_t k = groups * c / n; k < groups * (c + 1) / n; ++k) {
+      owner[k] = int(c);
+      load[c] += size[k];
+    }
+  const size_t in_runs = *std::max_element(load.begin(), load.end());
+  std::vector<int> dealt;
+  if (deal_by_load(size, n, dealt) < in_runs) owner = std::move(dealt);
 }
 
 // Calls fn(chunk, first, end) for every pack of the model's solve order (PackedModel::phases),
