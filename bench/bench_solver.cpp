@@ -11,7 +11,9 @@
 // after kWarmTicks ticks from rest; every timed step starts from that same state. s_per_tet_iter
 // is wall time / (tets x substeps x iterations); floor_corrections the last step's
 // inversion-floor corrections; projection_ms / residual_ms / other_ms the last step's split
-// (other: prediction, contacts, the floor, velocities; floor_ms its inversion floor). Public API only (and the flop count where the library has it), so that the
+// (other: prediction, contacts, the floor, velocities; floor_ms its inversion floor);
+// floor_passes / floor_scans its floor's passes over all substeps and, of them, the later ones
+// that checked every pack. Public API only (and the flop count where the library has it), so that the
 // same file builds against an older library for before/after runs.
 // flops_per_tet / flop_per_s (gs_*, jacobi_*): the projection's arithmetic, counted by the
 // kernel itself (detail::mean_projection_flops), and the rate the solve achieved with it.
@@ -174,6 +176,8 @@ void run_step(benchmark::State& state, const std::string& mesh, int substeps, in
   state.counters["residual_ms"] = last.times.residual_ms;
   state.counters["other_ms"] = last.times.other_ms;
   state.counters["floor_ms"] = last.times.floor_ms;  // of other_ms
+  state.counters["floor_passes"] = double(last.floor_passes);  // all substeps
+  state.counters["floor_scans"] = double(last.floor_scan_passes);
   state.counters["inverted"] = double(count_inverted(*su.model, body.x));
 }
 
