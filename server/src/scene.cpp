@@ -1126,6 +1126,8 @@ void Scene::tick_once(bool scheduled, Clock::time_point due) {
     ob.triangles.assign(tris.begin(), tris.end());
     ob.radius = t.body_contact[b]->radius;
     ob.friction = t.body_contact[b]->friction;
+    const auto w = cloth.inverse_masses();  // two bodies: a light cloth yields to a heavy body
+    ob.inverse_mass.assign(w.begin(), w.end());
     inputs.obstacles.push_back(std::move(ob));
   }
 

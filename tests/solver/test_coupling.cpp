@@ -1089,6 +1089,77 @@ TEST(ObstacleContact, ASaggingBodyRestsOnADrapeAndPushesItWithItsWeight) {
   EXPECT_LT(free_lowest, -0.025);
 }
 
+// beam1 (0.115 x 0.01 x 0.01 m from the origin), free and without gravity, at `speed` (m/s, along
+// y) towards the drape of drape_under_the_beam at height y: the beam after `ticks` ticks of
+// `substeps` x 1, and the impulses the drape took.
+struct DrapeMeeting {
+  Vec3 momentum = Vec3::Zero(), impulse = Vec3::Zero();
+  std::vector<Vec3> x;
+};
+DrapeMeeting meet_drape(const BodyModel& model, double y, const std::vector<double>& corner_w, Method method,
+                        double speed, int substeps, int ticks) {
+  TriangleObstacle drape = test::drape_under_the_beam();
+  for (Vec3& c : drape.x) c.y() = y;
+  drape.inverse_mass = corner_w;
+  BodyState state = rest_state(model);
+  for (Vec3& v : state.v) v = Vec3(0, speed, 0);
+  SolverSettings s;
+  s.method = method;
+  s.gravity = Vec3::Zero();
+  s.damping_coefficient = 0;
+  s.substeps = substeps;
+  s.iterations = 1;
+  StepInputs in;
+  in.obstacles.push_back(drape);
+  Stepper stepper;
+  DrapeMeeting out;
+  for (int k = 0; k < ticks; ++k) {
+    const StepReport rep = stepper.step(model, state, s, in);
+    for (const Vec3& j : rep.obstacle_impulses.at(0)) out.impulse += j;
+  }
+  for (size_t v = 0; v < state.v.size(); ++v) out.momentum += state.v[v] / model.inv_mass[v];
+  out.x = state.x;
+  return out;
+}
+
+TEST(ObstacleContact, AVertexMakesItsShareOfTheMoveByTheInverseMassesAndTheMomentumIsExchanged) {
+  // With the corners' inverse masses a contact is shared by the two bodies: a vertex 1 mm inside
+  // the radius of a drape of 1 mg corners (inverse mass 1e6 /kg) moves w_v / (w_v + w_t) of the
+  // 1 mm a fixed drape asks, w_t = sum b_k^2 w_k between a third of 1e6 and 1e6 (the corner's
+  // weights); the drape takes the momentum of that move, so the beam and the drape exchange it
+  // exactly (xpbd, whose constraints conserve it); pinned corners (inverse mass 0) are the fixed
+  // drape to the last bit.
+  const auto model = build_model(*builtin_mesh("beam1"), Material{1e5, 0.4, 1000}, FixedSelection{});
+  const std::vector<double> light(4, 1e6), pinned(4, 0.0), fixed;
+  for (Method method : {Method::Xpbd, Method::Vbd}) {
+    SCOPED_TRACE(std::string(to_string(method)));
+    const DrapeMeeting a = meet_drape(*model, -0.003, fixed, method, 0.0, 1, 1);
+    const DrapeMeeting b = meet_drape(*model, -0.003, light, method, 0.0, 1, 1);
+    int bottom = 0;
+    for (size_t v = 0; v < model->vertex_count(); ++v) {
+      if (model->rest_positions[v].y() != 0) continue;
+      ++bottom;
+      const double wv = model->inv_mass[v];
+      ASSERT_NEAR(a.x[v].y(), 0.001, 1e-9) << "vertex " << v << ": out to the radius of the fixed drape";
+      const double share = b.x[v].y() / a.x[v].y();
+      EXPECT_GE(share, wv / (wv + 1e6) * (1 - 1e-9)) << "vertex " << v;
+      EXPECT_LE(share, wv / (wv + 1e6 / 3) * (1 + 1e-9)) << "vertex " << v;
+    }
+    EXPECT_GT(bottom, 10);
+    EXPECT_EQ(meet_drape(*model, -0.003, pinned, method, 0.0, 1, 1).x, a.x);
+  }
+  // Falling at 0.5 m/s onto it, 64 x 1: what the beam loses the drape takes, fixed or light.
+  double mass = 0;
+  for (double w : model->inv_mass) mass += 1 / w;
+  for (const std::vector<double>* w : {&fixed, &light}) {
+    const DrapeMeeting f = meet_drape(*model, -0.006, *w, Method::Xpbd, -0.5, 64, 2);
+    EXPECT_LT(f.impulse.y(), -0.1 * 0.5 * mass) << "the drape is pushed down, N s";
+    EXPECT_NEAR(f.momentum.y() + f.impulse.y(), -0.5 * mass, 1e-12 * mass) << "N s";
+    EXPECT_NEAR(f.momentum.x() + f.impulse.x(), 0, 1e-12 * mass);
+    EXPECT_NEAR(f.momentum.z() + f.impulse.z(), 0, 1e-12 * mass);
+  }
+}
+
 TEST(ObstacleContact, BadObstaclesAreRefused) {
   TetMesh mesh = *builtin_mesh("beam1");
   const auto model = build_model(mesh, Material{1e5, 0.4, 1000}, FixedSelection{});
@@ -1106,6 +1177,17 @@ TEST(ObstacleContact, BadObstaclesAreRefused) {
   in.obstacles[0] = test::drape_under_the_beam();
   in.obstacles[0].triangles.push_back({0, 1, 9});
   EXPECT_THROW(stepper.step(*model, state, SolverSettings{}, in), std::invalid_argument);
+  for (const std::vector<double>& w : {std::vector<double>(3, 1.0), std::vector<double>{1, 1, -1, 1},
+                                       std::vector<double>{1, 1, 1, NAN}}) {
+    in.obstacles[0] = test::drape_under_the_beam();
+    in.obstacles[0].inverse_mass = w;
+    try {
+      stepper.step(*model, state, SolverSettings{}, in);
+      ADD_FAILURE() << "no throw for inverse masses of " << w.size() << " corners";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("obstacles[0].inverse_mass"), std::string::npos) << e.what();
+    }
+  }
 }
 
 // The pair stepped as a scene steps it: in the shared parts, or in a count given that divides

@@ -42,11 +42,17 @@ struct Attachment {
 // colliders), with Coulomb friction `friction` (static and dynamic) against its motion; the step
 // reports the impulse it put on each corner
 // (StepReport::obstacle_impulses), which the obstacle's owner applies to it.
+// With the corners' inverse masses a contact is one between two bodies (xpbd and vbd): the
+// vertex makes w_v / (w_v + w_t) of the move a fixed triangle would ask of it (w_t: the
+// triangle's inverse mass at the contact point, sum b_k^2 w_k), and the triangle takes the
+// momentum of that move. A light cloth under a heavy body then yields to it instead of taking
+// all of its momentum (docs/fluids.md, "The contact counted by both bodies' masses").
 struct TriangleObstacle {
   std::vector<Eigen::Vector3d> x;                  // corners, m
   std::vector<std::array<uint32_t, 3>> triangles;  // indices into x
   double radius = 0.0;                             // m, > 0
   double friction = 0.0;                           // >= 0
+  std::vector<double> inverse_mass;                // per corner, 1/kg (0: pinned); empty: all fixed
 };
 
 // A rigid tool driven by a pose. Sphere: centre = position. Capsule: the segment

@@ -25,6 +25,12 @@ void ObstacleContacts::begin_step(const BodyModel& m, const std::vector<Vec3>& x
       throw std::invalid_argument(f + ".friction must be >= 0, got " + std::to_string(ob.friction));
     for (const Vec3& p : ob.x)
       if (!p.allFinite()) throw std::invalid_argument(f + ".x holds a non-finite position");
+    if (!ob.inverse_mass.empty() && ob.inverse_mass.size() != ob.x.size())
+      throw std::invalid_argument(f + ".inverse_mass has " + std::to_string(ob.inverse_mass.size()) +
+                                  " values for " + std::to_string(ob.x.size()) + " corners");
+    for (double w : ob.inverse_mass)
+      if (!(w >= 0) || !std::isfinite(w))
+        throw std::invalid_argument(f + ".inverse_mass must be finite and >= 0, got " + std::to_string(w));
     for (const auto& t : ob.triangles)
       if (t[0] >= ob.x.size() || t[1] >= ob.x.size() || t[2] >= ob.x.size())
         throw std::invalid_argument(f + ".triangles index a corner beyond its " + std::to_string(ob.x.size()));
@@ -78,6 +84,13 @@ bool ObstacleContacts::deepest(size_t o, size_t k, const Vec3& x, Hit& hit) cons
   return hit.triangle >= 0;
 }
 
+double ObstacleContacts::inverse_mass_at(size_t o, const Hit& hit) const {
+  const std::vector<double>& w = obstacles_[o]->inverse_mass;
+  if (w.empty()) return 0.0;
+  const auto& tri = obstacles_[o]->triangles[size_t(hit.triangle)];
+  return hit.b[0] * hit.b[0] * w[tri[0]] + hit.b[1] * hit.b[1] * w[tri[1]] + hit.b[2] * hit.b[2] * w[tri[2]];
+}
+
 void ObstacleContacts::add_impulse(size_t o, const Hit& hit, const Vec3& impulse_on_body) {
   const auto& tri = obstacles_[o]->triangles[size_t(hit.triangle)];
   for (int a = 0; a < 3; ++a) impulses_[o][tri[a]] -= hit.b[a] * impulse_on_body;
@@ -93,18 +106,21 @@ int ObstacleContacts::resolve(const BodyModel& m, std::vector<Vec3>& x, const st
     Vec3& xv = x[v];
     ++contacts;
     const Vec3 before = xv;
-    xv -= hit.C * hit.n;
+    Vec3 out = xv - hit.C * hit.n;
     // Friction against the motion since the substep's start, across the normal: held while it
     // is below friction x the push, else shortened by that much.
     if (const double mu = friction(o); mu > 0) {
-      const Vec3 moved = xv - x_substep_start[v];
+      const Vec3 moved = out - x_substep_start[v];
       const Vec3 slip = moved - moved.dot(hit.n) * hit.n;
       const double limit = mu * (-hit.C), len = slip.norm();
-      if (len <= limit) xv -= slip;
-      else if (len > 0) xv -= slip * (limit / len);
+      if (len <= limit) out -= slip;
+      else if (len > 0) out -= slip * (limit / len);
     }
-    // The momentum this correction gives the body over the substep comes from the corners.
-    add_impulse(o, hit, (xv - before) / (m.inv_mass[v] * h));
+    // The vertex's share of that move against a triangle that moves too (all of it against a
+    // fixed one); the momentum it gives the body over the substep comes from the corners.
+    const double wv = m.inv_mass[v], wt = inverse_mass_at(o, hit);
+    xv = wt > 0 ? before + (wv / (wv + wt)) * (out - before) : out;
+    add_impulse(o, hit, (xv - before) / (wv * h));
   });
   return contacts;
 }

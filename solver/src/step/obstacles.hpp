@@ -22,8 +22,9 @@ class ObstacleContacts {
                   const std::vector<TriangleObstacle>& obstacles);
   // In an iteration: every free surface vertex too close to a triangle (or behind it, having
   // crossed it during the step) goes out to the radius on its side, with friction against its
-  // motion since x_substep_start; the momentum that gives the body over the substep (h) is
-  // taken from the triangle's corners. Returns the vertices in contact.
+  // motion since x_substep_start, or its share of that move by the inverse masses when the
+  // obstacle has them; the momentum that gives the body over the substep (h) is taken from the
+  // triangle's corners. Returns the vertices in contact.
   int resolve(const BodyModel& model, std::vector<Vec3>& x, const std::vector<Vec3>& x_substep_start, double h);
   // After the step: the impulse on each corner of each obstacle, N s; the stage is then idle
   // until the next begin_step.
@@ -52,6 +53,8 @@ class ObstacleContacts {
   }
   // An impulse given to the body at the closest point of a hit: minus it on the triangle's corners.
   void add_impulse(size_t o, const Hit& hit, const Vec3& impulse_on_body);
+  // The triangle's inverse mass at a hit's closest point (0 for an obstacle without masses).
+  double inverse_mass_at(size_t o, const Hit& hit) const;
 
  private:
   uint64_t model_id_ = 0;
