@@ -1125,8 +1125,8 @@ DrapeMeeting meet_drape(const BodyModel& model, double y, const std::vector<doub
 TEST(ObstacleContact, AVertexMakesItsShareOfTheMoveByTheInverseMassesAndTheMomentumIsExchanged) {
   // With the corners' inverse masses a contact is shared by the two bodies: a vertex 1 mm inside
   // the radius of a drape of 1 mg corners (inverse mass 1e6 /kg) moves w_v / (w_v + w_t) of the
-  // 1 mm a fixed drape asks, w_t = sum b_k^2 w_k between a third of 1e6 and 1e6 (the corner's
-  // weights); the drape takes the momentum of that move, so the beam and the drape exchange it
+  // 1 mm a fixed drape asks, w_t = sum b_k^2 w_k between a third of 1e6 and 1e6 (b: the contact
+  // point's barycentric weights); the drape takes the momentum of that move, so the beam and the drape exchange it
   // exactly (xpbd, whose constraints conserve it); pinned corners (inverse mass 0) are the fixed
   // drape to the last bit.
   const auto model = build_model(*builtin_mesh("beam1"), Material{1e5, 0.4, 1000}, FixedSelection{});
