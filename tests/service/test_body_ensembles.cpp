@@ -57,22 +57,27 @@ TEST(BodyEnsembles, ASaggingBeamPressingOnAFineClothMostlyDoesNotBlowItUp) {
   // (an edge reaches 2 to 6 times its length, which the log says). While the beam met the
   // cloth's triangles as fixed ones, its whole momentum went to the light particles under it
   // (kicks of 50 to 300 m/s a tick, 1e5 in a blow-up), and 16 of these 60 configurations (E
-  // within 1%, heights within 0.4 mm) blew up; meeting them by both bodies' masses, none (the
-  // fastest particle 1.9 to 14 m/s). Asked: 54 of the 60 under 20 m/s over 30 ticks.
-  int survived = 0, runs = 0;
+  // within 1%, heights within 0.4 mm) blew up within 30 ticks; meeting them by both bodies'
+  // masses, none (the fastest particle 1.9 to 14 m/s). Asked: 54 of the 60 under 20 m/s over 30
+  // ticks. Printed, not asked: the runs that end with the beam through the stretched cloth (a
+  // limit: docs/fluids.md).
+  int survived = 0, through = 0, runs = 0;
   for (double young : {0.998e5, 0.999e5, 1e5, 1.001e5, 1.002e5, 1.01e5}) {
     for (double z : {-0.05475, -0.0548, -0.05485, -0.0549, -0.05495, -0.055, -0.05505, -0.0551, -0.05515, -0.0552}) {
       BodiesServer srv;
       client::Client c = srv.client();
       const test::SagRun run = test::run_sagging_beam_on_cloth(c, young, z, 30, 20.0);
       std::cout << "[ press ] E " << young << " Pa, cloth at z " << z << " m: the fastest particle " << run.fastest
-                << " m/s" << (run.fastest > 20.0 ? " (stopped there)" : "") << "\n";
+                << " m/s" << (run.fastest > 20.0 ? " (stopped there)" : "") << (run.through ? ", the beam through the cloth" : "")
+                << "\n";
       EXPECT_GT(run.touched, 0u) << "the beam reaches the cloth";
       survived += run.fastest < 20.0;
+      through += run.through;
       ++runs;
     }
   }
-  std::cout << "[ press ] " << survived << " of " << runs << " configurations under 20 m/s\n";
+  std::cout << "[ press ] " << survived << " of " << runs << " configurations under 20 m/s, the beam through the cloth in "
+            << through << "\n";
   EXPECT_GE(10 * survived, 9 * runs);
 }
 
