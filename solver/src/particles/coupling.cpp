@@ -18,6 +18,7 @@ namespace pliant {
 using detail::closest_face;
 using detail::FaceHit;
 using detail::first_entered;
+using detail::outward_at;
 using detail::particle_contact;
 using detail::TriangleGrid;
 using detail::triangle_contact;
@@ -117,7 +118,8 @@ bool find_contact(const BodyModel& m, const BodyState& body, const TriangleGrid&
   const Vec3 face = normal_of(t);
   if (!(face.squaredNorm() > 0)) return false;
   const Vec3 d = now - at(t, hit.b);
-  if (d.dot(face.normalized()) >= 0 && d.norm() >= radius) return false;  // outside and clear
+  const bool outside = d.dot(outward_at(tris, x, grid, grid.near(now), now, hit, distance)) >= 0;
+  if (outside && d.norm() >= radius) return false;  // outside and clear
   // Faces whose plane the point started outside of come first (it came from that side: a
   // segment swept over a body's edge goes back over it, not round the far one).
   double cheapest[2] = {INFINITY, INFINITY};

@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
 namespace pliant::detail {
@@ -44,6 +45,39 @@ bool closest_face(std::span<const Triangle> tris, std::span<const Vec3> x, const
   return distance < INFINITY;
 }
 
+Vec3 outward_at(std::span<const Triangle> tris, std::span<const Vec3> x, const TriangleGrid& grid,
+                std::span<const int32_t> candidates, const Vec3& p, const FaceHit& hit, double distance) {
+  const Triangle& th = tris[size_t(hit.triangle)];
+  if (hit.b[0] != 0 && hit.b[1] != 0 && hit.b[2] != 0) {  // inside the face: its own normal
+    const Vec3 face = (x[th[1]] - x[th[0]]).cross(x[th[2]] - x[th[0]]);
+    return face.squaredNorm() > 0 ? Vec3(face.normalized()) : Vec3::Zero();
+  }
+  const Vec3 q = hit.b[0] * x[th[0]] + hit.b[1] * x[th[1]] + hit.b[2] * x[th[2]];
+  // The faces that reach q: as close to p as the closest (rounding aside), their closest point q.
+  const double reach = distance * (1 + 1e-9) + 1e-12 * (std::abs(q[0]) + std::abs(q[1]) + std::abs(q[2]));
+  Vec3 sum = Vec3::Zero();
+  for (int32_t k : candidates) {
+    if (grid.box_distance2(k, p) > reach * reach) continue;
+    const Triangle& t = tris[size_t(k)];
+    std::array<double, 3> b;
+    const Vec3 qk = closest_point_on_triangle(p, x[t[0]], x[t[1]], x[t[2]], b);
+    if ((p - qk).norm() > reach) continue;
+    const Vec3 face = (x[t[1]] - x[t[0]]).cross(x[t[2]] - x[t[0]]);
+    if (!(face.squaredNorm() > 0)) continue;
+    const int zeros = (b[0] == 0) + (b[1] == 0) + (b[2] == 0);
+    double weight = 2 * M_PI;  // inside the face
+    if (zeros == 1) {
+      weight = M_PI;  // on an edge: half of the turn around it
+    } else if (zeros == 2) {  // at a corner: the face's angle there
+      const int c = b[0] != 0 ? 0 : (b[1] != 0 ? 1 : 2);
+      const Vec3 u = x[t[(c + 1) % 3]] - x[t[c]], v = x[t[(c + 2) % 3]] - x[t[c]];
+      weight = std::atan2(u.cross(v).norm(), u.dot(v));
+    }
+    sum += weight * face.normalized();
+  }
+  return sum.squaredNorm() > 0 ? Vec3(sum.normalized()) : Vec3::Zero();
+}
+
 bool particle_contact(std::span<const Triangle> tris, std::span<const Vec3> x, const TriangleGrid& grid,
                       const Vec3& start, const Vec3& now, double radius, std::vector<int32_t>& swept, FaceHit& out,
                       double& depth) {
@@ -68,7 +102,7 @@ bool particle_contact(std::span<const Triangle> tris, std::span<const Vec3> x, c
   if (!(face.squaredNorm() > 0)) return false;
   const Vec3 outward = face.normalized();
   const Vec3 d = now - at(out);
-  const double side = d.dot(outward), dn = d.norm();
+  const double side = d.dot(outward_at(tris, x, grid, grid.near(now), now, out, distance)), dn = d.norm();
   if (side >= 0 && dn >= radius) return false;  // outside and clear
   // Outside: apart along the line to the closest point (the face normal when on it); inside:
   // back out through the closest face.
@@ -128,7 +162,7 @@ bool SurfaceMeeting::closest(const Vec3& p, FaceHit& hit, double& distance) cons
   if (!(face.squaredNorm() > 0)) return false;
   const Vec3 outward = face.normalized();
   const Vec3 d = p - (hit.b[0] * x[t[0]] + hit.b[1] * x[t[1]] + hit.b[2] * x[t[2]]);
-  if (d.dot(outward) < 0) {
+  if (d.dot(outward_at(boundary_.triangles, x, grid_, grid_.near(p), p, hit, distance)) < 0) {
     distance = 0.0;  // inside: the whole half-space beyond
     hit.n = outward;
   } else {

@@ -60,6 +60,17 @@ bool first_entered(std::span<const Triangle> tris, std::span<const Vec3> x, cons
 bool closest_face(std::span<const Triangle> tris, std::span<const Vec3> x, const TriangleGrid& grid,
                   std::span<const int32_t> candidates, const Vec3& p, FaceHit& out, double& distance);
 
+// The surface's outward direction at the point of `hit` (closest_face's answer for p, at
+// `distance`): the angle-weighted pseudo-normal of the faces as close to p as it (the face's
+// normal inside a face, both faces' along an edge, each face's by its angle at a corner), whose
+// side of p tells inside from outside wherever the closest point lies. One face's normal does
+// not: beside an edge sharper than a right angle (a sagging beam's top meeting its clamped end),
+// a point outside can lie behind the plane of one of the two faces, and when that face came
+// first among the equally close ones the point read inside and was thrown the radius through
+// it. Zero for a degenerate surface there.
+Vec3 outward_at(std::span<const Triangle> tris, std::span<const Vec3> x, const TriangleGrid& grid,
+                std::span<const int32_t> candidates, const Vec3& p, const FaceHit& hit, double distance);
+
 // A particle's contact with the surface after it moved from `start` (not finite: no path) to
 // `now`: back out through the face its path entered first (however deep it got: the closest face
 // of a thin body may be the far one), else away from the closest face when within `radius` of it
