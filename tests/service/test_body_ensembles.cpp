@@ -28,8 +28,12 @@ TEST(BodyEnsembles, ARopeUnderAFallingClothStaysWholeInMostNearbyScenes) {
   // configuration a test ran then held in the GCC build and, after the inversion floor took
   // det D_s det B, exploded in the sanitizers' Clang build (169 times its length). Over this grid
   // (the cloth 0.3 mm lower to 0.4 mm higher, the rope up to 0.2 mm aside) 8 of 40 exploded
-  // (GCC), and 5 of 40 once the soft body met the cloth's triangles by both bodies' masses; the
-  // explosions are the rope's contact with the cloth.
+  // (GCC), and 5 of 40 once the soft body met the cloth's triangles by both bodies' masses.
+  // None since a point beside a sharp edge of the beam's surface reads outside: the cloth lies
+  // along the beam's clamped end, and its particles there were thrown 5 mm a substep through the
+  // end face (about 5 m/s), and the rope's contact with that agitated cloth exploded it. Asked: 36
+  // of the 40 (the code before that fix: 35). With the scene's water at 4 substeps (the bodies in
+  // 4 parts) none explodes either, but the rope stays agitated (a limit: docs/fluids.md).
   int whole = 0, runs = 0;
   for (double cloth_y : {0.0597, 0.0598, 0.0599, 0.06, 0.0601, 0.0602, 0.0603, 0.0604}) {
     for (double rope_z : {0.0073, 0.0074, 0.0075, 0.0076, 0.0077}) {
@@ -45,7 +49,7 @@ TEST(BodyEnsembles, ARopeUnderAFallingClothStaysWholeInMostNearbyScenes) {
     }
   }
   std::cout << "[ wrap ] " << whole << " of " << runs << " configurations keep the rope whole\n";
-  EXPECT_GT(2 * whole, runs);
+  EXPECT_GE(whole, 36);
 }
 
 TEST(BodyEnsembles, ASaggingBeamPressingOnAFineClothMostlyDoesNotBlowItUp) {
@@ -58,9 +62,11 @@ TEST(BodyEnsembles, ASaggingBeamPressingOnAFineClothMostlyDoesNotBlowItUp) {
   // cloth's triangles as fixed ones, its whole momentum went to the light particles under it
   // (kicks of 50 to 300 m/s a tick, 1e5 in a blow-up), and 16 of these 60 configurations (E
   // within 1%, heights within 0.4 mm) blew up within 30 ticks; meeting them by both bodies'
-  // masses, none (the fastest particle 1.9 to 14 m/s). Asked: 54 of the 60 under 20 m/s over 30
-  // ticks. Printed, not asked: the runs that end with the beam through the stretched cloth (a
-  // limit: docs/fluids.md).
+  // masses, none (the fastest particle 1.9 to 14 m/s); the beam then ended through the stretched
+  // cloth in 4 of the 60. Since a cloth particle beside a sharp edge of the beam's surface reads
+  // outside it (the surface's pseudo-normal; 0.09% of the pushes over this grid had read inside
+  // and thrown the particle the radius through a face), in none, the fastest particle 1.8 to 2.3
+  // m/s. Asked: 54 of the 60 under 20 m/s over 30 ticks, and at most 2 through the cloth.
   int survived = 0, through = 0, runs = 0;
   for (double young : {0.998e5, 0.999e5, 1e5, 1.001e5, 1.002e5, 1.01e5}) {
     for (double z : {-0.05475, -0.0548, -0.05485, -0.0549, -0.05495, -0.055, -0.05505, -0.0551, -0.05515, -0.0552}) {
@@ -79,6 +85,7 @@ TEST(BodyEnsembles, ASaggingBeamPressingOnAFineClothMostlyDoesNotBlowItUp) {
   std::cout << "[ press ] " << survived << " of " << runs << " configurations under 20 m/s, the beam through the cloth in "
             << through << "\n";
   EXPECT_GE(10 * survived, 9 * runs);
+  EXPECT_LE(through, 2) << "the beam ends through the cloth";
 }
 
 }  // namespace
