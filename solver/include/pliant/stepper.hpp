@@ -53,6 +53,9 @@ struct StepReport {
   // newton, whose passes follow the moved vertices only).
   int floor_passes = 0;
   int floor_scan_passes = 0;
+  // Clusters of slivers the floor's settling passes ran on separate threads (sharing no moving
+  // corner), over all substeps: 0 with one thread or one cluster at a time.
+  int floor_settle_clusters = 0;
   int linear_iterations = 0;           // method newton with cg: CG iterations over all substeps
   int hessian_reused = 0;              // method newton with cg: iterations that kept an earlier Hessian
   // One per StepInputs::tools, same order: force/torque on the tool averaged over the substeps

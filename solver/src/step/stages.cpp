@@ -74,6 +74,7 @@ void add_substep(StepReport& total, StepReport&& r) {
   total.times.floor_scan_ms += r.times.floor_scan_ms;
   total.floor_passes += r.floor_passes;
   total.floor_scan_passes += r.floor_scan_passes;
+  total.floor_settle_clusters += r.floor_settle_clusters;
   total.residuals = std::move(r.residuals);
   total.residual_initial = r.residual_initial;
   total.residual_final = r.residual_final;

@@ -40,6 +40,9 @@ constexpr int kSettleAfter = 16;
 // At most kSettlePasses a call, and in all no more pack visits a substep than one pass over
 // the body.
 constexpr int kSettlePasses = 100;
+// Settling splits its packs into clusters that share no moving corner, for the threads, from
+// this many packs.
+constexpr size_t kSettleSplitPacks = 8;
 // A tet acts when det F is under the floor by more than this fraction of it: a settled cluster,
 // each tet on the floor to rounding, then stops acting.
 constexpr double kFloorSlack = 1e-6;
@@ -166,6 +169,18 @@ struct Stepper::Impl {
   std::vector<int32_t> floor_acted;                    // packs the floor acted on in this substep
   std::vector<char> floor_acted_mark;                  // per pack: in floor_acted
   size_t floor_settle_visits = 0;                      // pack visits left to this substep's settling
+  // Settling's clusters: per acted pack (its index in floor_acted) a union-find parent, per
+  // vertex the last acted pack seen with it as a moving corner (valid where the stamp is this
+  // call's), per cluster its packs in storage order and its thread.
+  std::vector<int32_t> settle_parent, settle_vertex_pack;
+  std::vector<uint32_t> settle_vertex_stamp;
+  uint32_t settle_serial = 0;
+  std::vector<size_t> settle_cluster_of;
+  std::vector<std::vector<int32_t>> settle_clusters;
+  size_t settle_cluster_count = 0;
+  int settled_apart = 0;  // clusters settle_clusters_apart ran (the report's floor_settle_clusters)
+  std::vector<size_t> settle_load;
+  std::vector<int> settle_owner;
 
   // The accelerator of the last substep, kept with its buffers while its settings stay.
   std::unique_ptr<detail::Accelerator> accel;
@@ -448,13 +463,15 @@ struct Stepper::Impl {
   // cluster settle it in a few. Part of the pass made just before (same serial: the vertices
   // they move are the next pass's to follow). Returns the corrections made.
   template <class Stop>
-  int settle_acted(const BodyModel& m, std::vector<Vec3>& x, double floor, const Stop& stop) {
+  int settle_acted(const BodyModel& m, std::vector<Vec3>& x, double floor, const Stop& stop, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     // A cluster is a small part of the body; a set over a sixteenth of its packs is a tangled
     // body, which the passes would not settle (docs/solver.md, "The floor pass").
     if (floor_acted.size() * 16 > packed.packs.size()) return 0;
     std::sort(floor_acted.begin(), floor_acted.end());
     const std::vector<detail::FloorCheck>& checks = checks_in_order(packed);
+    if (tp.size() > 1 && floor_acted.size() >= kSettleSplitPacks && split_clusters(m, checks) > 1)
+      return settle_clusters_apart(x, floor, stop, tp, checks);
     int total = 0;
     for (int pass = 0; pass < kSettlePasses && floor_settle_visits >= floor_acted.size() && !stop(); ++pass) {
       floor_settle_visits -= floor_acted.size();
@@ -463,6 +480,99 @@ struct Stepper::Impl {
         hits += correct_pack(checks[size_t(q)], x, floor, floor_serial, floor_moved);
       total += hits;
       if (!hits) break;
+    }
+    return total;
+  }
+
+  // Splits floor_acted (sorted) into clusters that share no moving corner: settle_clusters, each
+  // in storage order. Returns their count.
+  size_t split_clusters(const BodyModel& m, const std::vector<detail::FloorCheck>& checks) {
+    const size_t n = floor_acted.size();
+    if (settle_vertex_stamp.size() != m.vertex_count() || settle_serial == UINT32_MAX) {
+      settle_vertex_stamp.assign(m.vertex_count(), 0);
+      settle_vertex_pack.assign(m.vertex_count(), 0);
+      settle_serial = 0;
+    }
+    const uint32_t serial = ++settle_serial;
+    settle_parent.resize(n);
+    for (size_t a = 0; a < n; ++a) settle_parent[a] = int32_t(a);
+    auto root = [&](int32_t a) {
+      while (settle_parent[size_t(a)] != a) a = settle_parent[size_t(a)] = settle_parent[size_t(settle_parent[size_t(a)])];
+      return a;
+    };
+    for (size_t a = 0; a < n; ++a) {
+      const detail::FloorCheck& c = checks[size_t(floor_acted[a])];
+      for (int l = 0; l < c.lanes; ++l)
+        for (int k = 0; k < 4; ++k) {
+          const int32_t v = c.v[k][l];
+          if (!(c.w[k][l] > 0)) continue;  // a fixed corner is read, never moved: it joins nothing
+          if (settle_vertex_stamp[size_t(v)] != serial) {
+            settle_vertex_stamp[size_t(v)] = serial;
+            settle_vertex_pack[size_t(v)] = int32_t(a);
+          } else {
+            const int32_t ra = root(int32_t(a)), rb = root(settle_vertex_pack[size_t(v)]);
+            if (ra != rb) settle_parent[size_t(std::max(ra, rb))] = std::min(ra, rb);
+          }
+        }
+    }
+    // A parent is never after its child, so a cluster's root is its first pack: numbered when
+    // met, its packs follow in storage order.
+    size_t clusters = 0;
+    settle_cluster_of.resize(n);
+    for (size_t a = 0; a < n; ++a) {
+      const size_t r = size_t(root(int32_t(a)));
+      if (r == a) {
+        if (settle_clusters.size() <= clusters) settle_clusters.emplace_back();
+        settle_clusters[clusters].clear();
+        settle_cluster_of[a] = clusters++;
+      } else {
+        settle_cluster_of[a] = settle_cluster_of[r];
+      }
+      settle_clusters[settle_cluster_of[a]].push_back(floor_acted[a]);
+    }
+    settle_cluster_count = clusters;  // (the vectors past it keep their buffers)
+    return clusters;
+  }
+
+  // settle_acted's passes with the clusters on separate threads: each cluster runs them until a
+  // pass acts on none of its packs or the serial loop's pass limit; a pass over a cluster that
+  // acted on nothing changes nothing, so every cluster ends as the serial loop leaves it, bit for
+  // bit, and the visits it counts are the serial loop's. (The step's stop is asked once, before.)
+  template <class Stop>
+  int settle_clusters_apart(std::vector<Vec3>& x, double floor, const Stop& stop, ThreadPool& tp,
+                            const std::vector<detail::FloorCheck>& checks) {
+    const size_t packs = floor_acted.size();
+    const int limit = int(std::min<size_t>(kSettlePasses, floor_settle_visits / packs));
+    if (limit == 0 || stop()) return 0;
+    const size_t clusters = settle_cluster_count;
+    settle_load.resize(clusters);
+    for (size_t k = 0; k < clusters; ++k) settle_load[k] = settle_clusters[k].size();
+    const size_t chunks = std::min(clusters, size_t(tp.size()));
+    deal_by_load(settle_load, chunks, settle_owner);
+    start_floor_chunks(size_t(tp.size()));
+    std::vector<int> passes(chunks, 0);  // per chunk: the most passes one of its clusters ran
+    const uint32_t serial = floor_serial;
+    tp.parallel_for(chunks, [&](int, size_t b, size_t e) {
+      for (size_t chunk = b; chunk < e; ++chunk) {
+        FloorChunk& fc = floor_chunks[chunk];
+        for (size_t k = 0; k < clusters; ++k) {
+          if (size_t(settle_owner[k]) != chunk) continue;
+          for (int pass = 0; pass < limit; ++pass) {
+            int hits = 0;
+            for (int32_t q : settle_clusters[k]) hits += correct_pack(checks[size_t(q)], x, floor, serial, fc.moved);
+            fc.hits += hits;
+            passes[chunk] = std::max(passes[chunk], pass + 1);
+            if (!hits) break;
+          }
+        }
+      }
+    }, 2);
+    floor_settle_visits -= packs * size_t(*std::max_element(passes.begin(), passes.end()));
+    settled_apart += int(clusters);
+    int total = 0;
+    for (const FloorChunk& fc : floor_chunks) {
+      floor_moved.insert(floor_moved.end(), fc.moved.begin(), fc.moved.end());
+      total += fc.hits;
     }
     return total;
   }
@@ -831,10 +941,12 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
         rep.floor_scan_passes++;
         rep.times.floor_scan_ms += ms_since(t_pass);
       }
-      if (hits > 0 && pass >= kSettleAfter) hits += I.settle_acted(m, xf, s.inversion_floor, stop);
+      if (hits > 0 && pass >= kSettleAfter) hits += I.settle_acted(m, xf, s.inversion_floor, stop, tp);
       rep.volume_corrections += hits;
     }
     rep.floor_passes += pass;
+    rep.floor_settle_clusters += I.settled_apart;
+    I.settled_apart = 0;
     spdlog::trace("inversion floor: {} passes, {} corrections in the last", pass, hits);
   }
   if (interacting) I.finish_interaction(x, inputs, h, rep);
