@@ -180,7 +180,7 @@ struct Stepper::Impl {
   size_t settle_cluster_count = 0;
   int settled_apart = 0;  // clusters settle_clusters_apart ran (the report's floor_settle_clusters)
   std::vector<size_t> settle_load;
-  std::vector<int> settle_owner;
+  std::vector<int> settle_owner, settle_chunk_passes;
 
   // The accelerator of the last substep, kept with its buffers while its settings stay.
   std::unique_ptr<detail::Accelerator> accel;
@@ -470,18 +470,30 @@ struct Stepper::Impl {
     if (floor_acted.size() * 16 > packed.packs.size()) return 0;
     std::sort(floor_acted.begin(), floor_acted.end());
     const std::vector<detail::FloorCheck>& checks = checks_in_order(packed);
+    // The passes the visits left allow (the serial loop's limit, whichever way it runs).
+    const int limit = int(std::min<size_t>(kSettlePasses, floor_settle_visits / floor_acted.size()));
     if (tp.size() > 1 && floor_acted.size() >= kSettleSplitPacks && split_clusters(m, checks) > 1)
-      return settle_clusters_apart(x, floor, stop, tp, checks);
-    int total = 0;
-    for (int pass = 0; pass < kSettlePasses && floor_settle_visits >= floor_acted.size() && !stop(); ++pass) {
-      floor_settle_visits -= floor_acted.size();
-      int hits = 0;
-      for (int32_t q : floor_acted)
-        hits += correct_pack(checks[size_t(q)], x, floor, floor_serial, floor_moved);
-      total += hits;
-      if (!hits) break;
+      return settle_clusters_apart(x, floor, limit, stop, tp, checks);
+    int hits = 0;
+    const int passes = settle_passes(floor_acted, checks, x, floor, limit, stop, floor_moved, hits);
+    floor_settle_visits -= floor_acted.size() * size_t(passes);
+    return hits;
+  }
+
+  // Passes over `packs` (in storage order) until one acts on none, `limit` have run or stop()
+  // says to end; adds their corrections to hits and returns the passes made.
+  template <class Stop>
+  int settle_passes(std::span<const int32_t> packs, const std::vector<detail::FloorCheck>& checks, std::vector<Vec3>& x,
+                    double floor, int limit, const Stop& stop, std::vector<int32_t>& moved, int& hits) {
+    int pass = 0;
+    while (pass < limit && !stop()) {
+      ++pass;
+      int acted = 0;
+      for (int32_t q : packs) acted += correct_pack(checks[size_t(q)], x, floor, floor_serial, moved);
+      hits += acted;
+      if (!acted) break;
     }
-    return total;
+    return pass;
   }
 
   // Splits floor_acted (sorted) into clusters that share no moving corner: settle_clusters, each
@@ -535,14 +547,12 @@ struct Stepper::Impl {
   }
 
   // settle_acted's passes with the clusters on separate threads: each cluster runs them until a
-  // pass acts on none of its packs or the serial loop's pass limit; a pass over a cluster that
-  // acted on nothing changes nothing, so every cluster ends as the serial loop leaves it, bit for
-  // bit, and the visits it counts are the serial loop's. (The step's stop is asked once, before.)
+  // pass acts on none of its packs or `limit`; a pass over a cluster that acted on nothing
+  // changes nothing, so every cluster ends as the serial loop leaves it, bit for bit, and the
+  // visits counted are the serial loop's. (The step's stop is asked once, before.)
   template <class Stop>
-  int settle_clusters_apart(std::vector<Vec3>& x, double floor, const Stop& stop, ThreadPool& tp,
+  int settle_clusters_apart(std::vector<Vec3>& x, double floor, int limit, const Stop& stop, ThreadPool& tp,
                             const std::vector<detail::FloorCheck>& checks) {
-    const size_t packs = floor_acted.size();
-    const int limit = int(std::min<size_t>(kSettlePasses, floor_settle_visits / packs));
     if (limit == 0 || stop()) return 0;
     const size_t clusters = settle_cluster_count;
     settle_load.resize(clusters);
@@ -550,31 +560,26 @@ struct Stepper::Impl {
     const size_t chunks = std::min(clusters, size_t(tp.size()));
     deal_by_load(settle_load, chunks, settle_owner);
     start_floor_chunks(size_t(tp.size()));
-    std::vector<int> passes(chunks, 0);  // per chunk: the most passes one of its clusters ran
-    const uint32_t serial = floor_serial;
+    settle_chunk_passes.assign(chunks, 0);  // per chunk: the most passes one of its clusters made
+    const auto never = [] { return false; };
     tp.parallel_for(chunks, [&](int, size_t b, size_t e) {
       for (size_t chunk = b; chunk < e; ++chunk) {
         FloorChunk& fc = floor_chunks[chunk];
-        for (size_t k = 0; k < clusters; ++k) {
-          if (size_t(settle_owner[k]) != chunk) continue;
-          for (int pass = 0; pass < limit; ++pass) {
-            int hits = 0;
-            for (int32_t q : settle_clusters[k]) hits += correct_pack(checks[size_t(q)], x, floor, serial, fc.moved);
-            fc.hits += hits;
-            passes[chunk] = std::max(passes[chunk], pass + 1);
-            if (!hits) break;
-          }
-        }
+        for (size_t k = 0; k < clusters; ++k)
+          if (size_t(settle_owner[k]) == chunk)
+            settle_chunk_passes[chunk] = std::max(
+                settle_chunk_passes[chunk], settle_passes(settle_clusters[k], checks, x, floor, limit, never, fc.moved, fc.hits));
       }
     }, 2);
-    floor_settle_visits -= packs * size_t(*std::max_element(passes.begin(), passes.end()));
+    const int passes = *std::max_element(settle_chunk_passes.begin(), settle_chunk_passes.end());
+    floor_settle_visits -= floor_acted.size() * size_t(passes);
     settled_apart += int(clusters);
-    int total = 0;
+    int hits = 0;
     for (const FloorChunk& fc : floor_chunks) {
       floor_moved.insert(floor_moved.end(), fc.moved.begin(), fc.moved.end());
-      total += fc.hits;
+      hits += fc.hits;
     }
-    return total;
+    return hits;
   }
 
   void note_acted(int32_t q) {
