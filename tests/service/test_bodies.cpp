@@ -1174,8 +1174,8 @@ TEST(Bodies, ARopeUnderAFallingClothRunsItsFiveSeconds) {
   // The browser test's scene (body_scenes.hpp): a cloth falls onto a rope beside beam1's tip
   // and wraps it, water pours beside them. Over 5 s the scene steps every tick, and the cloth
   // reaches the rope. Whether the rope stays whole depends on the configuration (the scene is
-  // chaotic: 1 of 8 nearby configurations explodes, and the builds' rounding picks which), so
-  // that is asked of a grid of them (BodyEnsembles, the physics label); this one configuration
+  // chaotic, and the builds' rounding picks which configurations explode), so that is asked of a
+  // grid of 40 of them (BodyEnsembles, the physics label); this one configuration
   // runs here, under the sanitizers too. It asks for every tick, not for their speed: where the
   // rope explodes, the contacts between the stretched rope and cloth make a tick up to a hundred
   // times longer, which under AddressSanitizer passed the server's 10 s guard; the guard is a
