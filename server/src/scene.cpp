@@ -10,9 +10,11 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <future>
 #include <map>
+#include <numeric>
 #include <optional>
 #include <set>
 
@@ -103,7 +105,10 @@ struct Scene::TickState {
   std::vector<size_t> obstacle_bodies;
   std::vector<std::vector<Vec3>> body_start;  // scratch: each body's positions before its step
   std::vector<std::vector<Vec3>> body_part_start;  // scratch: before the part of the step (step_bodies)
-  std::vector<size_t> part_contacts;              // scratch: each body's pair contacts in a part
+  std::vector<size_t> part_contacts;              // scratch: each body's pair contacts at a cut of a part
+  // Scratch per pair: its two bodies' positions where its span began (BodyParts::pair_calls),
+  // where that is not the start of their own call.
+  std::vector<std::array<std::vector<Vec3>, 2>> pair_start;
   // Scratch for the bodies that meet the tet body's surface inside their step: its vertices'
   // mean velocities over the part (or the tick) and its positions where the next part starts.
   std::vector<Vec3> surface_v, surface_part_start;
@@ -137,6 +142,12 @@ struct Scene::TickState {
 };
 
 namespace {
+
+// A body's start positions grown by the particles an emitter added since (they start where they
+// are: no path to cross).
+void add_emitted(std::vector<Vec3>& start, const std::vector<Vec3>& now) {
+  for (size_t i = start.size(); i < now.size(); ++i) start.push_back(now[i]);
+}
 
 std::vector<int32_t> surface_vertices_of(const BodyModel& model) {
   std::vector<int32_t> out;
@@ -226,11 +237,16 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
   if (ts_->body_parts > 1)
     spdlog::debug("scene '{}': the bodies in contact step in {} parts a tick (substeps {})", id_, ts_->body_parts,
                   fmt::join(paired_substeps, ", "));
-  else if (std::any_of(paired_substeps.begin(), paired_substeps.end(), [](int n) { return n > 1; }))
-    spdlog::info("scene '{}': the substeps of the bodies in contact ({}) have no common factor, so their contacts "
-                 "come once per tick; substeps with one (a fluid's 2 and a cloth's 16) let the scene resolve them "
-                 "within the tick",
-                 id_, fmt::join(paired_substeps, ", "));
+  std::set<std::pair<size_t, size_t>> told;  // a pair of bodies may be in contact both ways
+  for (const TickState::ClothPair& p : ts_->cloth_pairs) {
+    const int a = ts_->bodies[p.particles]->substeps(), c = ts_->bodies[p.cloth]->substeps();
+    if (std::gcd(a, c) == 1 && std::max(a, c) > 1 &&
+        told.emplace(std::min(p.particles, p.cloth), std::max(p.particles, p.cloth)).second)
+      spdlog::info("scene '{}': the substeps of bodies '{}' ({}) and '{}' ({}) have no common factor, so their "
+                   "contact comes once per tick; substeps with one (a fluid's 2 and a cloth's 16) let the scene "
+                   "resolve it within the tick",
+                   id_, config.bodies[p.particles].name, a, config.bodies[p.cloth].name, c);
+  }
   if (ts_->tet_body_parts > 0 && !body_parts().with_tet)
     spdlog::info("scene '{}': the soft body's substeps ({}) share no factor with its fluids' and their partners', so "
                  "a fluid meets the soft body's surface where its whole step left it, not part by part (docs/fluids.md, "
@@ -857,18 +873,40 @@ void guard_body(const std::string& name, std::string& failure, Fn&& work) {
 // tet body step with it in parts of whole substeps of every body, the tet body's and the paired
 // bodies' included, where their substeps share a factor; else the bodies in contact with each
 // other step in parts among themselves (the tet body's whole step first), else every body in one
-// piece.
+// piece. Within a part, a pair whose two bodies share a larger factor meets that many times a
+// tick (a rope and a cloth of 16 substeps beside a fluid of 2: 16 times, the fluid's pairs
+// twice), each body's step cut at every contact of its pairs.
 Scene::BodyParts Scene::body_parts() const {
   const TickState& t = *ts_;
   BodyParts bp;
   bp.parts = t.body_parts;
-  if (t.tet_body_parts == 0) return bp;
-  const int substeps[] = {t.tet_body_parts, effective_substeps(*t.model, t.settings)};
-  const int with_tet = shared_step_parts(substeps);
-  if (with_tet > 1) {
-    bp.parts = with_tet;
-    bp.with_tet = true;
+  if (t.tet_body_parts > 0) {
+    const int substeps[] = {t.tet_body_parts, effective_substeps(*t.model, t.settings)};
+    const int with_tet = shared_step_parts(substeps);
+    if (with_tet > 1) {
+      bp.parts = with_tet;
+      bp.with_tet = true;
+    }
   }
+  // Every paired body's substeps are a multiple of the parts; so is each pair's common factor.
+  bp.body_calls.assign(t.bodies.size(), 1);
+  bp.pair_calls.assign(t.cloth_pairs.size(), 1);
+  constexpr int kMostCuts = 4096;  // beyond it (substeps with few common factors) one call a part
+  for (size_t k = 0; k < t.cloth_pairs.size(); ++k) {
+    const TickState::ClothPair& pair = t.cloth_pairs[k];
+    const int g = std::gcd(t.bodies[pair.particles]->substeps(), t.bodies[pair.cloth]->substeps());
+    bp.pair_calls[k] = std::max(g / bp.parts, 1);
+    for (size_t b : {pair.particles, pair.cloth})
+      bp.body_calls[b] = int(std::min<long>(std::lcm<long>(bp.body_calls[b], bp.pair_calls[k]), kMostCuts + 1));
+  }
+  long fine = 1;
+  for (int c : bp.body_calls) fine = std::min<long>(std::lcm(fine, long(c)), kMostCuts + 1);
+  if (fine > kMostCuts) {
+    std::fill(bp.body_calls.begin(), bp.body_calls.end(), 1);
+    std::fill(bp.pair_calls.begin(), bp.pair_calls.end(), 1);
+    fine = 1;
+  }
+  bp.fine = int(fine);
   return bp;
 }
 
@@ -895,7 +933,6 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
   if (t.bodies.empty() || !failure.empty() || cancelled) return;
   const double dt = t.settings.dt;
   const int parts = bp.parts;
-  const bool last_part = part + 1 == parts;
   auto guarded = [&](size_t b, auto&& work) { guard_body(bodies_info_[b].name, failure, work); };
   for (size_t k = 0; k < t.obstacle_bodies.size() && k < obstacle_impulses.size(); ++k) {
     const size_t b = t.obstacle_bodies[k];
@@ -924,125 +961,153 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
     t.surface_v.resize(t.state.x.size());
     for (size_t k = 0; k < t.surface_v.size(); ++k) t.surface_v[k] = (t.state.x[k] - from[k]) / span;
   }
-  for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
-    const bool tet_parts = bp.with_tet && t.tet_parts[b];  // with the tet body, part by part
-    const bool in_parts = parts > 1 && (t.in_cloth_pair[b] || tet_parts);
-    // One piece: after the tet body's whole step (its last part, or before the first part here).
-    if (!in_parts && part != (bp.with_tet ? parts - 1 : 0)) continue;
-    const bool first = !in_parts || part == 0;
-    if (cancel_tick_.load()) {
-      cancelled = true;
-      return;
+  // A part cut `bp.fine` times: at each cut the bodies whose next call starts there step it, then
+  // the pairs whose contact ends at the next cut meet.
+  if (t.pair_start.size() != t.cloth_pairs.size()) t.pair_start.resize(t.cloth_pairs.size());
+  for (int f = 0; f < bp.fine && failure.empty(); ++f) {
+    // A pair whose span begins here and is not its body's call keeps where the body is.
+    for (size_t k = 0; k < t.cloth_pairs.size(); ++k) {
+      const TickState::ClothPair& pair = t.cloth_pairs[k];
+      if (f % (bp.fine / bp.pair_calls[k]) != 0) continue;
+      if (bp.pair_calls[k] != bp.body_calls[pair.particles]) t.pair_start[k][0] = t.bodies[pair.particles]->state().x;
+      if (bp.pair_calls[k] != bp.body_calls[pair.cloth]) t.pair_start[k][1] = t.bodies[pair.cloth]->state().x;
     }
-    guarded(b, [&] {
-      // The start positions, for the contacts that read them (none: no copy in the tick): the
-      // tick's for the tools' contacts and the first part's, the part's for the later parts'.
-      const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || !tools.empty();
-      const bool part_start = in_parts && part > 0;
-      if (starts && first) t.body_start[b] = t.bodies[b]->state().x;
-      if (part_start) t.body_part_start[b] = t.bodies[b]->state().x;
-      const auto t_body = Clock::now();
-      const int n = in_parts ? t.bodies[b]->substeps() / parts : t.bodies[b]->substeps();
-      const double h = in_parts ? dt / parts : dt;
-      // The soft body's surface where its step (or part) left it, met inside the body's own
-      // substeps; its push goes to the soft body's velocities.
-      const auto& contact = t.body_contact[b];
-      std::optional<SurfaceBoundary> surface;
-      if (contact) {
-        surface.emplace();
-        surface->triangles = t.model->surface;
-        surface->x = t.state.x;
-        surface->v = t.surface_v;
-        surface->radius = contact->radius;
-        surface->friction = contact->friction;
+    for (size_t b = 0; b < t.bodies.size() && failure.empty(); ++b) {
+      const bool tet_parts = bp.with_tet && t.tet_parts[b];  // with the tet body, part by part
+      const int calls = bp.body_calls[b];
+      const bool in_parts = parts * calls > 1 && (t.in_cloth_pair[b] || tet_parts);
+      // One piece: after the tet body's whole step (its last part, or before the first part here).
+      if (!in_parts && (f > 0 || part != (bp.with_tet ? parts - 1 : 0))) continue;
+      const int span = bp.fine / calls;  // the cuts one of its calls covers
+      if (f % span != 0) continue;
+      const int call = part * calls + f / span, total_calls = parts * calls;  // its call in the tick
+      const bool first = !in_parts || call == 0;
+      const bool last_call = !in_parts || call + 1 == total_calls;
+      if (cancel_tick_.load()) {
+        cancelled = true;
+        return;
       }
-      // The tools where they are at the end of this call, moving at their velocities over the tick.
-      std::vector<RigidTool> posed;
-      ToolBoundary on_tools;
-      if (!tools.empty()) {
-        const double before_end = in_parts ? dt - (part + 1) * h : 0.0;
-        posed.assign(tools.begin(), tools.end());
-        for (RigidTool& tool : posed) tool = tool.at(-before_end);
-        on_tools.tools = posed;
-      }
-      const ParticleStepReport r = t.bodies[b]->advance(h, n, t.colliders, !in_parts || last_part,
-                                                        surface ? &*surface : nullptr, tools.empty() ? nullptr : &on_tools);
-      if (surface) take_surface_impulse(*t.model, t.state, *surface);
-      if (!tools.empty()) {
-        t.tool_impulse.resize(tools.size(), Vec3::Zero());
-        t.tool_angular_impulse.resize(tools.size(), Vec3::Zero());
-        for (size_t k = 0; k < tools.size() && k < on_tools.impulse.size(); ++k) {
-          t.tool_impulse[k] += on_tools.impulse[k];
-          t.tool_angular_impulse[k] += on_tools.angular_impulse[k];
+      guarded(b, [&] {
+        // The start positions, for the contacts that read them (none: no copy in the tick): the
+        // tick's for the tools' contacts and the first call's, the call's for the later ones'.
+        const bool starts = t.body_contact[b] || t.in_cloth_pair[b] || !tools.empty();
+        const bool part_start = in_parts && call > 0;
+        if (starts && first) t.body_start[b] = t.bodies[b]->state().x;
+        if (part_start) t.body_part_start[b] = t.bodies[b]->state().x;
+        const auto t_body = Clock::now();
+        const int n = in_parts ? t.bodies[b]->substeps() / total_calls : t.bodies[b]->substeps();
+        const double h = in_parts ? dt / total_calls : dt;
+        // The soft body's surface where its step (or part) left it, met inside the body's own
+        // substeps; its push goes to the soft body's velocities.
+        const auto& contact = t.body_contact[b];
+        std::optional<SurfaceBoundary> surface;
+        if (contact) {
+          surface.emplace();
+          surface->triangles = t.model->surface;
+          surface->x = t.state.x;
+          surface->v = t.surface_v;
+          surface->radius = contact->radius;
+          surface->friction = contact->friction;
         }
-      }
-      ParticleStepReport& rep = t.body_reports[b];
-      if (first) {
-        rep = r;
-        rep.parts = in_parts ? parts : 1;
-      } else {  // the step's substeps, the end of its last part
-        rep.substeps += r.substeps;
-        rep.constraint_error = r.constraint_error;
-        rep.max_constraint_error = r.max_constraint_error;
-        rep.contacts = r.contacts;
-        rep.tool_contacts = std::max(rep.tool_contacts, r.tool_contacts);
-        rep.self_collision_suspended = rep.self_collision_suspended || r.self_collision_suspended;
-      }
-      // Particles an emitter added during the step start where they are (no path to cross).
-      const auto& now = t.bodies[b]->state().x;
-      auto add_emitted = [&now](std::vector<Vec3>& start) {
-        for (size_t i = start.size(); i < now.size(); ++i) start.push_back(now[i]);
+        // The tools where they are at the end of this call, moving at their velocities over the tick.
+        std::vector<RigidTool> posed;
+        ToolBoundary on_tools;
+        if (!tools.empty()) {
+          const double before_end = in_parts ? dt - (call + 1) * h : 0.0;
+          posed.assign(tools.begin(), tools.end());
+          for (RigidTool& tool : posed) tool = tool.at(-before_end);
+          on_tools.tools = posed;
+        }
+        const ParticleStepReport r = t.bodies[b]->advance(h, n, t.colliders, last_call, surface ? &*surface : nullptr,
+                                                          tools.empty() ? nullptr : &on_tools);
+        if (surface) take_surface_impulse(*t.model, t.state, *surface);
+        if (!tools.empty()) {
+          t.tool_impulse.resize(tools.size(), Vec3::Zero());
+          t.tool_angular_impulse.resize(tools.size(), Vec3::Zero());
+          for (size_t k = 0; k < tools.size() && k < on_tools.impulse.size(); ++k) {
+            t.tool_impulse[k] += on_tools.impulse[k];
+            t.tool_angular_impulse[k] += on_tools.angular_impulse[k];
+          }
+        }
+        ParticleStepReport& rep = t.body_reports[b];
+        if (first) {
+          rep = r;
+          rep.parts = in_parts ? total_calls : 1;
+        } else {  // the step's substeps, the end of its last call
+          rep.substeps += r.substeps;
+          rep.constraint_error = r.constraint_error;
+          rep.max_constraint_error = r.max_constraint_error;
+          rep.contacts = r.contacts;
+          rep.tool_contacts = std::max(rep.tool_contacts, r.tool_contacts);
+          rep.self_collision_suspended = rep.self_collision_suspended || r.self_collision_suspended;
+        }
+        // Particles an emitter added during the step start where they are (no path to cross).
+        const auto& now = t.bodies[b]->state().x;
+        if (starts) add_emitted(t.body_start[b], now);
+        if (part_start) add_emitted(t.body_part_start[b], now);
+        // The particles met the surface inside the step (the report counts those it pushed in the
+        // last substep; in parts, the most in one call).
+        if (surface && !first) rep.soft_body_contacts = std::max(rep.soft_body_contacts, r.soft_body_contacts);
+        if (surface && !t.bodies[b]->segments().empty() && (tet_parts || last_call)) {
+          // A rope's links and a cloth's edges after the step, two-way: their inside points move
+          // out, the tet body takes their momentum; over the call with the tet body's parts, else
+          // over the whole tick.
+          ParticleState ps = t.bodies[b]->state();
+          CouplingSettings along = *contact;
+          along.particles = false;
+          const CouplingReport c = couple_particles_to_body(
+              *t.model, t.state, ps, t.bodies[b]->inverse_masses(), along, tet_parts ? h : dt,
+              tet_parts && part_start ? t.body_part_start[b] : t.body_start[b], t.bodies[b]->segments());
+          rep.soft_body_contacts += c.segment_contacts;
+          if (c.segment_contacts > 0) t.bodies[b]->set_state(ps);
+        }
+        // Its step and its contacts, below.
+        rep.wall_ms = (first ? 0.0 : rep.wall_ms) + ms_since(t_body);
+      });
+    }
+    // The pairs whose contact ends at the next cut, each over its own span of the part.
+    t.part_contacts.assign(t.bodies.size(), 0);
+    for (size_t k = 0; k < t.cloth_pairs.size() && failure.empty(); ++k) {
+      const TickState::ClothPair& pair = t.cloth_pairs[k];
+      const int span = bp.fine / bp.pair_calls[k];
+      if ((f + 1) % span != 0) continue;
+      const int contact = part * bp.pair_calls[k] + (f + 1) / span - 1;  // the pair's contact in the tick
+      // Each body's positions where the pair's span began: its call's start where the two spans
+      // are the same, else kept when the span began (below).
+      auto start_of = [&](size_t b, int side) -> const std::vector<Vec3>& {
+        if (bp.pair_calls[k] == bp.body_calls[b]) return contact == 0 ? t.body_start[b] : t.body_part_start[b];
+        std::vector<Vec3>& kept = t.pair_start[k][size_t(side)];
+        add_emitted(kept, t.bodies[b]->state().x);
+        return kept;
       };
-      if (starts) add_emitted(t.body_start[b]);
-      if (part_start) add_emitted(t.body_part_start[b]);
-      // The particles met the surface inside the step (the report counts those it pushed in the
-      // last substep; in parts, the most in one part).
-      if (surface && !first) rep.soft_body_contacts = std::max(rep.soft_body_contacts, r.soft_body_contacts);
-      if (surface && !t.bodies[b]->segments().empty() && (tet_parts || !in_parts || last_part)) {
-        // A rope's links and a cloth's edges after the step, two-way: their inside points move
-        // out, the tet body takes their momentum; over the part with the tet body's parts, else
-        // over the whole tick.
-        ParticleState ps = t.bodies[b]->state();
-        CouplingSettings along = *contact;
-        along.particles = false;
-        const CouplingReport c = couple_particles_to_body(
-            *t.model, t.state, ps, t.bodies[b]->inverse_masses(), along, tet_parts ? h : dt,
-            tet_parts && part_start ? t.body_part_start[b] : t.body_start[b], t.bodies[b]->segments());
-        rep.soft_body_contacts += c.segment_contacts;
-        if (c.segment_contacts > 0) t.bodies[b]->set_state(ps);
-      }
-      // Its step and its contacts, below.
-      rep.wall_ms = (first ? 0.0 : rep.wall_ms) + ms_since(t_body);
-    });
+      guarded(pair.particles, [&] {
+        const auto t_pair = Clock::now();
+        ParticleBody& a = *t.bodies[pair.particles];
+        ParticleBody& c = *t.bodies[pair.cloth];
+        const std::vector<Vec3>& a_start = start_of(pair.particles, 0);
+        const std::vector<Vec3>& c_start = start_of(pair.cloth, 1);
+        const double h = dt / (parts * bp.pair_calls[k]);
+        ParticleState ps = a.state(), cs = c.state();
+        const CouplingReport r =
+            pair.rope ? couple_particles_to_rope(ps, a.inverse_masses(), a_start, cs, c.inverse_masses(), c_start,
+                                                 pair.settings, h, a.segments())
+                      : couple_particles_to_cloth(ps, a.inverse_masses(), a_start, cs, c.inverse_masses(),
+                                                  c.triangles(), c_start, pair.settings, h, a.segments());
+        if (r.contacts + r.segment_contacts > 0) {
+          a.set_state(ps);
+          c.set_state(cs);
+        }
+        t.part_contacts[pair.particles] += r.contacts + r.segment_contacts;
+        t.body_reports[pair.particles].wall_ms += ms_since(t_pair);
+      });
+    }
+    // In parts: the most in one cut (a particle held through the step counts once).
+    for (size_t b = 0; b < t.bodies.size(); ++b)
+      if (t.in_cloth_pair[b])
+        t.body_reports[b].body_contacts =
+            std::max(part == 0 && f == 0 ? 0 : t.body_reports[b].body_contacts, t.part_contacts[b]);
   }
-  if (surface_used && bp.with_tet && !last_part) t.surface_part_start = t.state.x;
-  t.part_contacts.assign(t.bodies.size(), 0);
-  for (const TickState::ClothPair& pair : t.cloth_pairs)
-    guarded(pair.particles, [&] {
-      const auto t_pair = Clock::now();
-      ParticleBody& a = *t.bodies[pair.particles];
-      ParticleBody& c = *t.bodies[pair.cloth];
-      const auto& starts = part > 0 ? t.body_part_start : t.body_start;
-      const double h = dt / parts;
-      ParticleState ps = a.state(), cs = c.state();
-      const CouplingReport r =
-          pair.rope ? couple_particles_to_rope(ps, a.inverse_masses(), starts[pair.particles], cs,
-                                               c.inverse_masses(), starts[pair.cloth], pair.settings, h,
-                                               a.segments())
-                    : couple_particles_to_cloth(ps, a.inverse_masses(), starts[pair.particles], cs,
-                                                c.inverse_masses(), c.triangles(), starts[pair.cloth],
-                                                pair.settings, h, a.segments());
-      if (r.contacts + r.segment_contacts > 0) {
-        a.set_state(ps);
-        c.set_state(cs);
-      }
-      t.part_contacts[pair.particles] += r.contacts + r.segment_contacts;
-      t.body_reports[pair.particles].wall_ms += ms_since(t_pair);
-    });
-  // In parts: the most in one part (a particle held through the step counts once).
-  for (size_t b = 0; b < t.bodies.size(); ++b)
-    if (t.in_cloth_pair[b])
-      t.body_reports[b].body_contacts = std::max(part == 0 ? 0 : t.body_reports[b].body_contacts, t.part_contacts[b]);
+  if (surface_used && bp.with_tet && part + 1 < parts) t.surface_part_start = t.state.x;
 }
 
 // The particle bodies' share of a tick after its last part: the tools' reactions (the haptic

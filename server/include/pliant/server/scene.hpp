@@ -299,6 +299,12 @@ class Scene {
   struct BodyParts {
     int parts = 1;
     bool with_tet = false;  // the tet body steps in the same parts (Stepper::step_in_parts)
+    // Within a part, each pair of bodies in contact meets as often as its two bodies' substeps
+    // allow (their common factor over `parts`), and each body steps in as many calls as its
+    // pairs need: `fine` cuts a part so that every call and every contact ends on a cut.
+    int fine = 1;
+    std::vector<int> body_calls;  // per body: its step's calls in a part
+    std::vector<int> pair_calls;  // per pair (TickState::cloth_pairs): its contacts in a part
   };
   BodyParts body_parts() const;
   void begin_bodies();
