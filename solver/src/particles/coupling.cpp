@@ -52,10 +52,12 @@ struct Point {
 };
 
 // The points inside segment i-j of this length, no farther apart than the radius and at most
-// 64: fn(point) for each (none for a segment no longer than the radius).
+// 64: fn(point) for each (none for a segment no longer than the radius; 64 for one whose length
+// overflowed, a blown-up body's, which the count must not convert from infinity).
 template <class Fn>
 void for_each_point_inside(uint32_t i, uint32_t j, double length, double radius, const Fn& fn) {
-  const int inside = std::min(64, int(std::ceil(length / radius)) - 1);
+  const double spans = std::ceil(length / radius);
+  const int inside = spans < 65 ? int(spans) - 1 : 64;
   for (int k = 1; k <= inside; ++k) fn(Point{i, j, double(k) / double(inside + 1)});
 }
 
