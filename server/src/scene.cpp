@@ -1073,7 +1073,7 @@ void Scene::bodies_part(int part, const BodyParts& bp, const std::vector<std::ve
       if ((f + 1) % span != 0) continue;
       const int contact = part * bp.pair_calls[k] + (f + 1) / span - 1;  // the pair's contact in the tick
       // Each body's positions where the pair's span began: its call's start where the two spans
-      // are the same, else kept when the span began (below).
+      // are the same, else those kept at that cut (the top of the loop).
       auto start_of = [&](size_t b, int side) -> const std::vector<Vec3>& {
         if (bp.pair_calls[k] == bp.body_calls[b]) return contact == 0 ? t.body_start[b] : t.body_part_start[b];
         std::vector<Vec3>& kept = t.pair_start[k][size_t(side)];
