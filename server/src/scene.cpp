@@ -87,6 +87,7 @@ struct Scene::TickState {
     size_t particles, cloth;
     CouplingSettings settings;
     bool rope = false;
+    int shared_substeps = 1;  // the largest factor of both bodies' substeps (Scene::body_parts)
   };
   std::vector<ClothPair> cloth_pairs;
   std::vector<uint8_t> in_cloth_pair;  // per body: in some ClothPair (its start positions are read)
@@ -219,7 +220,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
       CouplingSettings cs;
       cs.radius = ts_->bodies[a]->contact_radius() + ts_->bodies[c]->contact_radius();
       cs.friction = std::max(config.bodies[a].body_friction, config.bodies[c].body_friction);
-      ts_->cloth_pairs.push_back({a, c, cs, rope});
+      ts_->cloth_pairs.push_back({a, c, cs, rope, std::gcd(ts_->bodies[a]->substeps(), ts_->bodies[c]->substeps())});
     }
   }
   for (size_t b = 0; b < ts_->bodies.size(); ++b)
@@ -240,7 +241,7 @@ Scene::Scene(std::string id, SceneConfig config, std::shared_ptr<const BodyModel
   std::set<std::pair<size_t, size_t>> told;  // a pair of bodies may be in contact both ways
   for (const TickState::ClothPair& p : ts_->cloth_pairs) {
     const int a = ts_->bodies[p.particles]->substeps(), c = ts_->bodies[p.cloth]->substeps();
-    if (std::gcd(a, c) == 1 && std::max(a, c) > 1 &&
+    if (p.shared_substeps == 1 && std::max(a, c) > 1 &&
         told.emplace(std::min(p.particles, p.cloth), std::max(p.particles, p.cloth)).second)
       spdlog::info("scene '{}': the substeps of bodies '{}' ({}) and '{}' ({}) have no common factor, so their "
                    "contact comes once per tick; substeps with one (a fluid's 2 and a cloth's 16) let the scene "
@@ -894,8 +895,7 @@ Scene::BodyParts Scene::body_parts() const {
   constexpr int kMostCuts = 4096;  // beyond it (substeps with few common factors) one call a part
   for (size_t k = 0; k < t.cloth_pairs.size(); ++k) {
     const TickState::ClothPair& pair = t.cloth_pairs[k];
-    const int g = std::gcd(t.bodies[pair.particles]->substeps(), t.bodies[pair.cloth]->substeps());
-    bp.pair_calls[k] = std::max(g / bp.parts, 1);
+    bp.pair_calls[k] = std::max(pair.shared_substeps / bp.parts, 1);
     for (size_t b : {pair.particles, pair.cloth})
       bp.body_calls[b] = int(std::min<long>(std::lcm<long>(bp.body_calls[b], bp.pair_calls[k]), kMostCuts + 1));
   }
