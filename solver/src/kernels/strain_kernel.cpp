@@ -536,44 +536,6 @@ T residual_decreasing_step(ElasticModel model, const TetLanes<T>& p, const Geome
   return step;
 }
 
-// Solves A y = rhs lane-wise (LDL^T with reciprocal pivots: 6 divisions, no square roots; lower
-// triangle of A), y scaled by lambda_scale; D gets the pivots (a lane with a non-positive pivot
-// is not positive definite).
-template <class T>
-inline void ldlt_solve(const T A[6][6], const T rhs[6], double lambda_scale, T D[6], T y[6]) {
-  T L[6][6], invD[6];
-  PLIANT_UNROLL
-  for (int j = 0; j < 6; ++j) {
-    T d = A[j][j];
-    PLIANT_UNROLL
-    for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k] * D[k];
-    D[j] = d;
-    invD[j] = 1.0 / d;
-    PLIANT_UNROLL
-    for (int i = j + 1; i < 6; ++i) {
-      T s = A[i][j];
-      PLIANT_UNROLL
-      for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k] * D[k];
-      L[i][j] = s * invD[j];
-    }
-  }
-  T z[6];
-  PLIANT_UNROLL
-  for (int i = 0; i < 6; ++i) {
-    T s = rhs[i];
-    PLIANT_UNROLL
-    for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
-    z[i] = s;
-  }
-  PLIANT_UNROLL
-  for (int i = 5; i >= 0; --i) {
-    T s = z[i] * invD[i];
-    PLIANT_UNROLL
-    for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
-    y[i] = lambda_scale * s;
-  }
-}
-
 // a + alpha~(r, c), or a where that entry is zero (Blocks).
 template <bool Blocks, int r, int c, class T>
 inline T with_alpha(const T& a, const KernelCompliance& at) {

@@ -155,6 +155,51 @@ struct StrainStep {
   int ok = 0;
 };
 
+// The kernel's 6x6 solve: A y = rhs lane-wise by LDL^T with reciprocal pivots (6 divisions, no
+// square roots; the lower triangle of A), y scaled by lambda_scale; D gets the pivots (a lane with
+// a non-positive pivot is not positive definite). The factor is formed with W = L D (Golub and
+// Van Loan's form): an entry of column j is A_ij - sum_k W_ik L_jk and a pivot A_jj - sum_k
+// W_jk^2 / D_k, whose last term waits on the division before it by one multiply-add. The
+// divisions are a chain, the kernel's largest stalls; this form shortens each link and has fewer
+// operations (docs/solver.md, "The 6x6 solve's chain of divisions"). Inverting 3x3 or 2x2 blocks
+// by their adjugates needs fewer divisions, but its errors grow with the square of A's condition
+// number (test StrainConstraint.TheSixBySixSolveIsAccurateToItsConditionNumber).
+template <class T>
+inline void ldlt_solve(const T A[6][6], const T rhs[6], double lambda_scale, T D[6], T y[6]) {
+  T W[6][6], L[6][6], invD[6];  // W[i][j] = L[i][j] D[j], i > j
+  PLIANT_UNROLL
+  for (int j = 0; j < 6; ++j) {
+    T d = A[j][j];
+    PLIANT_UNROLL
+    for (int k = 0; k < j; ++k) d -= (W[j][k] * W[j][k]) * invD[k];
+    D[j] = d;
+    invD[j] = 1.0 / d;
+    PLIANT_UNROLL
+    for (int i = j + 1; i < 6; ++i) {
+      T s = A[i][j];
+      PLIANT_UNROLL
+      for (int k = 0; k < j; ++k) s -= W[i][k] * L[j][k];
+      W[i][j] = s;
+      L[i][j] = s * invD[j];
+    }
+  }
+  T z[6];
+  PLIANT_UNROLL
+  for (int i = 0; i < 6; ++i) {
+    T s = rhs[i];
+    PLIANT_UNROLL
+    for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
+    z[i] = s;
+  }
+  PLIANT_UNROLL
+  for (int i = 5; i >= 0; --i) {
+    T s = z[i] * invD[i];
+    PLIANT_UNROLL
+    for (int k = i + 1; k < 6; ++k) s -= L[k][i] * y[k];
+    y[i] = lambda_scale * s;
+  }
+}
+
 // The projection of the lanes' tets at x: solves [grad C W grad C^T + alpha~] dl =
 // -C - alpha~ lambda (LDL^T), dx = W grad C^T dl; with line_search each lane's step is shortened
 // until its own residual does not grow (projection.hpp). lambda_t: the lanes' multipliers.
