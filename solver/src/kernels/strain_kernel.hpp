@@ -163,9 +163,10 @@ struct StrainStep {
 // divisions are a chain, the kernel's largest stalls; this form shortens each link and has fewer
 // operations (docs/solver.md, "The 6x6 solve's chain of divisions"). Inverting 3x3 or 2x2 blocks
 // by their adjugates needs fewer divisions, but its errors grow with the square of A's condition
-// number (test StrainConstraint.TheSixBySixSolveIsAccurateToItsConditionNumber).
+// number (test StrainConstraint.TheSixBySixSolveIsAccurateToItsConditionNumber). Always inlined:
+// in the kernel its arrays stay in registers (here for the tests, GCC would otherwise call it).
 template <class T>
-inline void ldlt_solve(const T A[6][6], const T rhs[6], double lambda_scale, T D[6], T y[6]) {
+[[gnu::always_inline]] inline void ldlt_solve(const T A[6][6], const T rhs[6], double lambda_scale, T D[6], T y[6]) {
   T W[6][6], L[6][6], invD[6];  // W[i][j] = L[i][j] D[j], i > j
   PLIANT_UNROLL
   for (int j = 0; j < 6; ++j) {
