@@ -290,8 +290,8 @@ TEST(StrainConstraint, TheSixBySixSolveIsAccurateToItsConditionNumber) {
   // orthogonal eigenvectors): the solution's relative error stays within a few condition numbers
   // times the rounding unit, as LDL^T's does, against the same system solved in long double;
   // every pivot is positive; so for the four-lane solve. Inverting 3x3 or 2x2
-  // blocks by their adjugates (fewer divisions) fails it from 1e4 on: errors of the condition
-  // number squared.
+  // blocks by their adjugates (fewer divisions) fails it, from 1e4 and 1e6 on: errors of the
+  // condition number squared.
   std::mt19937 rng(11);
   std::normal_distribution<double> normal(0.0, 1.0);
   const double eps = std::numeric_limits<double>::epsilon();
