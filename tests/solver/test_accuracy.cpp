@@ -187,3 +187,47 @@ TEST(ClothCommand, CsvTracesEveryStepAndAgreesWithTheSummary) {
   EXPECT_NEAR(min_clearance, number("min_clearance_m"), 1e-8);
   EXPECT_GT(max_speed, 0.5) << "the cloth falls onto the sphere";
 }
+
+TEST(FluidCommand, CsvTracesEveryStepAndAgreesWithTheSummary) {
+  const std::filesystem::path csv = std::filesystem::temp_directory_path() / ("pliant_fluid_" + std::to_string(::getpid()) + ".csv");
+  const ToolRun r = run_sim("fluid --scene dam-break --particles 500 --substeps 2 --iterations 2 --seconds 0.25 --threads 1 "
+                            "--quiet --csv " + csv.string());
+  ASSERT_EQ(r.status, 0) << r.out;
+  const std::string json = last_line(r.out);
+  auto number = [&](const std::string& key) {
+    const size_t at = json.find("\"" + key + "\":");
+    EXPECT_NE(at, std::string::npos) << key;
+    return at == std::string::npos ? -1.0 : std::stod(json.substr(at + key.size() + 3));
+  };
+  std::ifstream in(csv);
+  std::string line;
+  ASSERT_TRUE(std::getline(in, line));
+  EXPECT_EQ(line, "step,t_s,ms,density_error_mean,density_error_max,contacts,particles");
+  std::vector<std::vector<double>> rows;
+  while (std::getline(in, line)) {
+    std::vector<double> v;
+    std::stringstream ss(line);
+    for (std::string cell; std::getline(ss, cell, ',');) v.push_back(std::stod(cell));
+    ASSERT_EQ(v.size(), 7u) << line;
+    rows.push_back(v);
+  }
+  std::filesystem::remove(csv);
+  ASSERT_EQ(rows.size(), 15u);
+  // The summary's window: the last quarter of the steps (--settled-after 0.75), here the last 4.
+  double ms = 0, error_sum = 0, error_max = 0;
+  for (size_t k = 0; k < rows.size(); ++k) {
+    EXPECT_EQ(rows[k][0], double(k + 1));
+    EXPECT_NEAR(rows[k][1], double(k + 1) / 60.0, 1e-6);
+    EXPECT_EQ(rows[k][6], number("particles"));
+    ms += rows[k][2];
+    if (k >= 11) {
+      error_sum += rows[k][3];
+      error_max = std::max(error_max, rows[k][4]);
+    }
+  }
+  EXPECT_NEAR(ms / 15.0, number("ms_per_step_mean"), 1e-3);
+  EXPECT_NEAR(error_sum / 4.0, number("mean_density_error"), 1e-5 * number("mean_density_error") + 1e-12);
+  EXPECT_NEAR(error_max, number("max_density_error"), 1e-5 * error_max + 1e-12);
+  EXPECT_GT(error_max, 0.0) << "the block falls and is compressed";
+  EXPECT_GT(rows.back()[5], 0.0) << "the container holds it";
+}
