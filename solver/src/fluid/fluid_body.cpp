@@ -518,6 +518,17 @@ struct FluidBody::Impl {
     return fluid::poly6_beyond(k, y);
   }
 
+  // The step's largest buffers filled once when the body is built: a neighbour search of the
+  // particles where they are and the per-pair arrays sized for its pairs and a quarter more. The
+  // first step of a new body then costs about what the next ones do, where it took half as long
+  // again to fill them (docs/fluids.md, "Figures"). Every step still sizes and rebuilds them.
+  void prepare_buffers() {
+    if (x.empty()) return;
+    grid.build(x, h, pool.get());
+    const size_t pairs = grid.pairs() + grid.pairs() / 4;
+    for (auto* a : {&pair_gx, &pair_gy, &pair_gz, &pair_sc}) a->resize(pairs);
+  }
+
   void substep(int sub, double dt, std::span<const Collider> inflated, ParticleStepReport& rep) {
     emit(dt);
     auto clock = std::chrono::steady_clock::now();
@@ -853,6 +864,7 @@ FluidBody::FluidBody(const FluidSettings& st, const std::vector<FluidBlock>& blo
   if (m.n() == 0 && m.emitters.empty())
     throw std::invalid_argument("fluid: blocks hold no particle and there is no emitter (zero particles)");
   m.state.emitters.assign(m.emitters.size(), EmitterProgress{});
+  m.prepare_buffers();
 }
 
 FluidBody::~FluidBody() = default;
