@@ -59,6 +59,44 @@ std::string method_object(const std::string& json, const std::string& spec) {
   return "";
 }
 
+// The number after "key": in a one-line JSON object (-1 and a failure when the key is missing).
+double json_number(const std::string& json, const std::string& key) {
+  const size_t at = json.find("\"" + key + "\":");
+  EXPECT_NE(at, std::string::npos) << key;
+  return at == std::string::npos ? -1.0 : std::stod(json.substr(at + key.size() + 3));
+}
+
+// pliant-sim `args` with --csv to a temporary file: its exit status, its last stdout line (the
+// JSON summary), the CSV's header and each line's numbers, checked to be `columns` wide and to
+// start with the step (1, 2, ...) and its time at 60 Hz.
+struct CsvRun {
+  int status = -1;
+  std::string json, header;
+  std::vector<std::vector<double>> rows;
+};
+CsvRun run_with_csv(const std::string& args, size_t columns) {
+  const std::filesystem::path csv =
+      std::filesystem::temp_directory_path() / ("pliant_sim_" + std::to_string(::getpid()) + ".csv");
+  const ToolRun r = run_sim(args + " --csv " + csv.string());
+  CsvRun out;
+  out.status = r.status;
+  out.json = last_line(r.out);
+  std::ifstream in(csv);
+  if (std::getline(in, out.header))
+    for (std::string line; std::getline(in, line);) {
+      std::vector<double> v;
+      std::stringstream ss(line);
+      for (std::string cell; std::getline(ss, cell, ',');) v.push_back(std::stod(cell));
+      EXPECT_EQ(v.size(), columns) << line;
+      v.resize(columns);
+      EXPECT_EQ(v[0], double(out.rows.size() + 1)) << line;
+      EXPECT_NEAR(v[1], double(out.rows.size() + 1) / 60.0, 1e-6) << line;
+      out.rows.push_back(std::move(v));
+    }
+  std::filesystem::remove(csv);
+  return out;
+}
+
 struct Row {
   double ms, error;
 };
@@ -152,82 +190,43 @@ TEST(AccuracyCommand, BadSpecIsAUsageError) {
 }
 
 TEST(ClothCommand, CsvTracesEveryStepAndAgreesWithTheSummary) {
-  const std::filesystem::path csv = std::filesystem::temp_directory_path() / ("pliant_cloth_" + std::to_string(::getpid()) + ".csv");
-  const ToolRun r = run_sim("cloth --grid 16 --size 0.2 --drape sphere --radius 0.05 --seconds 0.25 --substeps 8 --csv " +
-                            csv.string());
-  ASSERT_EQ(r.status, 0) << r.out;
-  const std::string json = last_line(r.out);
-  auto number = [&](const std::string& key) {
-    const size_t at = json.find("\"" + key + "\":");
-    EXPECT_NE(at, std::string::npos) << key;
-    return at == std::string::npos ? -1.0 : std::stod(json.substr(at + key.size() + 3));
-  };
-  std::ifstream in(csv);
-  std::string line;
-  ASSERT_TRUE(std::getline(in, line));
-  EXPECT_EQ(line, "step,t_s,ms,max_stretch,rms_stretch,max_speed_m_s,self_contacts,collider_contacts,min_clearance_m");
-  int rows = 0;
+  const CsvRun r = run_with_csv("cloth --grid 16 --size 0.2 --drape sphere --radius 0.05 --seconds 0.25 --substeps 8", 9);
+  ASSERT_EQ(r.status, 0) << r.json;
+  EXPECT_EQ(r.header, "step,t_s,ms,max_stretch,rms_stretch,max_speed_m_s,self_contacts,collider_contacts,min_clearance_m");
+  ASSERT_EQ(r.rows.size(), 15u);
   double max_stretch = 0, max_speed = 0, min_clearance = 1e300;
-  while (std::getline(in, line)) {
-    std::vector<double> v;
-    std::stringstream ss(line);
-    for (std::string cell; std::getline(ss, cell, ',');) v.push_back(std::stod(cell));
-    ASSERT_EQ(v.size(), 9u) << line;
-    ++rows;
-    EXPECT_EQ(v[0], rows);
-    EXPECT_NEAR(v[1], rows / 60.0, 1e-6);
+  for (const std::vector<double>& v : r.rows) {
     max_stretch = std::max(max_stretch, v[3]);
     max_speed = std::max(max_speed, v[5]);
     min_clearance = std::min(min_clearance, v[8]);
   }
-  std::filesystem::remove(csv);
-  EXPECT_EQ(rows, 15);
-  EXPECT_NEAR(max_stretch, number("max_stretch"), 1e-5 * std::max(1.0, max_stretch));
-  EXPECT_NEAR(max_speed, number("max_speed"), 1e-5 * max_speed);
-  EXPECT_NEAR(min_clearance, number("min_clearance_m"), 1e-8);
+  EXPECT_NEAR(max_stretch, json_number(r.json, "max_stretch"), 1e-5 * std::max(1.0, max_stretch));
+  EXPECT_NEAR(max_speed, json_number(r.json, "max_speed"), 1e-5 * max_speed);
+  EXPECT_NEAR(min_clearance, json_number(r.json, "min_clearance_m"), 1e-8);
   EXPECT_GT(max_speed, 0.5) << "the cloth falls onto the sphere";
 }
 
 TEST(FluidCommand, CsvTracesEveryStepAndAgreesWithTheSummary) {
-  const std::filesystem::path csv = std::filesystem::temp_directory_path() / ("pliant_fluid_" + std::to_string(::getpid()) + ".csv");
-  const ToolRun r = run_sim("fluid --scene dam-break --particles 500 --substeps 2 --iterations 2 --seconds 0.25 --threads 1 "
-                            "--quiet --csv " + csv.string());
-  ASSERT_EQ(r.status, 0) << r.out;
-  const std::string json = last_line(r.out);
-  auto number = [&](const std::string& key) {
-    const size_t at = json.find("\"" + key + "\":");
-    EXPECT_NE(at, std::string::npos) << key;
-    return at == std::string::npos ? -1.0 : std::stod(json.substr(at + key.size() + 3));
-  };
-  std::ifstream in(csv);
-  std::string line;
-  ASSERT_TRUE(std::getline(in, line));
-  EXPECT_EQ(line, "step,t_s,ms,density_error_mean,density_error_max,contacts,particles");
-  std::vector<std::vector<double>> rows;
-  while (std::getline(in, line)) {
-    std::vector<double> v;
-    std::stringstream ss(line);
-    for (std::string cell; std::getline(ss, cell, ',');) v.push_back(std::stod(cell));
-    ASSERT_EQ(v.size(), 7u) << line;
-    rows.push_back(v);
-  }
-  std::filesystem::remove(csv);
-  ASSERT_EQ(rows.size(), 15u);
+  const CsvRun r = run_with_csv(
+      "fluid --scene dam-break --particles 500 --substeps 2 --iterations 2 --seconds 0.25 --threads 1 --quiet", 7);
+  ASSERT_EQ(r.status, 0) << r.json;
+  EXPECT_EQ(r.header, "step,t_s,ms,density_error_mean,density_error_max,contacts,particles");
+  ASSERT_EQ(r.rows.size(), 15u);
   // The summary's window: the last quarter of the steps (--settled-after 0.75), here the last 4.
   double ms = 0, error_sum = 0, error_max = 0;
-  for (size_t k = 0; k < rows.size(); ++k) {
-    EXPECT_EQ(rows[k][0], double(k + 1));
-    EXPECT_NEAR(rows[k][1], double(k + 1) / 60.0, 1e-6);
-    EXPECT_EQ(rows[k][6], number("particles"));
-    ms += rows[k][2];
+  for (size_t k = 0; k < r.rows.size(); ++k) {
+    const std::vector<double>& v = r.rows[k];
+    EXPECT_EQ(v[6], json_number(r.json, "particles"));
+    ms += v[2];
     if (k >= 11) {
-      error_sum += rows[k][3];
-      error_max = std::max(error_max, rows[k][4]);
+      error_sum += v[3];
+      error_max = std::max(error_max, v[4]);
     }
   }
-  EXPECT_NEAR(ms / 15.0, number("ms_per_step_mean"), 1e-3);
-  EXPECT_NEAR(error_sum / 4.0, number("mean_density_error"), 1e-5 * number("mean_density_error") + 1e-12);
-  EXPECT_NEAR(error_max, number("max_density_error"), 1e-5 * error_max + 1e-12);
+  const double mean_error = json_number(r.json, "mean_density_error");
+  EXPECT_NEAR(ms / 15.0, json_number(r.json, "ms_per_step_mean"), 1e-3);
+  EXPECT_NEAR(error_sum / 4.0, mean_error, 1e-5 * mean_error + 1e-12);
+  EXPECT_NEAR(error_max, json_number(r.json, "max_density_error"), 1e-5 * error_max + 1e-12);
   EXPECT_GT(error_max, 0.0) << "the block falls and is compressed";
-  EXPECT_GT(rows.back()[5], 0.0) << "the container holds it";
+  EXPECT_GT(r.rows.back()[5], 0.0) << "the container holds it";
 }
