@@ -219,15 +219,15 @@ struct Stepper::Impl {
   // One Gauss-Seidel sweep in the model's solve order, four tets of a colour at a time; blocks
   // or colours run in parallel (the result does not depend on the thread count). The
   // increments go to dlambda only when `keep_increments` (an accelerator reads them); with
-  // `lambda_zero` the multipliers are taken as zero and written whole. With several threads the
-  // sweep runs on the positions in its own vertex numbering (PackedModel::sweep_vertex).
+  // `lambda_zero` the multipliers are taken as zero and written whole. The sweep runs on the
+  // positions in its own vertex numbering (PackedModel::sweep_vertex).
   int sweep_gauss_seidel(const BodyModel& m, std::vector<Vec3>& x, std::vector<Vec6>& lambda,
                          const detail::ProjectionParams& params, bool keep_increments, bool lambda_zero,
                          ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
     std::vector<int> floor_hits(tp.size(), 0);
     std::vector<Vec6>* increments = keep_increments ? &dlambda : nullptr;
-    SweepOrder order(*this, packed, x, tp.size() > 1);
+    SweepOrder order(*this, packed, x);
     const std::vector<detail::TetPack>& packs = packs_in_order(packed);
     std::vector<Vec3>& xs = order.positions();
     for_each_pack(packed, tp, [&](int chunk, size_t b, size_t e) {
@@ -247,12 +247,11 @@ struct Stepper::Impl {
     return total;
   }
 
-  // With several threads the passes over the packs (the sweep, the position update, the floor's
-  // passes) run on the positions in the sweep's vertex numbering (PackedModel::sweep_vertex):
-  // for the scope of a SweepOrder they are copied into sweep_x, and back when it ends. Threads
-  // writing positions that share cache lines slow each other down: with the armadillo's own
-  // numbering two threads swept no faster than one (docs/solver.md, "The sweep's own vertex
-  // numbering"). One thread gains nothing from it and keeps the mesh's numbering.
+  // The passes over the packs (the sweep, the position update, the floor's passes) run on the
+  // positions in the sweep's vertex numbering (PackedModel::sweep_vertex): for the scope of a
+  // SweepOrder they are copied into sweep_x, and back when it ends. A mesh's numbering may
+  // scatter a block's vertices: threads then write positions that share cache lines, and one
+  // thread misses the cache more (docs/solver.md, "The sweep's own vertex numbering").
   std::vector<Vec3> sweep_x;
   bool in_sweep_order = false;  // while a SweepOrder holds the positions in sweep_x
   // The packs with their corners in the numbering the positions are in now.
@@ -263,30 +262,29 @@ struct Stepper::Impl {
   const std::vector<detail::FloorCheck>& checks_in_order(const detail::PackedModel& packed) const {
     return in_sweep_order ? packed.sweep_floor_checks : packed.floor_checks;
   }
+  // The positions in the sweep's vertex numbering for the life of the object, copied back at
+  // its end; the packs and floor records so numbered are used meanwhile (packs_in_order).
   class SweepOrder {
    public:
-    SweepOrder(Impl& impl, const detail::PackedModel& packed, std::vector<Vec3>& x, bool renumber)
-        : impl_(impl), packed_(packed), x_(x), on_(renumber) {
-      if (!on_) return;
+    SweepOrder(Impl& impl, const detail::PackedModel& packed, std::vector<Vec3>& x)
+        : impl_(impl), packed_(packed), x_(x) {
       impl_.sweep_x.resize(x_.size());
       for (size_t s = 0; s < x_.size(); ++s) impl_.sweep_x[s] = x_[size_t(packed_.mesh_vertex[s])];
       impl_.in_sweep_order = true;
     }
     ~SweepOrder() {
-      if (!on_) return;
       // Read through the numbering, written in order (a gather: cheaper than the scatter).
       for (size_t v = 0; v < x_.size(); ++v) x_[v] = impl_.sweep_x[size_t(packed_.sweep_vertex[v])];
       impl_.in_sweep_order = false;
     }
     SweepOrder(const SweepOrder&) = delete;
     SweepOrder& operator=(const SweepOrder&) = delete;
-    std::vector<Vec3>& positions() { return on_ ? impl_.sweep_x : x_; }
+    std::vector<Vec3>& positions() { return impl_.sweep_x; }
 
    private:
     Impl& impl_;
     const detail::PackedModel& packed_;
     std::vector<Vec3>& x_;
-    bool on_;
   };
 
   // One Jacobi sweep: every tet computes its increment from the same positions, scaled by
@@ -626,7 +624,7 @@ struct Stepper::Impl {
 
   void apply_increment(const BodyModel& m, std::vector<Vec3>& x, const std::vector<Vec6>& dl, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
-    SweepOrder order(*this, packed, x, tp.size() > 1);
+    SweepOrder order(*this, packed, x);
     const std::vector<detail::TetPack>& packs = packs_in_order(packed);
     std::vector<Vec3>& xs = order.positions();
     for_each_pack(packed, tp, [&](int, size_t b, size_t e) {
@@ -934,7 +932,7 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       return false;
     };
     I.forget_acted(m);
-    Impl::SweepOrder order(I, packed, x, tp.size() > 1);
+    Impl::SweepOrder order(I, packed, x);
     std::vector<Vec3>& xf = order.positions();
     int hits = I.volume_pass(m, xf, s.inversion_floor, tp);
     rep.volume_corrections += hits;
