@@ -18,6 +18,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <stdexcept>
 
@@ -205,12 +206,13 @@ struct Stepper::Impl {
   double residual(const BodyModel& m, const std::vector<Vec3>& x, const std::vector<Vec6>& lambda,
                   const detail::KernelCompliance& alpha_tilde, ThreadPool& tp) {
     const detail::PackedModel& packed = detail::packed(m);
-    // Summed per block of packs: the same bits with any thread count.
+    const std::vector<detail::TetPack>& packs = packs_in_order(packed);
+    // Summed per block of packs: the same bits with any thread count and either numbering.
     return std::sqrt(block_sum(tp, packed.packs.size(), kResidualBlock, partial, [&](size_t b, size_t e) {
       double s = 0;
       for (size_t i = b; i < e; ++i) {
-        detail::prefetch_ahead(packed.packs, i, e, x, lambda);
-        s += detail::residual_squared_lanes(packed.packs[i], x, lambda, alpha_tilde, m.material.model);
+        detail::prefetch_ahead(packs, i, e, x, lambda);
+        s += detail::residual_squared_lanes(packs[i], x, lambda, alpha_tilde, m.material.model);
       }
       return s;
     }));
@@ -263,28 +265,32 @@ struct Stepper::Impl {
     return in_sweep_order ? packed.sweep_floor_checks : packed.floor_checks;
   }
   // The positions in the sweep's vertex numbering for the life of the object, copied back at
-  // its end; the packs and floor records so numbered are used meanwhile (packs_in_order).
+  // its end; the packs and floor records so numbered are used meanwhile (packs_in_order). Inside
+  // another one's life it takes the positions as they are (already so numbered).
   class SweepOrder {
    public:
     SweepOrder(Impl& impl, const detail::PackedModel& packed, std::vector<Vec3>& x)
-        : impl_(impl), packed_(packed), x_(x) {
+        : impl_(impl), packed_(packed), x_(x), on_(!impl.in_sweep_order) {
+      if (!on_) return;
       impl_.sweep_x.resize(x_.size());
       for (size_t s = 0; s < x_.size(); ++s) impl_.sweep_x[s] = x_[size_t(packed_.mesh_vertex[s])];
       impl_.in_sweep_order = true;
     }
     ~SweepOrder() {
+      if (!on_) return;
       // Read through the numbering, written in order (a gather: cheaper than the scatter).
       for (size_t v = 0; v < x_.size(); ++v) x_[v] = impl_.sweep_x[size_t(packed_.sweep_vertex[v])];
       impl_.in_sweep_order = false;
     }
     SweepOrder(const SweepOrder&) = delete;
     SweepOrder& operator=(const SweepOrder&) = delete;
-    std::vector<Vec3>& positions() { return impl_.sweep_x; }
+    std::vector<Vec3>& positions() { return on_ ? impl_.sweep_x : x_; }
 
    private:
     Impl& impl_;
     const detail::PackedModel& packed_;
     std::vector<Vec3>& x_;
+    bool on_;
   };
 
   // One Jacobi sweep: every tet computes its increment from the same positions, scaled by
@@ -751,7 +757,7 @@ StepReport Stepper::solve_substep(const BodyModel& m, const std::vector<Vec3>& x
   return solve_in_slots(m, x_prev, x, lambda, h, s, inputs, 0.0, false);
 }
 
-StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x,
+StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& x_prev, std::vector<Vec3>& x_mesh,
                                    std::vector<Vec6>& lambda, double h, const SolverSettings& s,
                                    const StepInputs& inputs, double budget_ms, bool lambda_zero) {
   Impl& I = *impl_;
@@ -783,6 +789,13 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
   }
   const bool interacting = !inputs.tools.empty() || !inputs.attachments.empty();
   if (interacting) I.begin_interaction(m.vertex_count(), inputs);
+  // Gauss-Seidel sweeps with nothing between them that reads the mesh's numbering (contacts,
+  // grabs, tools, the experiment hook) run the whole substep in the sweep's numbering: the
+  // positions copied in and out once, the residuals read on the packs so numbered.
+  std::optional<Impl::SweepOrder> held;
+  if (s.sweep == Sweep::GaussSeidel && inputs.colliders.empty() && !interacting && !I.obstacles.active() && !I.hook)
+    held.emplace(I, packed, x_mesh);
+  std::vector<Vec3>& x = held ? held->positions() : x_mesh;
 
   detail::AcceleratorServices services;
   services.report = &rep;
@@ -952,7 +965,8 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
     I.settled_apart = 0;
     spdlog::trace("inversion floor: {} passes, {} corrections in the last", pass, hits);
   }
-  if (interacting) I.finish_interaction(x, inputs, h, rep);
+  held.reset();  // the positions back in the mesh's numbering
+  if (interacting) I.finish_interaction(x_mesh, inputs, h, rep);
   rep.wall_ms = ms_since(t_start) - hook_ms;
   return rep;
 }
