@@ -101,7 +101,8 @@ class MultiplierAcceleration final : public Accelerator {
   }
   bool after_sweep(SweepResult& it, AcceleratorServices& services) override {
     const double* d = it.dlambda.data()->data();
-    double* lambda = it.lambda.data()->data();
+    const double* lambda = it.lambda.data()->data();
+    double* proposed = it.lambda_proposed->data()->data();
     const AndersonMixer::ParallelFor& parallel = services.parallel_for;
     bool ready = false;
     switch (form_) {
@@ -140,7 +141,7 @@ class MultiplierAcceleration final : public Accelerator {
           for (size_t i = i0; i < i1; ++i) inc[i] = omega_ * d[i];
           break;
       }
-      for (size_t i = i0; i < i1; ++i) lambda[i] += inc[i];
+      for (size_t i = i0; i < i1; ++i) proposed[i] = lambda[i] + inc[i];
     };
     if (parallel) parallel(mixer_.blocks(), blocks);
     else blocks(0, mixer_.blocks());

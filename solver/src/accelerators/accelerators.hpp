@@ -23,6 +23,9 @@ struct SweepResult {
   const std::vector<Vec6>& dlambda;     // the sweep's multiplier increment
   const std::vector<Vec3>& x_before;    // positions before the sweep (when needs_previous())
   int iteration;                        // 0-based within the substep
+  // A proposal's multipliers (as many as lambda), written there instead of over lambda: the
+  // loop takes them if the proposal passes the residual check, and has nothing to restore if not.
+  std::vector<Vec6>* lambda_proposed = nullptr;
 };
 
 struct AcceleratorServices {
@@ -43,7 +46,8 @@ class Accelerator {
   virtual bool needs_previous() const { return false; }
   // Whether it reads SweepResult::dlambda (a sweep that keeps no increment writes less).
   virtual bool needs_increments() const { return false; }
-  // Returns true when it made a proposal that must pass the residual check.
+  // Returns true when it made a proposal that must pass the residual check (its multipliers in
+  // it.lambda_proposed, its positions in it.x).
   virtual bool after_sweep(SweepResult& it, AcceleratorServices& services) = 0;
 };
 

@@ -150,7 +150,7 @@ struct Stepper::Impl {
 
   // Scratch.
   std::vector<Vec3> x_before, x_saved, v_prev;
-  std::vector<Vec6> lambda_saved;
+  std::vector<Vec6> lambda_proposed;  // an accelerator's proposal (SweepResult::lambda_proposed)
   std::vector<Vec3> jacobi_dx;  // 4 per slot
   std::vector<double> partial;  // per-block sums
   std::vector<uint32_t> floor_stamp;      // per vertex: the floor pass (serial) that last moved it
@@ -860,9 +860,9 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
       r = I.residual(m, x, lambda, params.alpha_tilde, tp);
     }
     if (proposes) {
-      detail::SweepResult sr{x, lambda, I.dlambda, I.x_before, it};
+      I.lambda_proposed.resize(lambda.size());
+      detail::SweepResult sr{x, lambda, I.dlambda, I.x_before, it, &I.lambda_proposed};
       I.x_saved = x;
-      I.lambda_saved = lambda;
       bool proposed;
       {
         PhaseTimer t{rep.times.anderson_ms};
@@ -876,14 +876,14 @@ StepReport Stepper::solve_in_slots(const BodyModel& m, const std::vector<Vec3>& 
         double r_acc;
         {
           PhaseTimer t{rep.times.residual_ms};
-          r_acc = I.residual(m, x, lambda, params.alpha_tilde, tp);
+          r_acc = I.residual(m, x, I.lambda_proposed, params.alpha_tilde, tp);
         }
         if (std::isfinite(r_acc) && r_acc < r) {
           rep.accelerations_accepted++;
           r = r_acc;
+          lambda.swap(I.lambda_proposed);
         } else {
           x.swap(I.x_saved);
-          lambda.swap(I.lambda_saved);
         }
       }
     } else {
