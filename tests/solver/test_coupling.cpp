@@ -22,6 +22,8 @@
 #include <iostream>
 #include <memory>
 #include <random>
+#include <set>
+#include <vector>
 
 using namespace pliant;
 
@@ -1296,6 +1298,46 @@ TEST(ClothContact, AStepWithTheContactInPartsRefusesPartsThatDoNotDivideTheSubst
   }
   EXPECT_EQ(water.state().steps, 2u);
   EXPECT_EQ(cloth->state().steps, 2u);
+}
+
+TEST(TriangleGrid, ASegmentGetsEachTriangleOfItsCellsOnceInTheOrderOfItsFirstCell) {
+  // beam3's surface, shaken and swept from its rest shape (boxes over several cells), and paths
+  // of every length over it: near_segment gives the triangles of the cells its box touches, in
+  // the walk's order (x outermost, z innermost), each at its first cell only. The reference walks
+  // the same cells through near() at their centres and keeps each triangle's first appearance.
+  auto model = build_model(*builtin_mesh("beam3"), Material{1e6, 0.4, 1000});
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> shake(-1.5e-3, 1.5e-3), u(0, 1);
+  std::vector<Vec3> x = model->rest_positions;
+  for (Vec3& p : x) p += Vec3(shake(rng), shake(rng), shake(rng));
+  const detail::TriangleGrid grid(model->surface, std::span<const Vec3>(x), 0.001,
+                                  std::span<const Vec3>(model->rest_positions));
+  const double cell = grid.cell_size();
+  const Vec3 lo(-0.005, -0.005, -0.005), hi(0.105, 0.015, 0.015);
+  auto anywhere = [&] { return Vec3(lo.array() + Vec3(u(rng), u(rng), u(rng)).array() * (hi - lo).array()); };
+  std::vector<int32_t> got;
+  size_t repeats_left_out = 0, longest = 0;
+  for (int k = 0; k < 600; ++k) {
+    const Vec3 a = anywhere(), b = a + (k % 3 == 0 ? 1.0 : 0.05) * (anywhere() - a);
+    grid.near_segment(a, b, 1u << 20, got);
+    std::vector<int32_t> all;
+    const Vec3 m = a.cwiseMin(b), M = a.cwiseMax(b);
+    for (double i = std::floor(m.x() / cell); i <= std::floor(M.x() / cell); ++i)
+      for (double j = std::floor(m.y() / cell); j <= std::floor(M.y() / cell); ++j)
+        for (double l = std::floor(m.z() / cell); l <= std::floor(M.z() / cell); ++l) {
+          const auto c = grid.near(Vec3((i + 0.5) * cell, (j + 0.5) * cell, (l + 0.5) * cell));
+          all.insert(all.end(), c.begin(), c.end());
+        }
+    std::vector<int32_t> first;
+    std::set<int32_t> seen;
+    for (int32_t t : all)
+      if (seen.insert(t).second) first.push_back(t);
+    ASSERT_EQ(got, first) << "path " << k;
+    repeats_left_out += all.size() - first.size();
+    longest = std::max(longest, got.size());
+  }
+  EXPECT_GT(repeats_left_out, 1000u);  // the long paths share many cells with each triangle
+  EXPECT_GT(longest, 100u);
 }
 
 TEST(TriangleGrid, ARegionKeepsWhatEveryQueryInsideItFinds) {

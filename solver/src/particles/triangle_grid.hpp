@@ -100,6 +100,9 @@ class TriangleGrid {
       }
     }
     if (entries == 0) return;
+    span_lo_.resize(triangles.size());
+    for (size_t k = 0; k < triangles.size(); ++k)
+      if (binned[k]) span_lo_[k] = spans[k][0];
     // Dense cells over the range when it is not much larger than the entries (a body in one
     // piece), filled by counting in triangle order; a hash of the occupied cells otherwise.
     double cells = 1;
@@ -138,6 +141,7 @@ class TriangleGrid {
 
   std::span<const int32_t> near(const Vec3& p) const { return cell(cell_of(p)); }
   size_t entries() const { return triangles_.size(); }  // (cell, triangle) entries binned
+  double cell_size() const { return cell_; }  // cell (i, j, k) is [i, i + 1) x ... times this
   // Triangle k's box (its corners', start and end), not grown: a bound for its points.
   const std::pair<Vec3, Vec3>& box(int32_t k) const { return boxes_[size_t(k)]; }
   // The squared distance from p to triangle k's box (0 inside): no point of it is nearer.
@@ -146,8 +150,12 @@ class TriangleGrid {
     return (lo - p).cwiseMax(p - hi).cwiseMax(0.0).squaredNorm();
   }
 
-  // The triangles near a segment: those of every cell its box touches (with repeats), or
-  // nothing when that box spans more than max_cells cells.
+  // The triangles near a segment: those of every cell its box touches, each once, in the order
+  // the cells first give them; nothing when that box spans more than max_cells cells. A
+  // triangle's cells and the box's cells are boxes of cells, so the first of their common cells
+  // in the walk's order is the corner at the larger of their low corners: the triangle is taken
+  // there only (a large triangle would otherwise be measured once per cell it shares with a long
+  // path).
   void near_segment(const Vec3& a, const Vec3& b, size_t max_cells, std::vector<int32_t>& out) const {
     out.clear();
     const auto lo = cell_of(a.cwiseMin(b)), hi = cell_of(a.cwiseMax(b));
@@ -157,7 +165,14 @@ class TriangleGrid {
       for (int64_t j = lo[1]; j <= hi[1]; ++j)
         for (int64_t l = lo[2]; l <= hi[2]; ++l) {
           const auto c = cell({i, j, l});
-          out.insert(out.end(), c.begin(), c.end());
+          if (cells == 1) {
+            out.insert(out.end(), c.begin(), c.end());
+            continue;
+          }
+          for (int32_t k : c) {
+            const auto& s = span_lo_[size_t(k)];
+            if (std::max(s[0], lo[0]) == i && std::max(s[1], lo[1]) == j && std::max(s[2], lo[2]) == l) out.push_back(k);
+          }
         }
   }
 
@@ -216,6 +231,7 @@ class TriangleGrid {
 
   double cell_ = 1;
   std::vector<std::pair<Vec3, Vec3>> boxes_;  // per triangle: its corners' box (start and end), not grown
+  std::vector<std::array<int64_t, 3>> span_lo_;  // per binned triangle: the low corner of its cells
   // Dense cells (first cell, counts per axis, each cell's start in triangles_), or a hash of
   // the occupied cells' ranges when the triangles are spread far apart.
   std::array<int64_t, 3> dense_lo_{}, dense_n_{};
