@@ -163,17 +163,11 @@ class TriangleGrid {
     if (cells > double(max_cells)) return;
     for (int64_t i = lo[0]; i <= hi[0]; ++i)
       for (int64_t j = lo[1]; j <= hi[1]; ++j)
-        for (int64_t l = lo[2]; l <= hi[2]; ++l) {
-          const auto c = cell({i, j, l});
-          if (cells == 1) {
-            out.insert(out.end(), c.begin(), c.end());
-            continue;
-          }
-          for (int32_t k : c) {
+        for (int64_t l = lo[2]; l <= hi[2]; ++l)
+          for (int32_t k : cell({i, j, l})) {
             const auto& s = span_lo_[size_t(k)];
             if (std::max(s[0], lo[0]) == i && std::max(s[1], lo[1]) == j && std::max(s[2], lo[2]) == l) out.push_back(k);
           }
-        }
   }
 
   // The candidates for a point that moved from `start` to `x`: the triangles near its path, or
