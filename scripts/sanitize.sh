@@ -8,6 +8,8 @@
 #   scripts/sanitize.sh -L 'unit|physics'                 ctest arguments (a subset)
 #   SANITIZER=thread SAN_TARGETS=pliant_service_tests scripts/sanitize.sh -L service
 #                                                         the service tests under TSan
+#   SAN_LABELS='unit|service' scripts/sanitize.sh         builds only those labels' test
+#                                                         executables and runs `ctest -L` them
 # SAN_BUILD_DIR (default by sanitizer), SAN_TARGETS (default: everything but the benchmarks),
 # SAN_TIMEOUT_SCALE (every test's timeout is multiplied by it; default 4 for address, 6 for
 # thread), JOBS. CMAKE_CXX_COMPILER_LAUNCHER (e.g. ccache) is honoured by the configure step.
@@ -55,7 +57,19 @@ if [ ! -f "$BUILD/CMakeCache.txt" ]; then
     -DCMAKE_CXX_FLAGS="$SAN $EXTRA" -DCMAKE_EXE_LINKER_FLAGS="$SAN" -DCMAKE_SHARED_LINKER_FLAGS="$SAN" \
     -DPLIANT_BUILD_BENCH=OFF "${EXTRA_CMAKE[@]}" >/dev/null
 fi
-cmake "$BUILD" -DPLIANT_TEST_TIMEOUT_SCALE="$SCALE" >/dev/null
+# SAN_LABELS (a ctest -L pattern of labels joined by |): the other labels' test executables
+# are not compiled (PLIANT_TEST_BUILD_LABELS), and ctest runs these labels only. Unset: all.
+LABELS_BUILT="unit;physics;slow;service;browser;deploy"
+LABEL_ARGS=()
+if [ -n "${SAN_LABELS:-}" ]; then
+  if ! [[ "$SAN_LABELS" =~ ^[a-z]+(\|[a-z]+)*$ ]]; then
+    echo "sanitize.sh: SAN_LABELS must be labels joined by |, got '$SAN_LABELS'" >&2
+    exit 2
+  fi
+  LABELS_BUILT=${SAN_LABELS//|/;}
+  LABEL_ARGS=(-L "^(${SAN_LABELS})\$")
+fi
+cmake "$BUILD" -DPLIANT_TEST_TIMEOUT_SCALE="$SCALE" -DPLIANT_TEST_BUILD_LABELS="$LABELS_BUILT" >/dev/null
 if [ -n "${SAN_TARGETS:-}" ]; then
   read -r -a targets <<<"$SAN_TARGETS"
   cmake --build "$BUILD" -j "$JOBS" --target "${targets[@]}"
@@ -66,4 +80,4 @@ export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 export TSAN_OPTIONS=${TSAN_OPTIONS:-halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/scripts/tsan.supp}
 cd "$BUILD"
-ctest --output-on-failure -j "$JOBS" "$@"
+ctest --output-on-failure -j "$JOBS" "${LABEL_ARGS[@]}" "$@"

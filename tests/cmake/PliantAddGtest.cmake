@@ -19,6 +19,28 @@ if(NOT PLIANT_TEST_TIMEOUT_SCALE MATCHES "^[1-9][0-9]*$")
   message(FATAL_ERROR "PLIANT_TEST_TIMEOUT_SCALE must be a whole number >= 1, got '${PLIANT_TEST_TIMEOUT_SCALE}'")
 endif()
 
+# A build may compile only some labels' executables (the sanitizer builds in CI run three labels
+# and need not compile the physics and slow suites): PLIANT_TEST_BUILD_LABELS lists them
+# (default: every label). An executable of another label is not defined at all, so
+# `ctest -L <those labels>` in such a build finds every test of them.
+set(PLIANT_TEST_BUILD_LABELS "${PLIANT_TEST_LABELS}" CACHE STRING
+    "Labels whose test executables are built (a ;-list of: unit physics slow service browser deploy)")
+foreach(_label ${PLIANT_TEST_BUILD_LABELS})
+  if(NOT _label IN_LIST PLIANT_TEST_LABELS)
+    string(REPLACE ";" ", " _known "${PLIANT_TEST_LABELS}")
+    message(FATAL_ERROR "PLIANT_TEST_BUILD_LABELS: unknown label '${_label}' (one of: ${_known})")
+  endif()
+endforeach()
+
+# pliant_test_label_built(<var> <label>): TRUE in <var> when this build compiles <label>'s tests.
+function(pliant_test_label_built var label)
+  if(label IN_LIST PLIANT_TEST_BUILD_LABELS)
+    set(${var} TRUE PARENT_SCOPE)
+  else()
+    set(${var} FALSE PARENT_SCOPE)
+  endif()
+endfunction()
+
 # pliant_test_timeout(<var> <seconds>): <seconds> times PLIANT_TEST_TIMEOUT_SCALE, into <var>.
 function(pliant_test_timeout var seconds)
   math(EXPR scaled "${seconds} * ${PLIANT_TEST_TIMEOUT_SCALE}")
@@ -58,6 +80,10 @@ function(pliant_add_gtest)
     message(FATAL_ERROR "pliant_add_gtest(${arg_NAME}): one label per executable, got '${arg_LABELS}'")
   endif()
 
+  pliant_test_label_built(built ${arg_LABELS})
+  if(NOT built)
+    return()
+  endif()
   add_executable(${arg_NAME} ${arg_SOURCES})
   target_link_libraries(${arg_NAME} PRIVATE ${arg_LIBRARIES} pliant_test_support GTest::gtest GTest::gtest_main)
   if(arg_DEFINITIONS)
