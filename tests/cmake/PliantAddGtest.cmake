@@ -94,6 +94,10 @@ function(pliant_add_gtest)
   endif()
   pliant_test_timeout(timeout ${arg_TIMEOUT})
   pliant_test_timeout(discovery 60)
+  # COST: ctest -j starts the costlier tests first. A fresh build has no measured costs
+  # (Testing/Temporary/CTestCostData.txt), and without them the minutes-long physics and slow
+  # tests, declared late, would run last beside an idle core; the executable's timeout is sized
+  # to what it does, so it ranks them.
   gtest_discover_tests(${arg_NAME} DISCOVERY_TIMEOUT ${discovery}
-                       PROPERTIES LABELS ${arg_LABELS} TIMEOUT ${timeout})
+                       PROPERTIES LABELS ${arg_LABELS} TIMEOUT ${timeout} COST ${arg_TIMEOUT})
 endfunction()
