@@ -39,6 +39,11 @@ struct VbdOptions {
   // Gauss-Newton blocks from the lane kernel (vbd_lanes.hpp: a vertex's tets four at a time);
   // false, or another Hessian, takes the per-tet forms below (the tests compare the two).
   bool lanes = true;
+  // After each sweep of a free body (no fixed vertex, grab or tool), the rigid translation that
+  // gives the iterate the linear momentum of the substep's inertia and contacts: the exact
+  // minimiser of the substep's energy along a translation (the elastic energy does not change
+  // under one), so a step of few iterations keeps the momentum a converged one keeps.
+  bool translation = true;
 };
 
 std::unique_ptr<SolverFamily> make_vbd_family(const VbdOptions& options);

@@ -107,6 +107,8 @@ class VbdFamily final : public SolverFamily {
   void sweep(const BodyModel& m, std::vector<Vec3>& x, ThreadPool& tp) const;
   double gradient_norm(const BodyModel& m, const std::vector<Vec3>& x, ThreadPool& tp);
   void chebyshev(const BodyModel& m, std::vector<Vec3>& x, double omega);
+  // sum over the vertices of inertia (x - y), in vertex order (the same bits for any thread count).
+  Vec3 momentum_offset(const BodyModel& m, const std::vector<Vec3>& x) const;
   void accumulate_reactions(const BodyModel& m, const std::vector<Vec3>& x, const StepInputs& inputs,
                             StepReport& total);
 
@@ -117,6 +119,8 @@ class VbdFamily final : public SolverFamily {
   int pool_threads_ = 0;
   uint64_t model_id_ = 0;               // the model rest_stiffness_ and packs_ belong to
   std::vector<double> rest_stiffness_;  // sum over the vertex's tets of V0 (lambda + 2 mu) |b|^2
+  bool free_body_ = false;              // no vertex is fixed
+  double total_inertia_ = 0;            // sum of the vertices' inertia
   bool lanes_ = false;                  // the lane kernel applies (vbd_lanes.hpp)
   VertexPacks<v4d> packs_;
   std::vector<Vec3> x_start_, y_, v_before_, v_last_, x_prev_, x_prev2_;
@@ -138,6 +142,12 @@ class VbdFamily final : public SolverFamily {
 void VbdFamily::prepare_model(const BodyModel& m) {
   if (model_id_ == m.id && m.id != 0 && rest_stiffness_.size() == m.vertex_count()) return;
   model_id_ = m.id;
+  free_body_ = !m.inv_mass.empty();
+  total_inertia_ = 0;
+  for (size_t i = 0; i < m.inv_mass.size(); ++i) {
+    free_body_ = free_body_ && m.inv_mass[i] > 0;
+    total_inertia_ += m.inertia[i];
+  }
   rest_stiffness_.assign(m.vertex_count(), 0.0);
   const double modulus = m.lame.lambda + 2 * m.lame.mu;
   for (const TetRest& t : m.tets) {
@@ -346,6 +356,12 @@ double VbdFamily::gradient_norm(const BodyModel& m, const std::vector<Vec3>& x, 
   }));
 }
 
+Vec3 VbdFamily::momentum_offset(const BodyModel& m, const std::vector<Vec3>& x) const {
+  Vec3 sum = Vec3::Zero();
+  for (size_t i = 0; i < x.size(); ++i) sum += m.inertia[i] * (x[i] - y_[i]);
+  return sum;
+}
+
 // x <- omega (x - x_{k-1}) + x_{k-1} over the free vertices, x_{k-1} the iterate before last.
 void VbdFamily::chebyshev(const BodyModel& m, std::vector<Vec3>& x, double omega) {
   for (size_t i = 0; i < x.size(); ++i)
@@ -406,6 +422,9 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
   sub_.line_search = s.line_search;
   prepare_grabs(m, inputs, h);
   obstacles_.begin_step(m, state.x, inputs.obstacles);
+  // The translation step (VbdOptions::translation): on a free body whose only outside pushes
+  // are the contacts' projections (colliders, obstacles), which it counts.
+  const bool translate = opt_.translation && free_body_ && inputs.tools.empty() && inputs.attachments.empty();
 
   for (int substep = 0; substep < n; ++substep) {
     const bool last = substep + 1 == n;
@@ -440,6 +459,10 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
     const bool accelerate = s.chebyshev.delay < s.iterations;
     double omega = 1;
     int collider_contacts = 0, obstacle_contacts = 0;
+    // sum of inertia (x - y) the contacts' projections gave the iterate in this substep: with
+    // the inertia's own (x - y) summing to it, the substep's momentum is the prediction's plus
+    // the contacts' impulses.
+    Vec3 pushed = Vec3::Zero();
     for (int it = 0; it < s.iterations; ++it) {
       {
         const auto t = Clock::now();
@@ -459,6 +482,15 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
         if (k > 0) chebyshev(m, state.x, omega);
         total.times.update_ms += ms_since(t);
       }
+      if (translate) {
+        // The elastic forces sum to zero, so at the substep's minimum sum inertia (x - y) is
+        // what the contacts pushed; a sweep of vertex steps leaves it elsewhere, and moving every
+        // vertex by the same t puts it there without changing the elastic energy.
+        const auto t = Clock::now();
+        const Vec3 shift = (pushed - momentum_offset(m, state.x)) / total_inertia_;
+        for (Vec3& x : state.x) x += shift;
+        total.times.update_ms += ms_since(t);
+      }
       if (!inputs.colliders.empty()) {
         const auto t = Clock::now();
         collider_contacts = resolve_colliders(m, state.x, x_start_, inputs.colliders);
@@ -469,6 +501,7 @@ StepReport VbdFamily::step(const BodyModel& m, BodyState& state, const SolverSet
         obstacle_contacts = obstacles_.resolve(m, state.x, x_start_, h);
         total.times.other_ms += ms_since(t);
       }
+      if (translate && (!inputs.colliders.empty() || obstacles_.active())) pushed = momentum_offset(m, state.x);
       total.iterations++;
       double r = 0;
       if (residuals) {
