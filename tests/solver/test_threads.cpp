@@ -237,8 +237,12 @@ TEST(SweepNumbering, ASubstepHeldInItGivesTheStepOfPassesThatTakeItEachForItself
           ASSERT_EQ(a.v[v], b.v[v]) << what << ", vertex " << v;
         }
         EXPECT_EQ(a.lambda, b.lambda) << what;
-        if (method == Method::Xpbd) EXPECT_GT(corrections, 0) << what << ": the floor never acted";
-        if (method == Method::Anderson) EXPECT_GT(accepted, 0) << what << ": no proposal was taken";
+        if (method == Method::Xpbd) {
+          EXPECT_GT(corrections, 0) << what << ": the floor never acted";
+        }
+        if (method == Method::Anderson) {
+          EXPECT_GT(accepted, 0) << what << ": no proposal was taken";
+        }
       }
 }
 
