@@ -58,18 +58,19 @@ if [ ! -f "$BUILD/CMakeCache.txt" ]; then
     -DPLIANT_BUILD_BENCH=OFF "${EXTRA_CMAKE[@]}" >/dev/null
 fi
 # SAN_LABELS (a ctest -L pattern of labels joined by |): the other labels' test executables
-# are not compiled (PLIANT_TEST_BUILD_LABELS), and ctest runs these labels only. Unset: all.
-LABELS_BUILT="unit;physics;slow;service;browser;deploy"
+# are not compiled (PLIANT_TEST_BUILD_LABELS), and ctest runs these labels only. Unset: all
+# (the cache entry dropped, so that its default, every label, comes back).
+LABELS_OPTION=(-UPLIANT_TEST_BUILD_LABELS)
 LABEL_ARGS=()
 if [ -n "${SAN_LABELS:-}" ]; then
   if ! [[ "$SAN_LABELS" =~ ^[a-z]+(\|[a-z]+)*$ ]]; then
     echo "sanitize.sh: SAN_LABELS must be labels joined by |, got '$SAN_LABELS'" >&2
     exit 2
   fi
-  LABELS_BUILT=${SAN_LABELS//|/;}
+  LABELS_OPTION=(-DPLIANT_TEST_BUILD_LABELS="${SAN_LABELS//|/;}")
   LABEL_ARGS=(-L "^(${SAN_LABELS})\$")
 fi
-cmake "$BUILD" -DPLIANT_TEST_TIMEOUT_SCALE="$SCALE" -DPLIANT_TEST_BUILD_LABELS="$LABELS_BUILT" >/dev/null
+cmake "$BUILD" -DPLIANT_TEST_TIMEOUT_SCALE="$SCALE" "${LABELS_OPTION[@]}" >/dev/null
 if [ -n "${SAN_TARGETS:-}" ]; then
   read -r -a targets <<<"$SAN_TARGETS"
   cmake --build "$BUILD" -j "$JOBS" --target "${targets[@]}"
